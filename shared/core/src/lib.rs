@@ -1,0 +1,14 @@
+//! bdis-slam basics shared by every process: calibration and settings, geometry conventions, file formats.
+//!
+//! Conventions (see DESIGN.md): camera x right, y down, z forward; a pose is `world_from_camera` of the left
+//! camera as `Isometry3<f64>`; disparity `d = x_left − x_right`, depth `z = bf / d`; lengths in the calibration's
+//! unit (millimetres for endoscopes).
+
+pub mod calib;
+pub mod formats;
+pub mod geometry;
+pub mod settings;
+
+pub use calib::{Distortion, StereoCamera};
+pub use geometry::Pose;
+pub use settings::{Settings, SettingsError};
