@@ -1,0 +1,190 @@
+//! Per-message timing records: every process reports, for each message it handles, when the message was
+//! captured, when its upstream published it, when this process received it and when it was done with it.
+//! From those the launcher derives queue wait (receive − upstream publish), processing time (done − receive)
+//! and the output's age (done − capture), per process and per hop.
+
+use iceoryx2::port::notifier::Notifier;
+use iceoryx2::port::publisher::Publisher;
+use iceoryx2::prelude::*;
+
+use crate::{Ipc, IpcError, Topic, clock, event_id, iox};
+
+/// What a telemetry record reports.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[repr(u32)]
+pub enum TelemetryKind {
+    /// The process has opened its ports and can take input.
+    Ready = 1,
+    /// One message handled.
+    Message = 2,
+    /// The process finished its stream normally (totals in `messages`, `dropped`, `cpu_time_ns`).
+    Finished = 3,
+    /// The process stopped on an error (totals as for `Finished`).
+    Failed = 4,
+}
+
+impl TelemetryKind {
+    pub fn from_u32(v: u32) -> Option<Self> {
+        Some(match v {
+            1 => Self::Ready,
+            2 => Self::Message,
+            3 => Self::Finished,
+            4 => Self::Failed,
+            _ => return None,
+        })
+    }
+}
+
+/// One record on the telemetry topic (`bdis.v1.TelemetryRecord`). Times are CLOCK_MONOTONIC ns, 0 = not
+/// applicable (a source has no upstream).
+#[repr(C)]
+#[derive(Debug, Default, Clone, Copy, PartialEq, Eq, ZeroCopySend)]
+#[type_name("bdis.v1.TelemetryRecord")]
+pub struct TelemetryRecord {
+    pub kind: u32,
+    pub pid: u32,
+    /// Consecutive per process: a gap means the launcher lost records.
+    pub record_seq: u64,
+    /// The service name of the process (`acquisition`, `probe`, …), NUL-padded.
+    pub process: [u8; 32],
+    pub input_topic: [u8; 16],
+    pub output_topic: [u8; 16],
+    pub frame_seq: u64,
+    pub t_capture_ns: u64,
+    pub t_upstream_publish_ns: u64,
+    pub t_receive_ns: u64,
+    pub t_done_ns: u64,
+    /// Messages handled so far.
+    pub messages: u64,
+    /// Input messages this process saw missing (sequence gaps) so far.
+    pub dropped: u64,
+    /// CPU time of the process so far.
+    pub cpu_time_ns: u64,
+}
+
+fn fixed<const N: usize>(s: &str) -> [u8; N] {
+    let mut out = [0u8; N];
+    let n = s.len().min(N);
+    out[..n].copy_from_slice(&s.as_bytes()[..n]);
+    out
+}
+
+fn text(bytes: &[u8]) -> &str {
+    let end = bytes.iter().position(|&b| b == 0).unwrap_or(bytes.len());
+    std::str::from_utf8(&bytes[..end]).unwrap_or("?")
+}
+
+impl TelemetryRecord {
+    pub fn kind(&self) -> Option<TelemetryKind> {
+        TelemetryKind::from_u32(self.kind)
+    }
+    pub fn process(&self) -> &str {
+        text(&self.process)
+    }
+    pub fn input_topic(&self) -> &str {
+        text(&self.input_topic)
+    }
+    pub fn output_topic(&self) -> &str {
+        text(&self.output_topic)
+    }
+    /// receive − upstream publish: time on the wire and in the queue.
+    pub fn queue_wait_ns(&self) -> u64 {
+        clock::elapsed_ns(self.t_upstream_publish_ns, self.t_receive_ns)
+    }
+    /// done − receive (for a source: done − capture).
+    pub fn processing_ns(&self) -> u64 {
+        if self.t_receive_ns != 0 {
+            clock::elapsed_ns(self.t_receive_ns, self.t_done_ns)
+        } else {
+            clock::elapsed_ns(self.t_capture_ns, self.t_done_ns)
+        }
+    }
+    /// done − capture: how old the output is when it leaves this process.
+    pub fn age_ns(&self) -> u64 {
+        clock::elapsed_ns(self.t_capture_ns, self.t_done_ns)
+    }
+}
+
+/// The times of one handled message.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct MessageTiming {
+    pub frame_seq: u64,
+    pub t_capture_ns: u64,
+    pub t_upstream_publish_ns: u64,
+    pub t_receive_ns: u64,
+    pub t_done_ns: u64,
+}
+
+/// A process's telemetry sender. Sending never blocks and never fails the pipeline: a failure is counted and
+/// reported once.
+#[derive(Debug)]
+pub struct TelemetryPublisher {
+    publisher: Publisher<ipc::Service, TelemetryRecord, ()>,
+    notifier: Notifier<ipc::Service>,
+    template: TelemetryRecord,
+    failures: u64,
+}
+
+impl TelemetryPublisher {
+    pub fn new(ipc: &Ipc, process: &str, input: Option<Topic>, output: Option<Topic>) -> Result<Self, IpcError> {
+        let service = ipc.telemetry()?;
+        let publisher = service.publisher_builder().max_loaned_samples(1).create().map_err(iox("create the telemetry publisher"))?;
+        let notifier = ipc.notifier(&ipc.events(Topic::Telemetry)?)?;
+        let template = TelemetryRecord {
+            pid: std::process::id(),
+            process: fixed(process),
+            input_topic: fixed(input.map_or("", Topic::short_name)),
+            output_topic: fixed(output.map_or("", Topic::short_name)),
+            ..Default::default()
+        };
+        Ok(Self { publisher, notifier, template, failures: 0 })
+    }
+
+    fn send(&mut self, kind: TelemetryKind, timing: MessageTiming, wake_launcher: bool) {
+        let mut record = self.template;
+        record.kind = kind as u32;
+        record.frame_seq = timing.frame_seq;
+        record.t_capture_ns = timing.t_capture_ns;
+        record.t_upstream_publish_ns = timing.t_upstream_publish_ns;
+        record.t_receive_ns = timing.t_receive_ns;
+        record.t_done_ns = timing.t_done_ns;
+        if kind != TelemetryKind::Message {
+            record.cpu_time_ns = clock::process_cpu_ns();
+        }
+        self.template.record_seq += 1;
+        let sent = self.publisher.send_copy(record).map(|_| ());
+        let notified = if wake_launcher { self.notifier.notify_with_custom_event_id(EventId::new(event_id::NEW_SAMPLE)).map(|_| ()).map_err(|e| format!("{e:?}")) } else { Ok(()) };
+        if let Err(e) = sent.map_err(|e| format!("{e:?}")).and(notified) {
+            self.failures += 1;
+            if self.failures == 1 {
+                tracing::warn!("telemetry could not be sent ({e}); latency figures of this process will be incomplete");
+            }
+        }
+    }
+
+    /// Announces that the process's ports are open (the launcher starts upstream processes after this).
+    pub fn ready(&mut self) {
+        self.send(TelemetryKind::Ready, MessageTiming { t_done_ns: clock::monotonic_ns(), ..Default::default() }, true);
+    }
+
+    /// Records one handled message; `dropped` is the running count of input messages seen missing.
+    pub fn message(&mut self, timing: MessageTiming, dropped: u64) {
+        self.template.messages += 1;
+        self.template.dropped = dropped;
+        self.send(TelemetryKind::Message, timing, false);
+    }
+
+    /// The stream ended normally.
+    pub fn finished(&mut self) {
+        self.send(TelemetryKind::Finished, MessageTiming { t_done_ns: clock::monotonic_ns(), ..Default::default() }, true);
+    }
+
+    /// The process is stopping on an error.
+    pub fn failed(&mut self) {
+        self.send(TelemetryKind::Failed, MessageTiming { t_done_ns: clock::monotonic_ns(), ..Default::default() }, true);
+    }
+
+    pub fn messages(&self) -> u64 {
+        self.template.messages
+    }
+}
