@@ -1,1 +1,154 @@
-fn main() {}
+//! `bdis-slam`: the one command users type. Subcommands are thin: each parses its arguments and calls the
+//! library (`bdis_slam`) or a service library.
+
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+
+use anyhow::{Context, Result};
+use clap::{Parser, Subcommand};
+
+mod probe_cmd;
+
+/// bdis-slam: lightweight CPU-only dense stereo SLAM for minimally invasive surgery, as separate processes
+/// over zero-copy shared memory.
+#[derive(Debug, Parser)]
+#[command(name = "bdis-slam", version, propagate_version = true)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Debug, Subcommand)]
+enum Command {
+    /// Start a pipeline from a launch file or a sequence, wait for its end, and report per-process latency.
+    Run(RunArgs),
+    /// Subscribe to a live topic and print its rate, age and hop latency (like `ros2 topic hz`).
+    Probe(probe_cmd::ProbeArgs),
+}
+
+#[derive(Debug, clap::Args)]
+struct RunArgs {
+    /// Launch file (`launch/*.toml`). Without it, give --sequence (and --settings).
+    #[arg(conflicts_with_all = ["sequence"])]
+    launch_file: Option<PathBuf>,
+    /// Sequence folder to stream (BDIS-SLAM/Hamlyn, plain left/right, or KITTI layout).
+    #[arg(long, required_unless_present = "launch_file")]
+    sequence: Option<PathBuf>,
+    /// Settings file for --sequence (ORB-SLAM2 YAML or bdis-slam TOML).
+    #[arg(long, requires = "sequence")]
+    settings: Option<PathBuf>,
+    /// Pacing for --sequence: on-demand, recorded, or a rate such as 30hz.
+    #[arg(long, default_value = "on-demand", requires = "sequence")]
+    pacing: bdis_acquisition::Pacing,
+    /// Have the probe checksum every frame's pixels (for integrity checks; costs ~1 ms per VGA frame).
+    #[arg(long, requires = "sequence")]
+    checksums: bool,
+    /// Run folder to write (default: runs/<UTC time>-<name>).
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// Shared-memory name prefix (default: a fresh one per run, so runs never see each other).
+    #[arg(long)]
+    ipc_prefix: Option<String>,
+}
+
+fn main() -> ExitCode {
+    bdis_ipc::process::init_logging();
+    let cli = Cli::parse();
+    let result = match cli.command {
+        Command::Run(args) => run(args),
+        Command::Probe(args) => probe_cmd::probe(args).map(|()| ExitCode::SUCCESS),
+    };
+    match result {
+        Ok(code) => code,
+        Err(e) => {
+            eprintln!("bdis-slam: error: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+/// The launch plan `run --sequence` builds: acquisition, then the probe as its consumer.
+fn plan_for_sequence(args: &RunArgs, sequence: &Path) -> Result<bdis_slam::launch_file::LaunchFile> {
+    use bdis_slam::launch_file::{LaunchFile, RunSection, ServiceSpec};
+    // Check the input before anything starts: a bad sequence or settings file is reported here, by file and
+    // field, and no process or shared memory is created.
+    let input = bdis_acquisition::check_input(sequence, args.settings.as_deref())?;
+    let absolute = |p: &Path| std::fs::canonicalize(p).with_context(|| format!("{}: cannot resolve", p.display()));
+    let mut acquisition_args = vec!["--sequence".to_string(), absolute(&input.sequence.root)?.display().to_string()];
+    if let Some(settings) = &input.settings_path {
+        acquisition_args.extend(["--settings".to_string(), absolute(settings)?.display().to_string()]);
+    }
+    let pacing = match args.pacing {
+        bdis_acquisition::Pacing::OnDemand => "on-demand".to_string(),
+        bdis_acquisition::Pacing::Recorded => "recorded".to_string(),
+        bdis_acquisition::Pacing::Fixed(hz) => format!("{hz}hz"),
+    };
+    acquisition_args.extend(["--pacing".to_string(), pacing]);
+    let mut probe_args = vec!["probe".to_string(), "frames".to_string()];
+    if args.checksums {
+        probe_args.push("--checksums".into());
+    }
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let name = sequence.file_name().map_or_else(|| "sequence".into(), |n| n.to_string_lossy().into_owned());
+    Ok(LaunchFile {
+        run: RunSection { name: Some(name), ..Default::default() },
+        services: vec![
+            ServiceSpec { name: "acquisition".into(), binary: "bdis-acquisition".into(), args: acquisition_args, core: Some(0), env: Default::default() },
+            ServiceSpec { name: "probe".into(), binary: "bdis-slam".into(), args: probe_args, core: Some(1 % cores), env: Default::default() },
+        ],
+    })
+}
+
+fn run(args: RunArgs) -> Result<ExitCode> {
+    use bdis_slam::launch_file::LaunchFile;
+    let (launch, launch_path) = match (&args.launch_file, &args.sequence) {
+        (Some(path), _) => (LaunchFile::load(path)?, path.clone()),
+        (None, Some(sequence)) => (plan_for_sequence(&args, sequence)?, PathBuf::from("launch.toml")),
+        (None, None) => anyhow::bail!("give a launch file or --sequence"),
+    };
+    let name = launch.run.name.clone().unwrap_or_else(|| "run".into());
+    let run_dir = match &args.out {
+        Some(dir) => {
+            std::fs::create_dir_all(dir).with_context(|| format!("{}: cannot create the run folder", dir.display()))?;
+            dir.clone()
+        }
+        None => bdis_slam::run_dir::create_run_dir(Path::new("runs"), &name).context("runs/: cannot create the run folder")?,
+    };
+    let services = launch.resolve(&launch_path, &run_dir)?;
+    let launch_text = toml::to_string_pretty(&launch).context("serialise the launch plan")?;
+    std::fs::write(run_dir.join("launch.toml"), launch_text).with_context(|| format!("{}: cannot write launch.toml", run_dir.display()))?;
+    let prefix = args.ipc_prefix.clone().unwrap_or_else(bdis_slam::run_dir::unique_prefix);
+    eprintln!("bdis-slam: run `{name}` → {} (shared memory prefix {prefix})", run_dir.display());
+
+    let result = bdis_slam::run::execute(&launch, &services, &prefix, &run_dir)?;
+    let leftovers = bdis_slam::run_dir::remove_leftovers(&prefix);
+    tracing::debug!("removed {leftovers} shared-memory leftovers of {prefix}");
+
+    let json = serde_json::json!({
+        "schema": "bdis.v1.run",
+        "name": name,
+        "ipc_prefix": prefix,
+        "duration_s": result.duration_s,
+        "stop_requested": result.stop_requested,
+        "failure": result.failure,
+        "services": result.services,
+        "processes": result.latency.processes,
+        "hops": result.latency.hops,
+        "telemetry_records_lost": result.latency.telemetry_records_lost,
+    });
+    let latency_path = run_dir.join("latency.json");
+    std::fs::write(&latency_path, serde_json::to_string_pretty(&json)?).with_context(|| format!("{}: cannot write", latency_path.display()))?;
+
+    println!();
+    print!("{}", result.latency.table());
+    println!();
+    for s in &result.services {
+        println!("{:<14} {}{}", s.name, s.exit, s.error.as_deref().map_or(String::new(), |e| format!(" — {e}")));
+    }
+    println!("run folder: {} ({:.1} s)", run_dir.display(), result.duration_s);
+    if let Some(failure) = &result.failure {
+        eprintln!("bdis-slam: error: {failure}");
+        return Ok(ExitCode::FAILURE);
+    }
+    Ok(if result.stop_requested { ExitCode::from(130) } else { ExitCode::SUCCESS })
+}

@@ -34,7 +34,7 @@ struct Args {
     #[arg(long)]
     max_frames: Option<usize>,
     /// Name of this process in the run (telemetry, logs).
-    #[arg(long, default_value = "acquisition")]
+    #[arg(long, env = "BDIS_SERVICE_NAME", default_value = "acquisition")]
     name: String,
     /// Shared-memory name prefix of the run (set by the launcher).
     #[arg(long, env = bdis_ipc::PREFIX_ENV, default_value = bdis_ipc::DEFAULT_PREFIX)]
@@ -98,8 +98,10 @@ fn run(args: Args) -> Result<()> {
 
     let schedule = Schedule::new(args.pacing, sequence.frames[0].t_source_s, input.fps.unwrap_or(30.0));
     let mut decoder = FrameDecoder::new();
-    // Credits for on-demand pacing: each consumer sends one when it is ready for the next frame.
-    let mut credits: u64 = 0;
+    // Credits for on-demand pacing: a consumer sends one each time it is ready for the next frame. A consumer
+    // that subscribed before this process existed sent its first one into the void, so an existing subscriber
+    // counts as one credit.
+    let mut credits: u64 = u64::from(frames.dynamic_config().number_of_subscribers() > 0);
     let t_start_ns = monotonic_ns();
     let mut published: u64 = 0;
     let mut end = End::Completed;

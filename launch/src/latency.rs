@@ -1,0 +1,325 @@
+//! Aggregates telemetry records into per-process and per-hop latency figures (p50/p90/p99/max), the
+//! `latency.json` of a run and the table the launcher prints.
+
+use std::collections::BTreeMap;
+use std::fmt::Write as _;
+
+use bdis_ipc::{TelemetryKind, TelemetryRecord};
+use hdrhistogram::Histogram;
+use serde::{Deserialize, Serialize};
+
+fn histogram() -> Histogram<u64> {
+    // 3 significant digits, auto-resizing: exact enough for µs figures, bounded memory for long runs.
+    Histogram::new(3).unwrap_or_else(|_| unreachable_histogram())
+}
+
+#[cold]
+fn unreachable_histogram() -> Histogram<u64> {
+    // `new(3)` only fails for sigfig > 5; keep a valid fallback rather than a panic path.
+    Histogram::new_with_bounds(1, 3_600_000_000_000, 2).unwrap_or_else(|_| std::process::abort())
+}
+
+/// Percentiles of one quantity, in microseconds.
+#[derive(Debug, Clone, Copy, Default, Serialize, Deserialize, PartialEq)]
+pub struct Percentiles {
+    pub count: u64,
+    pub p50: f64,
+    pub p90: f64,
+    pub p99: f64,
+    pub max: f64,
+    pub mean: f64,
+}
+
+impl Percentiles {
+    fn of(h: &Histogram<u64>) -> Option<Self> {
+        if h.is_empty() {
+            return None;
+        }
+        let us = |ns: u64| ns as f64 / 1000.0;
+        Some(Self {
+            count: h.len(),
+            p50: us(h.value_at_quantile(0.50)),
+            p90: us(h.value_at_quantile(0.90)),
+            p99: us(h.value_at_quantile(0.99)),
+            max: us(h.max()),
+            mean: h.mean() / 1000.0,
+        })
+    }
+}
+
+#[derive(Debug)]
+struct ProcessAcc {
+    pid: u32,
+    input_topic: String,
+    output_topic: String,
+    messages: u64,
+    dropped: u64,
+    cpu_time_ns: u64,
+    processing: Histogram<u64>,
+    queue_wait: Histogram<u64>,
+    age: Histogram<u64>,
+    first_done_ns: u64,
+    last_done_ns: u64,
+    ready: bool,
+    ended: Option<TelemetryKind>,
+    next_record_seq: u64,
+}
+
+/// Collects telemetry for one run.
+#[derive(Debug, Default)]
+pub struct LatencyAggregator {
+    processes: BTreeMap<String, ProcessAcc>,
+    /// (topic, consumer) → receive − publish.
+    hops: BTreeMap<(String, String), Histogram<u64>>,
+    records_lost: u64,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+pub struct ProcessReport {
+    pub name: String,
+    pub pid: u32,
+    pub input_topic: String,
+    pub output_topic: String,
+    pub messages: u64,
+    /// Input messages the process saw missing (sequence gaps).
+    pub dropped: u64,
+    pub rate_hz: f64,
+    pub cpu_time_s: f64,
+    /// done − receive (for a source: done − capture).
+    pub processing_us: Option<Percentiles>,
+    /// receive − upstream publish.
+    pub queue_wait_us: Option<Percentiles>,
+    /// done − capture: age of the output when it leaves the process.
+    pub age_us: Option<Percentiles>,
+    /// `finished`, `failed` or `no end record` (crashed or killed).
+    pub ended: String,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+pub struct HopReport {
+    pub from: String,
+    pub to: String,
+    pub topic: String,
+    pub latency_us: Percentiles,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+pub struct LatencyReport {
+    pub processes: Vec<ProcessReport>,
+    pub hops: Vec<HopReport>,
+    /// Telemetry records the launcher missed (gaps in record sequence numbers): figures are then partial.
+    pub telemetry_records_lost: u64,
+}
+
+impl LatencyAggregator {
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// True once `process` has reported ready.
+    pub fn is_ready(&self, process: &str) -> bool {
+        self.processes.get(process).is_some_and(|p| p.ready)
+    }
+
+    pub fn ended(&self, process: &str) -> Option<TelemetryKind> {
+        self.processes.get(process).and_then(|p| p.ended)
+    }
+
+    pub fn messages(&self, process: &str) -> u64 {
+        self.processes.get(process).map_or(0, |p| p.messages)
+    }
+
+    pub fn record(&mut self, r: &TelemetryRecord) {
+        let Some(kind) = r.kind() else { return };
+        let acc = self.processes.entry(r.process().to_string()).or_insert_with(|| ProcessAcc {
+            pid: r.pid,
+            input_topic: r.input_topic().to_string(),
+            output_topic: r.output_topic().to_string(),
+            messages: 0,
+            dropped: 0,
+            cpu_time_ns: 0,
+            processing: histogram(),
+            queue_wait: histogram(),
+            age: histogram(),
+            first_done_ns: 0,
+            last_done_ns: 0,
+            ready: false,
+            ended: None,
+            next_record_seq: 0,
+        });
+        if r.pid != acc.pid {
+            // A restarted instance numbers its records from 0 again.
+            acc.pid = r.pid;
+            acc.next_record_seq = r.record_seq;
+        }
+        if r.record_seq > acc.next_record_seq {
+            self.records_lost += r.record_seq - acc.next_record_seq;
+        }
+        acc.next_record_seq = r.record_seq + 1;
+        match kind {
+            TelemetryKind::Ready => acc.ready = true,
+            TelemetryKind::Message => {
+                acc.messages += 1;
+                acc.dropped = r.dropped;
+                let _ = acc.processing.record(r.processing_ns().max(1));
+                if r.t_capture_ns != 0 {
+                    let _ = acc.age.record(r.age_ns().max(1));
+                }
+                if r.t_upstream_publish_ns != 0 {
+                    let wait = r.queue_wait_ns().max(1);
+                    let _ = acc.queue_wait.record(wait);
+                    let _ = self
+                        .hops
+                        .entry((r.input_topic().to_string(), r.process().to_string()))
+                        .or_insert_with(histogram)
+                        .record(wait);
+                }
+                if acc.first_done_ns == 0 {
+                    acc.first_done_ns = r.t_done_ns;
+                }
+                acc.last_done_ns = r.t_done_ns;
+            }
+            TelemetryKind::Finished | TelemetryKind::Failed => {
+                acc.ended = Some(kind);
+                acc.cpu_time_ns = r.cpu_time_ns;
+            }
+        }
+    }
+
+    pub fn report(&self) -> LatencyReport {
+        let processes = self
+            .processes
+            .iter()
+            .map(|(name, p)| {
+                let span_s = (p.last_done_ns.saturating_sub(p.first_done_ns)) as f64 / 1e9;
+                ProcessReport {
+                    name: name.clone(),
+                    pid: p.pid,
+                    input_topic: p.input_topic.clone(),
+                    output_topic: p.output_topic.clone(),
+                    messages: p.messages,
+                    dropped: p.dropped,
+                    rate_hz: if p.messages > 1 && span_s > 0.0 { (p.messages - 1) as f64 / span_s } else { 0.0 },
+                    cpu_time_s: p.cpu_time_ns as f64 / 1e9,
+                    processing_us: Percentiles::of(&p.processing),
+                    queue_wait_us: Percentiles::of(&p.queue_wait),
+                    age_us: Percentiles::of(&p.age),
+                    ended: match p.ended {
+                        Some(TelemetryKind::Finished) => "finished",
+                        Some(TelemetryKind::Failed) => "failed",
+                        _ => "no end record",
+                    }
+                    .to_string(),
+                }
+            })
+            .collect();
+        let hops = self
+            .hops
+            .iter()
+            .filter_map(|((topic, to), h)| {
+                let from = self
+                    .processes
+                    .iter()
+                    .find(|(_, p)| &p.output_topic == topic)
+                    .map_or_else(|| "?".to_string(), |(n, _)| n.clone());
+                Percentiles::of(h).map(|latency_us| HopReport { from, to: to.clone(), topic: topic.clone(), latency_us })
+            })
+            .collect();
+        LatencyReport { processes, hops, telemetry_records_lost: self.records_lost }
+    }
+}
+
+impl LatencyReport {
+    /// The table printed at the end of a run.
+    pub fn table(&self) -> String {
+        let ms = |p: &Option<Percentiles>| p.map_or_else(|| "-".to_string(), |p| format!("{:.2} / {:.2}", p.p50 / 1000.0, p.p99 / 1000.0));
+        let mut out = String::new();
+        let _ = writeln!(
+            out,
+            "{:<14} {:>6} {:>8} {:>7} {:>18} {:>18} {:>18} {:>7}",
+            "process", "msgs", "rate Hz", "dropped", "processing ms", "queue wait ms", "output age ms", "cpu s"
+        );
+        let _ = writeln!(out, "{:<14} {:>6} {:>8} {:>7} {:>18} {:>18} {:>18} {:>7}", "", "", "", "", "p50 / p99", "p50 / p99", "p50 / p99", "");
+        for p in &self.processes {
+            let _ = writeln!(
+                out,
+                "{:<14} {:>6} {:>8.1} {:>7} {:>18} {:>18} {:>18} {:>7.2}",
+                p.name,
+                p.messages,
+                p.rate_hz,
+                p.dropped,
+                ms(&p.processing_us),
+                ms(&p.queue_wait_us),
+                ms(&p.age_us),
+                p.cpu_time_s
+            );
+        }
+        if !self.hops.is_empty() {
+            let _ = writeln!(out);
+            let _ = writeln!(out, "{:<34} {:>6} {:>9} {:>9} {:>9} {:>9}", "hop (topic)", "msgs", "p50 µs", "p90 µs", "p99 µs", "max µs");
+            for h in &self.hops {
+                let _ = writeln!(
+                    out,
+                    "{:<34} {:>6} {:>9.1} {:>9.1} {:>9.1} {:>9.1}",
+                    format!("{}→{} ({})", h.from, h.to, h.topic),
+                    h.latency_us.count,
+                    h.latency_us.p50,
+                    h.latency_us.p90,
+                    h.latency_us.p99,
+                    h.latency_us.max
+                );
+            }
+        }
+        if self.telemetry_records_lost > 0 {
+            let _ = writeln!(out, "note: {} telemetry records were lost; figures are partial", self.telemetry_records_lost);
+        }
+        out
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn rec(process: &str, kind: TelemetryKind, seq: u64, t: [u64; 4], input: &str, output: &str) -> TelemetryRecord {
+        let mut r = TelemetryRecord { kind: kind as u32, pid: 7, record_seq: seq, ..Default::default() };
+        r.process[..process.len()].copy_from_slice(process.as_bytes());
+        r.input_topic[..input.len()].copy_from_slice(input.as_bytes());
+        r.output_topic[..output.len()].copy_from_slice(output.as_bytes());
+        [r.t_capture_ns, r.t_upstream_publish_ns, r.t_receive_ns, r.t_done_ns] = t;
+        r
+    }
+
+    #[test]
+    fn derives_hops_and_percentiles_and_counts_lost_records() {
+        let mut agg = LatencyAggregator::new();
+        agg.record(&rec("acq", TelemetryKind::Ready, 0, [0; 4], "", "frames"));
+        agg.record(&rec("probe", TelemetryKind::Ready, 0, [0; 4], "frames", ""));
+        for i in 0..100u64 {
+            let t0 = 1_000_000_000 + i * 40_000_000;
+            // acquisition: capture → publish takes 10 ms.
+            agg.record(&rec("acq", TelemetryKind::Message, i + 1, [t0, 0, 0, t0 + 10_000_000], "", "frames"));
+            // probe: receives 50 µs (+i ns) after publish, works 1 ms.
+            let rx = t0 + 10_000_000 + 50_000 + i;
+            if i != 50 {
+                agg.record(&rec("probe", TelemetryKind::Message, i + 1 - u64::from(i > 50), [t0, t0 + 10_000_000, rx, rx + 1_000_000], "frames", ""));
+            }
+        }
+        assert!(agg.is_ready("acq") && agg.is_ready("probe"));
+        let report = agg.report();
+        let hop = &report.hops[0];
+        assert_eq!((hop.from.as_str(), hop.to.as_str(), hop.topic.as_str()), ("acq", "probe", "frames"));
+        assert_eq!(hop.latency_us.count, 99);
+        assert!((hop.latency_us.p50 - 50.0).abs() < 0.1, "{hop:?}");
+        let acq = report.processes.iter().find(|p| p.name == "acq").unwrap();
+        assert!((acq.processing_us.unwrap().p50 - 10_000.0).abs() < 10.0);
+        assert!((acq.rate_hz - 25.0).abs() < 1e-6);
+        let probe = report.processes.iter().find(|p| p.name == "probe").unwrap();
+        assert!((probe.age_us.unwrap().p50 - 11_050.0).abs() < 15.0);
+        assert_eq!(report.telemetry_records_lost, 0);
+        // A gap in record numbers is reported.
+        agg.record(&rec("acq", TelemetryKind::Finished, 105, [0; 4], "", "frames"));
+        assert_eq!(agg.report().telemetry_records_lost, 4);
+        assert!(agg.report().table().contains("acq→probe (frames)"));
+    }
+}

@@ -1,0 +1,238 @@
+//! `bdis-slam probe <topic>`: a consumer that reads every frame in place and reports what it saw. In a run it
+//! stands where the tracker will be; by hand it watches a live pipeline.
+
+use std::io::{IsTerminal, Write};
+use std::path::PathBuf;
+use std::time::Duration;
+
+use anyhow::{Context, Result, anyhow, bail};
+use bdis_ipc::telemetry::MessageTiming;
+use bdis_ipc::{FrameView, Ipc, TelemetryPublisher, Topic, event_id, monotonic_ns};
+use bdis_slam::probe::FrameChecker;
+use iceoryx2::prelude::*;
+use iceoryx2::waitset::WaitSetRunResult;
+
+#[derive(Debug, clap::Args)]
+pub struct ProbeArgs {
+    /// Topic to watch: `frames` or `telemetry`.
+    topic: String,
+    /// Checksum each frame's left RGB pixels (FNV-1a 64) into the summary.
+    #[arg(long)]
+    checksums: bool,
+    /// Where to write the JSON summary (default: `<run folder>/<name>.json` inside a run, none otherwise).
+    #[arg(long)]
+    summary: Option<PathBuf>,
+    /// Stop after this many frames.
+    #[arg(long)]
+    max_frames: Option<u64>,
+    /// Give up when nothing arrives for this many seconds (default: wait for end of stream or Ctrl-C).
+    #[arg(long)]
+    idle_timeout: Option<f64>,
+    /// Name of this process in the run.
+    #[arg(long, env = "BDIS_SERVICE_NAME", default_value = "probe")]
+    name: String,
+    /// Shared-memory name prefix of the run to watch.
+    #[arg(long, env = bdis_ipc::PREFIX_ENV, default_value = bdis_ipc::DEFAULT_PREFIX)]
+    ipc_prefix: String,
+}
+
+/// Prints a status line, in place on a terminal.
+fn status(line: &str) {
+    let mut out = std::io::stdout();
+    if out.is_terminal() {
+        let _ = write!(out, "\r{line}\x1b[K");
+    } else {
+        let _ = writeln!(out, "{line}");
+    }
+    let _ = out.flush();
+}
+
+pub fn probe(args: ProbeArgs) -> Result<()> {
+    match Topic::parse(&args.topic) {
+        Some(Topic::Frames) => probe_frames(&args),
+        Some(Topic::Telemetry) => probe_telemetry(&args),
+        None => bail!(
+            "unknown topic `{}` (topics: {})",
+            args.topic,
+            Topic::ALL.iter().map(|t| t.short_name()).collect::<Vec<_>>().join(", ")
+        ),
+    }
+}
+
+fn iox(what: &'static str) -> impl FnOnce(&dyn std::fmt::Debug) -> anyhow::Error {
+    move |e| anyhow!("{what}: {e:?}")
+}
+
+fn probe_frames(args: &ProbeArgs) -> Result<()> {
+    let ipc = Ipc::open(&args.name, &args.ipc_prefix)?;
+    let frames = ipc.frames()?;
+    let subscriber = ipc.frame_subscriber(&frames)?;
+    let listener = ipc.listener(&ipc.events(Topic::Frames)?)?;
+    let consumed = ipc.notifier(&ipc.frames_consumed()?)?;
+    let mut telemetry = TelemetryPublisher::new(&ipc, &args.name, Some(Topic::Frames), None)?;
+    let waitset = WaitSetBuilder::new().create::<ipc::Service>().map_err(|e| iox("create a WaitSet")(&e))?;
+    // The deadline both paces the status line and notices a silent producer.
+    let guard = waitset.attach_deadline(&listener, Duration::from_secs(1)).map_err(|e| iox("attach the frames listener")(&e))?;
+
+    let mut checker = FrameChecker::new("frames", args.checksums, &args.ipc_prefix);
+    telemetry.ready();
+    // One credit: ready for the first frame (on-demand acquisition waits for it).
+    bdis_ipc::notify(&consumed, event_id::CONSUMED)?;
+
+    let mut window_start = monotonic_ns();
+    let mut window_frames = 0u64;
+    let mut last_rx = monotonic_ns();
+    let mut stop_requested = false;
+    let mut failure: Option<anyhow::Error> = None;
+    let mut end_of_stream = false;
+    'outer: loop {
+        let mut deadline_missed = false;
+        let result = waitset
+            .wait_and_process_once(|id| {
+                if id.has_missed_deadline(&guard) {
+                    deadline_missed = true;
+                }
+                CallbackProgression::Continue
+            })
+            .map_err(|e| iox("wait for frames")(&e))?;
+        if matches!(result, WaitSetRunResult::TerminationRequest | WaitSetRunResult::Interrupt) {
+            stop_requested = true;
+            break;
+        }
+        let _ = bdis_ipc::drain_events(&listener);
+        loop {
+            let sample = match subscriber.receive() {
+                Ok(Some(s)) => s,
+                Ok(None) => break,
+                Err(e) => {
+                    failure = Some(anyhow!("receive a frame: {e:?}"));
+                    break 'outer;
+                }
+            };
+            let t_receive_ns = monotonic_ns();
+            last_rx = t_receive_ns;
+            let header = *sample.user_header();
+            if header.is_end_of_stream() {
+                checker.end_of_stream();
+                end_of_stream = true;
+                break 'outer;
+            }
+            match FrameView::new(sample.user_header(), sample.payload()) {
+                Ok(view) => checker.frame(&view, t_receive_ns),
+                Err(e) => {
+                    tracing::warn!("{e}");
+                    checker.malformed();
+                }
+            }
+            drop(sample);
+            let t_done_ns = monotonic_ns();
+            telemetry.message(
+                MessageTiming {
+                    frame_seq: header.frame_seq,
+                    t_capture_ns: header.t_capture_ns,
+                    t_upstream_publish_ns: header.t_publish_ns,
+                    t_receive_ns,
+                    t_done_ns,
+                },
+                checker.frames_missing(),
+            );
+            bdis_ipc::notify(&consumed, event_id::CONSUMED)?;
+            window_frames += 1;
+            if args.max_frames.is_some_and(|m| checker.frames_received() >= m) {
+                break 'outer;
+            }
+        }
+        let now = monotonic_ns();
+        // Every second while frames flow; every 10 s while the topic is silent (keeps logs short).
+        let window_ns = now - window_start;
+        if (window_frames > 0 && window_ns >= 1_000_000_000) || window_ns >= 10_000_000_000 {
+            status(&checker.status_line(window_frames, (now - window_start) as f64 / 1e9));
+            window_start = now;
+            window_frames = 0;
+        }
+        if deadline_missed {
+            // A silent producer: reclaim dead peers, then see whether anyone still publishes.
+            ipc.cleanup_dead_nodes();
+            if checker.frames_received() > 0 && frames.dynamic_config().number_of_publishers() == 0 {
+                failure = Some(anyhow!("the frames producer disappeared without end of stream after {} frames", checker.frames_received()));
+                break;
+            }
+            if args.idle_timeout.is_some_and(|t| (now - last_rx) as f64 / 1e9 >= t) {
+                failure = Some(anyhow!("no frame for {:.1} s", (now - last_rx) as f64 / 1e9));
+                break;
+            }
+        }
+    }
+    if std::io::stdout().is_terminal() {
+        println!();
+    }
+
+    // The summary is written whatever happened: it is what this consumer produced.
+    let summary = checker.summary();
+    let summary_path = args
+        .summary
+        .clone()
+        .or_else(|| std::env::var_os(bdis_slam::supervisor::RUN_DIR_ENV).map(|d| PathBuf::from(d).join(format!("{}.json", args.name))));
+    if let Some(path) = &summary_path {
+        let text = serde_json::to_string_pretty(&summary).context("serialise the probe summary")?;
+        std::fs::write(path, text).with_context(|| format!("{}: cannot write the probe summary", path.display()))?;
+    }
+    println!(
+        "{}: {} frames ({}×{}), {} missing, {} out of order, end of stream: {}, zero copy: {} ({})",
+        args.name,
+        summary.frames_received,
+        summary.width,
+        summary.height,
+        summary.frames_missing,
+        summary.out_of_order,
+        if summary.end_of_stream { "yes" } else { "no" },
+        if summary.payload_in_shared_memory { "yes" } else { "no" },
+        summary.payload_mapping.as_deref().unwrap_or("-"),
+    );
+    if let Some(h) = summary.hop_latency_us {
+        println!("{}: hop latency p50 {:.1} µs, p99 {:.1} µs; rate {:.1} Hz", args.name, h.p50, h.p99, summary.rate_hz);
+    }
+    match failure {
+        Some(e) => {
+            telemetry.failed();
+            Err(e)
+        }
+        None => {
+            if stop_requested && !end_of_stream {
+                tracing::info!("stop requested");
+            }
+            telemetry.finished();
+            Ok(())
+        }
+    }
+}
+
+fn probe_telemetry(args: &ProbeArgs) -> Result<()> {
+    let ipc = Ipc::open(&args.name, &args.ipc_prefix)?;
+    let service = ipc.telemetry()?;
+    let subscriber = service
+        .subscriber_builder()
+        .buffer_size(bdis_ipc::qos::TELEMETRY_BUFFER)
+        .create()
+        .map_err(|e| iox("subscribe to telemetry")(&e))?;
+    let waitset = WaitSetBuilder::new().create::<ipc::Service>().map_err(|e| iox("create a WaitSet")(&e))?;
+    let _tick = waitset.attach_interval(Duration::from_secs(1)).map_err(|e| iox("attach a tick")(&e))?;
+    let mut counts: std::collections::BTreeMap<String, u64> = Default::default();
+    let mut idle_s = 0.0;
+    loop {
+        let result = waitset.wait_and_process_once(|_| CallbackProgression::Continue).map_err(|e| iox("wait")(&e))?;
+        if matches!(result, WaitSetRunResult::TerminationRequest | WaitSetRunResult::Interrupt) {
+            return Ok(());
+        }
+        counts.clear();
+        while let Ok(Some(r)) = subscriber.receive() {
+            *counts.entry(r.process().to_string()).or_default() += 1;
+        }
+        idle_s = if counts.is_empty() { idle_s + 1.0 } else { 0.0 };
+        let line: Vec<String> = counts.iter().map(|(p, n)| format!("{p} {n}/s")).collect();
+        status(&format!("telemetry: {}", if line.is_empty() { "silent".to_string() } else { line.join(", ") }));
+        if args.idle_timeout.is_some_and(|t| idle_s >= t) {
+            bail!("no telemetry for {idle_s:.0} s");
+        }
+    }
+}
