@@ -1,0 +1,129 @@
+//! Helpers for end-to-end tests: they start the real binaries over real iceoryx2, each test under its own
+//! shared-memory prefix so tests run in parallel without seeing each other.
+#![allow(dead_code)]
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output, Stdio};
+use std::time::{Duration, Instant};
+
+/// The `bdis-slam` binary under test.
+pub fn bdis_slam() -> PathBuf {
+    PathBuf::from(env!("CARGO_BIN_EXE_bdis-slam"))
+}
+
+/// A service binary built next to `bdis-slam` (cargo builds every workspace binary for the tests).
+pub fn service_binary(name: &str) -> PathBuf {
+    let p = bdis_slam().with_file_name(name);
+    assert!(p.is_file(), "{} is missing: build the workspace (`cargo build --release`) before the tests", p.display());
+    p
+}
+
+/// `../shared/data/bdis/<set>` beside the checkout, or None (the test then says it was skipped).
+pub fn data_set(set: &str) -> Option<PathBuf> {
+    let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/bdis").join(set);
+    if p.is_dir() {
+        Some(p)
+    } else {
+        assert!(std::env::var_os("CI").is_none(), "CI must have ../shared/data ({})", p.display());
+        eprintln!("skipped: {} is not present", p.display());
+        None
+    }
+}
+
+/// A fresh temporary folder, removed when dropped.
+pub struct TempDir(pub PathBuf);
+
+impl TempDir {
+    pub fn new(tag: &str) -> Self {
+        let nanos = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).unwrap().subsec_nanos();
+        let p = std::env::temp_dir().join(format!("bdis-test-{tag}-{}-{nanos:x}", std::process::id()));
+        std::fs::create_dir_all(&p).unwrap();
+        Self(p)
+    }
+    pub fn path(&self) -> &Path {
+        &self.0
+    }
+}
+
+impl Drop for TempDir {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
+}
+
+/// A shared-memory prefix unique to this test.
+pub fn prefix(tag: &str) -> String {
+    let nanos = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).unwrap().subsec_nanos();
+    format!("bt{}{}{:x}_", tag.chars().filter(|c| c.is_ascii_alphanumeric()).take(6).collect::<String>(), std::process::id(), nanos & 0xffff)
+}
+
+/// Runs a command to its end, killing it (and failing the test) after `timeout`.
+pub fn run_with_timeout(cmd: &mut Command, timeout: Duration) -> Output {
+    let mut child = cmd.stdin(Stdio::null()).stdout(Stdio::piped()).stderr(Stdio::piped()).spawn().expect("start the command");
+    let start = Instant::now();
+    // Read the pipes on threads so a chatty child never blocks on a full pipe.
+    let mut out = child.stdout.take().unwrap();
+    let mut err = child.stderr.take().unwrap();
+    let out_t = std::thread::spawn(move || {
+        let mut v = Vec::new();
+        std::io::Read::read_to_end(&mut out, &mut v).ok();
+        v
+    });
+    let err_t = std::thread::spawn(move || {
+        let mut v = Vec::new();
+        std::io::Read::read_to_end(&mut err, &mut v).ok();
+        v
+    });
+    let status = loop {
+        if let Some(s) = child.try_wait().unwrap() {
+            break s;
+        }
+        if start.elapsed() > timeout {
+            let _ = child.kill();
+            let _ = child.wait();
+            panic!("{cmd:?} did not finish within {timeout:?}\nstderr:\n{}", String::from_utf8_lossy(&err_t.join().unwrap()));
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    Output { status, stdout: out_t.join().unwrap(), stderr: err_t.join().unwrap() }
+}
+
+pub fn text(bytes: &[u8]) -> String {
+    String::from_utf8_lossy(bytes).into_owned()
+}
+
+/// Asserts that nothing of the run with `prefix` is left in /dev/shm or /tmp/iceoryx2.
+pub fn assert_no_leftovers(prefix: &str) {
+    let left = bdis_slam::run_dir::leftovers(prefix);
+    assert!(left.is_empty(), "shared-memory leftovers of {prefix}: {left:?}");
+}
+
+/// Writes a small plain-layout stereo sequence: `n` pairs of w×h textured RGB images, the right one shifted by
+/// `shift` pixels (a fronto-parallel plane), named 1.png … n.png.
+pub fn write_sequence(root: &Path, n: usize, w: u32, h: u32, shift: u32) {
+    std::fs::create_dir_all(root.join("left")).unwrap();
+    std::fs::create_dir_all(root.join("right")).unwrap();
+    let texture = |x: u32, y: u32, k: u32| -> image::Rgb<u8> {
+        let v = (x.wrapping_mul(2_654_435_761) ^ y.wrapping_mul(40_503) ^ k.wrapping_mul(97)) >> 7;
+        image::Rgb([(v & 0xff) as u8, ((v >> 8) & 0xff) as u8, ((x + y + k) & 0xff) as u8])
+    };
+    for i in 1..=n as u32 {
+        let left = image::RgbImage::from_fn(w, h, |x, y| texture(x + i, y, i));
+        let right = image::RgbImage::from_fn(w, h, |x, y| texture(x + i + shift, y, i));
+        left.save(root.join(format!("left/{i}.png"))).unwrap();
+        right.save(root.join(format!("right/{i}.png"))).unwrap();
+    }
+}
+
+/// A settings file for the small sequences.
+pub fn write_settings(path: &Path, w: u32, h: u32) {
+    std::fs::write(
+        path,
+        format!(
+            "%YAML:1.0\nCamera.fx: 100.0\nCamera.fy: 100.0\nCamera.cx: {}\nCamera.cy: {}\nCamera.width: {w}\nCamera.height: {h}\nCamera.fps: 30\nCamera.bf: 500.0\n",
+            w / 2,
+            h / 2
+        ),
+    )
+    .unwrap();
+}
