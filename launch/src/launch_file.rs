@@ -118,7 +118,7 @@ impl LaunchFile {
 
     pub fn parse(text: &str, path: &Path) -> Result<Self, LaunchError> {
         let file: LaunchFile = toml::from_str(text).map_err(|e| {
-            let line = e.span().map(|s| text[..s.start.min(text.len())].lines().count().max(1));
+            let line = e.span().map(|s| text[..s.start.min(text.len())].matches('\n').count() + 1);
             LaunchError::Invalid {
                 at: match line {
                     Some(l) => format!("{}:{l}", path.display()),

@@ -185,7 +185,7 @@ impl RawSettings {
     /// `[BDISparam]`, `[Viewer3D]`) and top-level keys (`ThDepth`).
     pub fn parse_toml(text: &str, path: &Path) -> Result<Self, SettingsError> {
         let table: toml::Table = text.parse().map_err(|e: toml::de::Error| {
-            let line = e.span().map(|span| text[..span.start.min(text.len())].lines().count().max(1));
+            let line = e.span().map(|span| text[..span.start.min(text.len())].matches('\n').count() + 1);
             SettingsError::Syntax {
                 at: Location { path: path.to_path_buf(), line },
                 message: e.message().to_string(),
