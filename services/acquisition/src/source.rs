@@ -312,3 +312,89 @@ impl Sequence {
         self.frames.is_empty()
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    struct Tmp(PathBuf);
+    impl Drop for Tmp {
+        fn drop(&mut self) {
+            let _ = std::fs::remove_dir_all(&self.0);
+        }
+    }
+    fn tmp(tag: &str) -> Tmp {
+        let p = std::env::temp_dir().join(format!("bdis-src-{tag}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&p);
+        std::fs::create_dir_all(&p).unwrap();
+        Tmp(p)
+    }
+    fn img(path: &Path, w: u32, h: u32) {
+        std::fs::create_dir_all(path.parent().unwrap()).unwrap();
+        image::GrayImage::new(w, h).save(path).unwrap();
+    }
+
+    #[test]
+    fn hamlyn_layout_is_one_based_with_times() {
+        let t = tmp("hamlyn");
+        for n in 1..=3 {
+            img(&t.0.join(format!("images_rectified/left/{n}.png")), 8, 6);
+            img(&t.0.join(format!("images_rectified/right/{n}.png")), 8, 6);
+        }
+        std::fs::write(t.0.join("times.txt"), "0.0\n0.04\n0.08\n").unwrap();
+        let s = Sequence::open(&t.0).unwrap();
+        assert_eq!(s.layout, Layout::Hamlyn);
+        assert_eq!(s.frames.iter().map(|f| f.source_index).collect::<Vec<_>>(), vec![1, 2, 3]);
+        assert_eq!(s.frames[2].t_source_s, Some(0.08));
+        // A gap in the numbering is a missing image, not a shorter sequence.
+        std::fs::rename(t.0.join("images_rectified/left/2.png"), t.0.join("images_rectified/left/9.png")).unwrap();
+        let e = Sequence::open(&t.0).unwrap_err().to_string();
+        assert!(e.ends_with("images_rectified/left/2.png: missing image (the sequence numbers run 1..=3)"), "{e}");
+    }
+
+    #[test]
+    fn kitti_layout_reads_calib_and_needs_times() {
+        let t = tmp("kitti");
+        for n in 0..2 {
+            img(&t.0.join(format!("image_0/{n:06}.png")), 8, 6);
+            img(&t.0.join(format!("image_1/{n:06}.png")), 8, 6);
+        }
+        let e = Sequence::open(&t.0).unwrap_err().to_string();
+        assert!(e.contains("times.txt: cannot read: KITTI sequences need times.txt"), "{e}");
+        std::fs::write(t.0.join("times.txt"), "0.000000e+00\n1.036400e-01\n").unwrap();
+        std::fs::write(
+            t.0.join("calib.txt"),
+            "P0: 718.856 0 607.1928 0 0 718.856 185.2157 0 0 0 1 0\nP1: 718.856 0 607.1928 -386.1448 0 718.856 185.2157 0 0 0 1 0\n",
+        )
+        .unwrap();
+        let s = Sequence::open(&t.0).unwrap();
+        assert_eq!(s.layout, Layout::Kitti);
+        let cam = s.camera.unwrap();
+        assert_eq!((cam.fx, cam.cx, cam.cy, cam.bf), (718.856, 607.1928, 185.2157, 386.1448));
+        assert_eq!(s.frames[1].t_source_s, Some(0.10364));
+        std::fs::write(t.0.join("calib.txt"), "P0: 718.856 0 607.1928 0 0 718.856 185.2157 0 0 0 1 0\n").unwrap();
+        let e = Sequence::open(&t.0).unwrap_err().to_string();
+        assert!(e.ends_with("calib.txt: P1: missing"), "{e}");
+    }
+
+    #[test]
+    fn plain_layout_sorts_numerically_and_rejects_unpaired_images() {
+        let t = tmp("plain");
+        for n in [1, 51, 101, 1001] {
+            img(&t.0.join(format!("left/{n}.png")), 8, 6);
+            img(&t.0.join(format!("right/{n}.png")), 8, 6);
+        }
+        let s = Sequence::open(&t.0).unwrap();
+        assert_eq!(s.frames.iter().map(|f| f.source_index).collect::<Vec<_>>(), vec![1, 51, 101, 1001]);
+        img(&t.0.join("right/7.png"), 8, 6);
+        let e = Sequence::open(&t.0).unwrap_err().to_string();
+        assert!(e.ends_with("right/7.png: no left image for this right image"), "{e}");
+        std::fs::remove_file(t.0.join("right/7.png")).unwrap();
+        std::fs::write(t.0.join("times.txt"), "0\n1\nx\n3\n").unwrap();
+        let e = Sequence::open(&t.0).unwrap_err().to_string();
+        assert!(e.ends_with("times.txt:3: `x` is not a timestamp in seconds"), "{e}");
+        std::fs::write(t.0.join("times.txt"), "0\n2\n1\n3\n").unwrap();
+        let e = Sequence::open(&t.0).unwrap_err().to_string();
+        assert!(e.ends_with("times.txt:3: timestamp 1 goes back in time"), "{e}");
+    }
+}

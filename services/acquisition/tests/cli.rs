@@ -1,0 +1,37 @@
+//! The `bdis-acquisition` binary on its own: checks input before creating any shared memory.
+
+use std::process::Command;
+
+fn bin() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_bdis-acquisition"))
+}
+
+#[test]
+fn check_mode_summarises_a_sequence() {
+    let root = std::env::temp_dir().join(format!("bdis-acq-cli-{}", std::process::id()));
+    for side in ["left", "right"] {
+        std::fs::create_dir_all(root.join(side)).unwrap();
+        for n in 1..=2 {
+            image::RgbImage::new(16, 8).save(root.join(format!("{side}/{n}.png"))).unwrap();
+        }
+    }
+    let out = bin().arg("--sequence").arg(&root).arg("--check").output().unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(stdout.contains("Plain layout, 2 stereo pairs of 16×8, timestamps: no"), "{stdout}");
+    std::fs::remove_dir_all(&root).unwrap();
+}
+
+#[test]
+fn a_missing_sequence_is_one_line_and_exit_1() {
+    let out = bin().args(["--sequence", "/nonexistent/seq"]).output().unwrap();
+    assert_eq!(out.status.code(), Some(1));
+    assert_eq!(String::from_utf8_lossy(&out.stderr).trim(), "bdis-acquisition: error: /nonexistent/seq: sequence folder not found");
+}
+
+#[test]
+fn bad_pacing_is_rejected_by_the_argument_parser() {
+    let out = bin().args(["--sequence", "/x", "--pacing", "fast"]).output().unwrap();
+    assert_eq!(out.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("expected on-demand, recorded, or a rate such as 30hz"));
+}
