@@ -138,3 +138,21 @@ fn sigterm_stops_the_pipeline_upstream_first_and_keeps_what_it_produced() {
     assert!(latency["services"].as_array().unwrap().iter().all(|s| s["exit"] == "ok"), "{latency}");
     assert_no_leftovers(&prefix);
 }
+
+#[test]
+fn the_demo_renders_a_sequence_and_runs_the_pipeline_over_it() {
+    let tmp = TempDir::new("demo");
+    let out = run_with_timeout(
+        Command::new(bdis_slam()).args(["demo", "--frames", "12", "--out"]).arg(tmp.path()),
+        Duration::from_secs(120),
+    );
+    let stdout = text(&out.stdout);
+    assert!(out.status.success(), "{stdout}\n{}", text(&out.stderr));
+    assert!(stdout.contains("frames      12 rendered, 12 received by the consumer"), "{stdout}");
+    assert!(stdout.contains("acquisition→probe p50"), "{stdout}");
+    let preview = image::open(tmp.path().join("preview.png")).unwrap();
+    assert_eq!((preview.width(), preview.height()), (1280, 480));
+    let summary = probe_summary(tmp.path());
+    assert_eq!((summary.frames_received, summary.frames_missing), (12, 0));
+    assert!(summary.payload_in_shared_memory);
+}

@@ -24,6 +24,21 @@ enum Command {
     Run(RunArgs),
     /// Subscribe to a live topic and print its rate, age and hop latency (like `ros2 topic hz`).
     Probe(probe_cmd::ProbeArgs),
+    /// The built-in demo: render a synthetic stereo endoscope sweep and run the pipeline over it.
+    Demo(DemoArgs),
+}
+
+#[derive(Debug, clap::Args)]
+struct DemoArgs {
+    /// Frames to render.
+    #[arg(long, default_value_t = 60)]
+    frames: usize,
+    /// Run folder to write (default: runs/<UTC time>-demo).
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// Pacing: on-demand (as fast as the pipeline consumes), recorded (30 fps), or a rate such as 60hz.
+    #[arg(long, default_value = "on-demand")]
+    pacing: bdis_acquisition::Pacing,
 }
 
 #[derive(Debug, clap::Args)]
@@ -57,6 +72,7 @@ fn main() -> ExitCode {
     let result = match cli.command {
         Command::Run(args) => run(args),
         Command::Probe(args) => probe_cmd::probe(args).map(|()| ExitCode::SUCCESS),
+        Command::Demo(args) => demo(args),
     };
     match result {
         Ok(code) => code,
@@ -68,24 +84,29 @@ fn main() -> ExitCode {
 }
 
 /// The launch plan `run --sequence` builds: acquisition, then the probe as its consumer.
-fn plan_for_sequence(args: &RunArgs, sequence: &Path) -> Result<bdis_slam::launch_file::LaunchFile> {
+fn plan_for_sequence(
+    sequence: &Path,
+    settings: Option<&Path>,
+    pacing: bdis_acquisition::Pacing,
+    checksums: bool,
+) -> Result<bdis_slam::launch_file::LaunchFile> {
     use bdis_slam::launch_file::{LaunchFile, RunSection, ServiceSpec};
     // Check the input before anything starts: a bad sequence or settings file is reported here, by file and
     // field, and no process or shared memory is created.
-    let input = bdis_acquisition::check_input(sequence, args.settings.as_deref())?;
+    let input = bdis_acquisition::check_input(sequence, settings)?;
     let absolute = |p: &Path| std::fs::canonicalize(p).with_context(|| format!("{}: cannot resolve", p.display()));
     let mut acquisition_args = vec!["--sequence".to_string(), absolute(&input.sequence.root)?.display().to_string()];
     if let Some(settings) = &input.settings_path {
         acquisition_args.extend(["--settings".to_string(), absolute(settings)?.display().to_string()]);
     }
-    let pacing = match args.pacing {
+    let pacing = match pacing {
         bdis_acquisition::Pacing::OnDemand => "on-demand".to_string(),
         bdis_acquisition::Pacing::Recorded => "recorded".to_string(),
         bdis_acquisition::Pacing::Fixed(hz) => format!("{hz}hz"),
     };
     acquisition_args.extend(["--pacing".to_string(), pacing]);
     let mut probe_args = vec!["probe".to_string(), "frames".to_string()];
-    if args.checksums {
+    if checksums {
         probe_args.push("--checksums".into());
     }
     let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
@@ -103,24 +124,44 @@ fn run(args: RunArgs) -> Result<ExitCode> {
     use bdis_slam::launch_file::LaunchFile;
     let (launch, launch_path) = match (&args.launch_file, &args.sequence) {
         (Some(path), _) => (LaunchFile::load(path)?, path.clone()),
-        (None, Some(sequence)) => (plan_for_sequence(&args, sequence)?, PathBuf::from("launch.toml")),
+        (None, Some(sequence)) => {
+            (plan_for_sequence(sequence, args.settings.as_deref(), args.pacing, args.checksums)?, PathBuf::from("launch.toml"))
+        }
         (None, None) => anyhow::bail!("give a launch file or --sequence"),
     };
     let name = launch.run.name.clone().unwrap_or_else(|| "run".into());
-    let run_dir = match &args.out {
+    let run_dir = make_run_dir(args.out.as_deref(), &name)?;
+    let (code, _) = execute_and_report(&launch, &launch_path, &run_dir, args.ipc_prefix.clone())?;
+    Ok(code)
+}
+
+fn make_run_dir(out: Option<&Path>, name: &str) -> Result<PathBuf> {
+    match out {
         Some(dir) => {
             std::fs::create_dir_all(dir).with_context(|| format!("{}: cannot create the run folder", dir.display()))?;
-            dir.clone()
+            Ok(dir.to_path_buf())
         }
-        None => bdis_slam::run_dir::create_run_dir(Path::new("runs"), &name).context("runs/: cannot create the run folder")?,
-    };
-    let services = launch.resolve(&launch_path, &run_dir)?;
-    let launch_text = toml::to_string_pretty(&launch).context("serialise the launch plan")?;
+        None => bdis_slam::run_dir::create_run_dir(Path::new("runs"), name).context("runs/: cannot create the run folder"),
+    }
+}
+
+/// Starts the plan, waits for its end, writes `latency.json`, prints the latency table; the exit code says how
+/// the run ended.
+fn execute_and_report(
+    launch: &bdis_slam::launch_file::LaunchFile,
+    launch_path: &Path,
+    run_dir: &Path,
+    ipc_prefix: Option<String>,
+) -> Result<(ExitCode, bdis_slam::run::RunResult)> {
+    let run_dir = run_dir.to_path_buf();
+    let name = launch.run.name.clone().unwrap_or_else(|| "run".into());
+    let services = launch.resolve(launch_path, &run_dir)?;
+    let launch_text = toml::to_string_pretty(launch).context("serialise the launch plan")?;
     std::fs::write(run_dir.join("launch.toml"), launch_text).with_context(|| format!("{}: cannot write launch.toml", run_dir.display()))?;
-    let prefix = args.ipc_prefix.clone().unwrap_or_else(bdis_slam::run_dir::unique_prefix);
+    let prefix = ipc_prefix.unwrap_or_else(bdis_slam::run_dir::unique_prefix);
     eprintln!("bdis-slam: run `{name}` → {} (shared memory prefix {prefix})", run_dir.display());
 
-    let result = bdis_slam::run::execute(&launch, &services, &prefix, &run_dir)?;
+    let result = bdis_slam::run::execute(launch, &services, &prefix, &run_dir)?;
     let leftovers = bdis_slam::run_dir::remove_leftovers(&prefix);
     tracing::debug!("removed {leftovers} shared-memory leftovers of {prefix}");
 
@@ -148,7 +189,63 @@ fn run(args: RunArgs) -> Result<ExitCode> {
     println!("run folder: {} ({:.1} s)", run_dir.display(), result.duration_s);
     if let Some(failure) = &result.failure {
         eprintln!("bdis-slam: error: {failure}");
-        return Ok(ExitCode::FAILURE);
+        return Ok((ExitCode::FAILURE, result));
     }
-    Ok(if result.stop_requested { ExitCode::from(130) } else { ExitCode::SUCCESS })
+    let code = if result.stop_requested { ExitCode::from(130) } else { ExitCode::SUCCESS };
+    Ok((code, result))
+}
+
+fn demo(args: DemoArgs) -> Result<ExitCode> {
+    use bdis_synth::{PlaneScene, StereoRig, TissueTexture};
+    anyhow::ensure!(args.frames >= 2 && args.frames <= 100_000, "--frames: give 2 to 100000 frames");
+    let run_dir = make_run_dir(args.out.as_deref(), "demo")?;
+    let sequence = run_dir.join("sequence");
+    let rig = StereoRig::default();
+    let scene = PlaneScene { depth_mm: 60.0, texture: TissueTexture { seed: 2026 } };
+    let fps = 30.0;
+    eprintln!("bdis-slam demo: rendering {} stereo frames of a tissue plane at {} mm into {}", args.frames, scene.depth_mm, sequence.display());
+    let bar = indicatif::ProgressBar::new(args.frames as u64);
+    bar.set_style(
+        indicatif::ProgressStyle::with_template("rendering {bar:40} {pos}/{len} frames ({eta} left)")
+            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+    );
+    let settings = bdis_synth::write_plane_sweep(&sequence, &rig, &scene, args.frames, fps, 6.0, |_| bar.inc(1))?;
+    bar.finish_and_clear();
+    let preview = run_dir.join("preview.png");
+    write_side_by_side(&sequence.join("left/1.png"), &sequence.join("right/1.png"), &preview)?;
+
+    let launch = plan_for_sequence(&sequence, Some(&settings), args.pacing, false)?;
+    let (code, result) = execute_and_report(&launch, Path::new("launch.toml"), &run_dir, None)?;
+    let probe = result.latency.processes.iter().find(|p| p.name == "probe");
+    let hop = result.latency.hops.first();
+    println!();
+    println!("demo summary");
+    println!("  frames      {} rendered, {} received by the consumer", args.frames, probe.map_or(0, |p| p.messages));
+    println!("  rate        {:.1} frames/s (on-demand: as fast as the consumer takes them)", probe.map_or(0.0, |p| p.rate_hz));
+    if let Some(h) = hop {
+        println!("  transport   {}→{} p50 {:.0} µs, p99 {:.0} µs (zero copy, shared memory)", h.from, h.to, h.latency_us.p50, h.latency_us.p99);
+    }
+    for p in &result.latency.processes {
+        if let Some(t) = p.processing_us {
+            println!("  {:<11} processing p50 {:.2} ms, p99 {:.2} ms", p.name, t.p50 / 1000.0, t.p99 / 1000.0);
+        }
+    }
+    println!("  look at     {} (first stereo pair), {}", preview.display(), run_dir.join("latency.json").display());
+    println!("  not yet     tracking, BDIS stereo and the mosaic map are still to come (issues #6, #3, #7);");
+    println!("              the probe stands in for the tracker.");
+    Ok(code)
+}
+
+/// Left and right image side by side, for a person to look at.
+fn write_side_by_side(left: &Path, right: &Path, out: &Path) -> Result<()> {
+    let l = image::open(left).with_context(|| format!("{}: cannot read", left.display()))?.to_rgb8();
+    let r = image::open(right).with_context(|| format!("{}: cannot read", right.display()))?.to_rgb8();
+    let mut both = image::RgbImage::new(l.width() + r.width(), l.height().max(r.height()));
+    for (x, y, p) in l.enumerate_pixels() {
+        both.put_pixel(x, y, *p);
+    }
+    for (x, y, p) in r.enumerate_pixels() {
+        both.put_pixel(l.width() + x, y, *p);
+    }
+    both.save(out).with_context(|| format!("{}: cannot write", out.display()))
 }
