@@ -232,7 +232,7 @@ impl LatencyAggregator {
 impl LatencyReport {
     /// The table printed at the end of a run.
     pub fn table(&self) -> String {
-        let ms = |p: &Option<Percentiles>| p.map_or_else(|| "-".to_string(), |p| format!("{:.2} / {:.2}", p.p50 / 1000.0, p.p99 / 1000.0));
+        let ms = |p: &Option<Percentiles>| p.map_or_else(|| "-".to_string(), |p| format!("{:.3} / {:.3}", p.p50 / 1000.0, p.p99 / 1000.0));
         let mut out = String::new();
         let _ = writeln!(
             out,
