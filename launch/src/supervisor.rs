@@ -160,20 +160,28 @@ impl Supervisor {
             .stdout(out)
             .stderr(err)
             .process_group(0);
-        if let Some(core) = service.spec.core {
+        let core_set = service.spec.core.map(|core| {
             // SAFETY: zeroed cpu_set_t is the empty set; CPU_SET only writes into it.
             let mut set: libc::cpu_set_t = unsafe { std::mem::zeroed() };
             unsafe { libc::CPU_SET(core, &mut set) };
-            // SAFETY: runs in the forked child before exec; sched_setaffinity is async-signal-safe and the
-            // closure touches nothing but the copied set.
-            unsafe {
-                cmd.pre_exec(move || {
-                    if libc::sched_setaffinity(0, std::mem::size_of::<libc::cpu_set_t>(), &set) != 0 {
+            set
+        });
+        // SAFETY: runs in the forked child before exec; prctl and sched_setaffinity are async-signal-safe and the
+        // closure touches nothing but the copied set.
+        unsafe {
+            cmd.pre_exec(move || {
+                // If the launcher dies (even by SIGKILL), its children get SIGTERM and stop cleanly instead of
+                // running on as orphans holding shared memory.
+                if libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGTERM) != 0 {
+                    return Err(std::io::Error::last_os_error());
+                }
+                if let Some(set) = &core_set {
+                    if libc::sched_setaffinity(0, std::mem::size_of::<libc::cpu_set_t>(), set) != 0 {
                         return Err(std::io::Error::last_os_error());
                     }
-                    Ok(())
-                });
-            }
+                }
+                Ok(())
+            });
         }
         let child = cmd.spawn().map_err(os(format!("start {} ({})", service.spec.name, service.program.display())))?;
         let pid = child.id();

@@ -1,0 +1,157 @@
+//! Matcher parameters, with the BDIS-SLAM settings names and shipped defaults.
+
+use bdis_core::settings::BdisSettings;
+
+/// Which matcher runs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Algorithm {
+    /// Bayesian Dense Inverse Searching: sCRF patch confidence, level likelihoods, Gaussian-weighted fusion,
+    /// `min_prob` threshold.
+    Bdis,
+    /// Plain DIS: the same pyramid, search and speckle filter, with every searched patch trusted equally
+    /// (uniform fusion weights, no confidence, no threshold). The baseline the Bayesian parts are measured against.
+    Dis,
+}
+
+/// Parameters of the matcher (`BDISparam.*`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Params {
+    pub algorithm: Algorithm,
+    /// Coarsest pyramid level searched.
+    pub lv_f: u32,
+    /// Finest level searched; the output is upsampled by 2^lv_l.
+    pub lv_l: u32,
+    /// Inverse-compositional iterations per patch (maximum; `miniter` before the rate tests apply).
+    pub maxiter: u32,
+    pub miniter: u32,
+    pub mindprate: f64,
+    pub mindrrate: f64,
+    pub minimgerr: f64,
+    /// Patch size p (even).
+    pub patch_size: u32,
+    /// Patch overlap in [0, 1): stride = max(1, floor(p·(1 − overlap))) computed in f32, as the original.
+    pub overlap: f64,
+    /// Minimum fraction of valid pixels for a patch to count.
+    pub ratio_patch_valid: f64,
+    /// W: the confidence probes 2W disturbed positions.
+    pub num_window: u32,
+    /// δ: spacing of the disturbed positions, in level pixels.
+    pub unit_disturb: f64,
+    /// Pixels whose fused probability is ≤ this are invalid.
+    pub min_prob: f64,
+    /// Also compute a per-pixel disparity variance.
+    pub variance: bool,
+}
+
+impl Default for Params {
+    /// The BDIS-SLAM yaml values (patch 10, overlap 0.60 → stride 3).
+    fn default() -> Self {
+        Self::from_settings(&BdisSettings::default())
+    }
+}
+
+/// Parameters that cannot work, named as in the settings file.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("BDISparam.{name}: {message}")]
+pub struct ParamError {
+    pub name: &'static str,
+    pub message: String,
+}
+
+fn bad(name: &'static str, message: impl Into<String>) -> ParamError {
+    ParamError { name, message: message.into() }
+}
+
+impl Params {
+    pub fn from_settings(s: &BdisSettings) -> Self {
+        Self {
+            algorithm: Algorithm::Bdis,
+            lv_f: s.lv_f,
+            lv_l: s.lv_l,
+            maxiter: s.maxiter,
+            miniter: s.miniter,
+            mindprate: s.mindprate,
+            mindrrate: s.mindrrate,
+            minimgerr: s.minimgerr,
+            patch_size: s.patchsz,
+            overlap: s.poverl,
+            ratio_patch_valid: s.ratio_patch_valid,
+            num_window: s.num_window,
+            unit_disturb: s.unit_disturb,
+            min_prob: s.min_prob,
+            variance: s.bool_var,
+        }
+    }
+
+    /// The authors' parameters for the synthetic colon sets (patch 8, overlap 0.40, δ = 1).
+    pub fn colon() -> Self {
+        Self { patch_size: 8, overlap: 0.40, unit_disturb: 1.0, min_prob: 0.05, ..Self::default() }
+    }
+
+    /// Patch stride, computed in f32 like the original (10 · (1 − 0.6f) = 3.9999998 → 3).
+    pub fn stride(&self) -> u32 {
+        ((self.patch_size as f32) * (1.0 - self.overlap as f32)).floor().max(1.0) as u32
+    }
+
+    /// Checks every value; the matcher refuses parameters that cannot work.
+    pub fn validate(&self) -> Result<(), ParamError> {
+        if self.patch_size < 2 || self.patch_size % 2 != 0 || self.patch_size > 64 {
+            return Err(bad("patchsz", format!("must be even and in 2..=64, found {}", self.patch_size)));
+        }
+        if self.lv_l == 0 {
+            return Err(bad("lv_l", "must be ≥ 1 (the level likelihood 1/s is undefined at level 0)"));
+        }
+        if self.lv_f < self.lv_l {
+            return Err(bad("lv_f", format!("must be ≥ lv_l ({}), found {}", self.lv_l, self.lv_f)));
+        }
+        if self.lv_f > 10 {
+            return Err(bad("lv_f", format!("must be ≤ 10, found {}", self.lv_f)));
+        }
+        if self.maxiter == 0 || self.maxiter > 1000 {
+            return Err(bad("maxiter", format!("must be in 1..=1000, found {}", self.maxiter)));
+        }
+        if !(self.overlap.is_finite() && (0.0..1.0).contains(&self.overlap)) {
+            return Err(bad("poverl", format!("must be in [0, 1), found {}", self.overlap)));
+        }
+        if !(self.ratio_patch_valid.is_finite() && (0.0..=1.0).contains(&self.ratio_patch_valid)) {
+            return Err(bad("ratio_patch_valid", format!("must be in [0, 1], found {}", self.ratio_patch_valid)));
+        }
+        if self.num_window == 0 || self.num_window > 16 {
+            return Err(bad("num_window", format!("must be in 1..=16, found {}", self.num_window)));
+        }
+        if !(self.unit_disturb.is_finite() && self.unit_disturb > 0.0 && self.unit_disturb <= self.patch_size as f64) {
+            return Err(bad("unit_disturb", format!("must be in (0, patchsz], found {}", self.unit_disturb)));
+        }
+        if !(self.min_prob.is_finite() && (0.0..1.0).contains(&self.min_prob)) {
+            return Err(bad("min_prob", format!("must be in [0, 1), found {}", self.min_prob)));
+        }
+        for (name, v) in [("mindprate", self.mindprate), ("mindrrate", self.mindrrate), ("minimgerr", self.minimgerr)] {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err(bad(name, format!("must be a finite number ≥ 0, found {v}")));
+            }
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn strides_follow_the_original_float_rounding() {
+        assert_eq!(Params::default().stride(), 3);
+        assert_eq!(Params::colon().stride(), 4);
+        assert_eq!(Params { overlap: 0.55, ..Params::default() }.stride(), 4);
+    }
+
+    #[test]
+    fn absurd_parameters_are_refused_by_name() {
+        let e = Params { patch_size: 0, ..Params::default() }.validate().unwrap_err();
+        assert_eq!(e.to_string(), "BDISparam.patchsz: must be even and in 2..=64, found 0");
+        let e = Params { lv_f: 1, lv_l: 2, ..Params::default() }.validate().unwrap_err();
+        assert_eq!(e.to_string(), "BDISparam.lv_f: must be ≥ lv_l (2), found 1");
+        assert!(Params { min_prob: f64::NAN, ..Params::default() }.validate().is_err());
+        assert!(Params::default().validate().is_ok() && Params::colon().validate().is_ok());
+    }
+}
