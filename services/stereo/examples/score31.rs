@@ -1,0 +1,28 @@
+//! Prints the set-31 scores of BDIS and plain DIS (development aid; the CI test asserts them).
+use bdis_stereo::eval::StereoScore;
+use bdis_stereo::{Algorithm, GrayImage, Matcher, Params};
+
+fn gray(path: &std::path::Path) -> (Vec<u8>, Vec<bool>, usize, usize) {
+    let rgb = image::open(path).unwrap().to_rgb8();
+    let (w, h) = rgb.dimensions();
+    let g = rgb.pixels().map(|p| ((u32::from(p[0]) * 4899 + u32::from(p[1]) * 9617 + u32::from(p[2]) * 1868 + 8192) >> 14) as u8).collect();
+    let region = rgb.pixels().map(|p| p[0] != 0).collect();
+    (g, region, w as usize, h as usize)
+}
+
+fn main() {
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data/bdis/31");
+    for algorithm in [Algorithm::Bdis, Algorithm::Dis] {
+        let mut m = Matcher::new(Params { algorithm, ..Params::colon() }).unwrap();
+        let mut score = StereoScore::new();
+        let t = std::time::Instant::now();
+        for n in 1..=16 {
+            let (l, region, w, h) = gray(&root.join(format!("left/{n}.png")));
+            let (r, _, _, _) = gray(&root.join(format!("right/{n}.png")));
+            let out = m.compute(GrayImage { width: w, height: h, data: &l }, GrayImage { width: w, height: h, data: &r }).unwrap();
+            let gt = bdis_core::formats::pfm::read_disparity(&root.join(format!("depth/{n}.pfm"))).unwrap();
+            score.add(&out.disparity, &gt.data, &region, 260.0);
+        }
+        println!("{algorithm:?}: {:?} in {:.1} ms/pair", score.summary(), t.elapsed().as_secs_f64() * 1000.0 / 16.0);
+    }
+}
