@@ -26,3 +26,6 @@ fn main() {
         println!("{algorithm:?}: {:?} in {:.1} ms/pair", score.summary(), t.elapsed().as_secs_f64() * 1000.0 / 16.0);
     }
 }
+
+#[allow(dead_code)]
+fn unused() {}

@@ -6,8 +6,12 @@
 //! nothing.
 //!
 //! Deliberate deviations from the original (none of them its algorithm):
-//! * the right image is masked like the left (the original's copy-paste bug masks the left twice, so black
-//!   right pixels were averaged into coarse levels as dark but "valid" texture);
+//! * the right image is masked (the original's copy-paste bug masks the left twice, so black right pixels were
+//!   averaged into coarse levels as dark but "valid" texture). Black right pixels are invalid samples at every
+//!   level, and a coarse right pixel is the mean of its *valid* children (invalid only when all four are). The
+//!   left keeps the original rule (any invalid child makes the parent invalid): the template must lie on
+//!   seen tissue, while the right only has to offer usable samples. Masking the right like the left instead
+//!   spreads black borders up the pyramid and costs 8 points of density on Hamlyn 6 (80 % vs 88 %);
 //! * invalid pixels are 0 from the start (the original's NaN masking followed by its repeated NaN→0 passes
 //!   comes to the same thing, once);
 //! * `exp` is the real exponential, not Schraudolph's −4 %/+2 % approximation;
@@ -285,10 +289,13 @@ impl Matcher {
                 for x in 0..coarser.w {
                     let dst = (y + border) * coarser.stride + x + border;
                     let src = (2 * y + border) * finer.stride + 2 * x + border;
-                    for (out, img) in [(&mut coarser.left, &finer.left), (&mut coarser.right, &finer.right)] {
-                        let (a, b, c, d) = (img[src], img[src + 1], img[src + finer.stride], img[src + finer.stride + 1]);
-                        out[dst] = if a == 0.0 || b == 0.0 || c == 0.0 || d == 0.0 { 0.0 } else { 0.25 * (a + b + c + d) };
-                    }
+                    let img = &finer.left;
+                    let (a, b, c, d) = (img[src], img[src + 1], img[src + finer.stride], img[src + finer.stride + 1]);
+                    coarser.left[dst] = if a == 0.0 || b == 0.0 || c == 0.0 || d == 0.0 { 0.0 } else { 0.25 * (a + b + c + d) };
+                    let img = &finer.right;
+                    let (a, b, c, d) = (img[src], img[src + 1], img[src + finer.stride], img[src + finer.stride + 1]);
+                    let n = u8::from(a != 0.0) + u8::from(b != 0.0) + u8::from(c != 0.0) + u8::from(d != 0.0);
+                    coarser.right[dst] = if n == 0 { 0.0 } else { (a + b + c + d) / f32::from(n) };
                 }
             }
         }
