@@ -1,0 +1,78 @@
+//! Bad input gives a clear error, never a panic; inputs without texture give an all-invalid map, not garbage.
+
+use bdis_stereo::{Algorithm, GrayImage, MatchError, Matcher, Params};
+
+fn img(w: usize, h: usize, f: impl Fn(usize, usize) -> u8) -> Vec<u8> {
+    (0..w * h).map(|i| f(i % w, i / w)).collect()
+}
+
+fn textured(x: usize, y: usize) -> u8 {
+    (((x * 2_654_435_761) ^ (y * 40_503)) >> 5) as u8 | 1
+}
+
+#[test]
+fn different_sizes_and_short_buffers_are_errors() {
+    let mut m = Matcher::new(Params::default()).unwrap();
+    let a = img(64, 48, textured);
+    let b = img(60, 48, textured);
+    let e = m.compute(GrayImage { width: 64, height: 48, data: &a }, GrayImage { width: 60, height: 48, data: &b }).unwrap_err();
+    assert_eq!(e, MatchError::SizeMismatch { lw: 64, lh: 48, rw: 60, rh: 48 });
+    assert!(e.to_string().contains("left image is 64×48, right image is 60×48"));
+    let e = m.compute(GrayImage { width: 64, height: 48, data: &a[..100] }, GrayImage { width: 64, height: 48, data: &a }).unwrap_err();
+    assert!(matches!(e, MatchError::Buffer { len: 100, .. }), "{e}");
+}
+
+#[test]
+fn empty_images_are_errors() {
+    let mut m = Matcher::new(Params::default()).unwrap();
+    let e = m.compute(GrayImage { width: 0, height: 0, data: &[] }, GrayImage { width: 0, height: 0, data: &[] }).unwrap_err();
+    assert!(matches!(e, MatchError::TooSmall { .. }), "{e}");
+}
+
+#[test]
+fn absurd_parameters_are_errors() {
+    for (p, name) in [
+        (Params { patch_size: 0, ..Params::default() }, "patchsz"),
+        (Params { patch_size: 7, ..Params::default() }, "patchsz"),
+        (Params { lv_f: 0, lv_l: 1, ..Params::default() }, "lv_f"),
+        (Params { lv_l: 0, ..Params::default() }, "lv_l"),
+        (Params { overlap: 1.0, ..Params::default() }, "poverl"),
+        (Params { unit_disturb: -1.0, ..Params::default() }, "unit_disturb"),
+        (Params { maxiter: 0, ..Params::default() }, "maxiter"),
+    ] {
+        let e = Matcher::new(p).unwrap_err();
+        assert!(e.to_string().starts_with(&format!("BDISparam.{name}:")), "{e}");
+    }
+}
+
+#[test]
+fn black_and_textureless_pairs_give_all_invalid_maps() {
+    for algorithm in [Algorithm::Bdis, Algorithm::Dis] {
+        let mut m = Matcher::new(Params { algorithm, ..Params::default() }).unwrap();
+        for value in [0u8, 128] {
+            let a = img(160, 120, |_, _| value);
+            let out = m.compute(GrayImage { width: 160, height: 120, data: &a }, GrayImage { width: 160, height: 120, data: &a }).unwrap();
+            assert_eq!(out.density(), 0.0, "{algorithm:?}, constant {value}");
+            assert!(out.confidence.iter().all(|&c| c == 0.0));
+        }
+    }
+}
+
+#[test]
+fn a_shifted_texture_gives_its_disparity() {
+    // Right = left shifted by 6 px: a fronto-parallel plane at disparity 6.
+    let (w, h) = (320, 240);
+    let smooth = |x: usize, y: usize| -> u8 {
+        let (xf, yf) = (x as f32, y as f32);
+        (128.0 + 50.0 * (xf * 0.21).sin() * (yf * 0.17).cos() + 40.0 * ((xf + 2.0 * yf) * 0.07).sin()) as u8
+    };
+    let left = img(w, h, smooth);
+    let right = img(w, h, |x, y| smooth(x + 6, y));
+    let mut m = Matcher::new(Params::colon()).unwrap();
+    let out = m.compute(GrayImage { width: w, height: h, data: &left }, GrayImage { width: w, height: h, data: &right }).unwrap();
+    assert!(out.density() > 0.5, "density {}", out.density());
+    let errors: Vec<f32> = out.disparity.iter().filter(|d| d.is_finite()).map(|d| (d - 6.0).abs()).collect();
+    let mean = errors.iter().sum::<f32>() / errors.len() as f32;
+    assert!(mean < 0.25, "mean error {mean} px");
+    assert!(out.confidence.iter().all(|c| (0.0..=1.0).contains(c)));
+}
