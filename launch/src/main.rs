@@ -8,6 +8,7 @@ use anyhow::{Context, Result};
 use clap::{Parser, Subcommand};
 
 mod probe_cmd;
+mod stereo_cmd;
 
 /// bdis-slam: lightweight CPU-only dense stereo SLAM for minimally invasive surgery, as separate processes
 /// over zero-copy shared memory.
@@ -26,6 +27,8 @@ enum Command {
     Probe(probe_cmd::ProbeArgs),
     /// The built-in demo: render a synthetic stereo endoscope sweep and run the pipeline over it.
     Demo(DemoArgs),
+    /// Dense stereo (BDIS or plain DIS) on one rectified pair or a whole sequence: disparity, confidence, preview.
+    Stereo(stereo_cmd::StereoArgs),
 }
 
 #[derive(Debug, clap::Args)]
@@ -73,6 +76,7 @@ fn main() -> ExitCode {
         Command::Run(args) => run(args),
         Command::Probe(args) => probe_cmd::probe(args).map(|()| ExitCode::SUCCESS),
         Command::Demo(args) => demo(args),
+        Command::Stereo(args) => stereo_cmd::stereo(args).map(|()| ExitCode::SUCCESS),
     };
     match result {
         Ok(code) => code,

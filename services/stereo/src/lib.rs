@@ -4,6 +4,7 @@
 pub mod eval;
 pub mod matcher;
 pub mod params;
+pub mod preview;
 
 pub use matcher::{DisparityMap, GrayImage, MatchError, Matcher};
 pub use params::{Algorithm, ParamError, Params};

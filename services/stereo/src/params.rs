@@ -155,3 +155,72 @@ mod tests {
         assert!(Params::default().validate().is_ok() && Params::colon().validate().is_ok());
     }
 }
+
+impl Params {
+    /// Sets one parameter by its settings name (`BDISparam.` prefix optional), e.g. from `--param patchsz=8`.
+    pub fn set(&mut self, name: &str, value: &str) -> Result<(), ParamError> {
+        let key = name.strip_prefix("BDISparam.").unwrap_or(name);
+        let key: &'static str = match key {
+            "lv_f" => "lv_f",
+            "lv_l" => "lv_l",
+            "maxiter" => "maxiter",
+            "miniter" => "miniter",
+            "mindprate" => "mindprate",
+            "mindrrate" => "mindrrate",
+            "minimgerr" => "minimgerr",
+            "patchsz" => "patchsz",
+            "poverl" => "poverl",
+            "ratio_patch_valid" => "ratio_patch_valid",
+            "num_window" => "num_window",
+            "unit_disturb" => "unit_disturb",
+            "min_prob" => "min_prob",
+            "bool_var" => "bool_var",
+            other => {
+                return Err(ParamError {
+                    name: "?",
+                    message: format!("unknown parameter `{other}` (known: lv_f lv_l maxiter miniter mindprate mindrrate minimgerr patchsz poverl ratio_patch_valid num_window unit_disturb min_prob bool_var)"),
+                });
+            }
+        };
+        let number: f64 = value.trim().parse().map_err(|_| bad(key, format!("`{value}` is not a number")))?;
+        let whole = || -> Result<u32, ParamError> {
+            if number.fract() == 0.0 && (0.0..=f64::from(u32::MAX)).contains(&number) {
+                Ok(number as u32)
+            } else {
+                Err(bad(key, format!("must be a whole number ≥ 0, found {value}")))
+            }
+        };
+        match key {
+            "lv_f" => self.lv_f = whole()?,
+            "lv_l" => self.lv_l = whole()?,
+            "maxiter" => self.maxiter = whole()?,
+            "miniter" => self.miniter = whole()?,
+            "patchsz" => self.patch_size = whole()?,
+            "num_window" => self.num_window = whole()?,
+            "bool_var" => self.variance = whole()? != 0,
+            "mindprate" => self.mindprate = number,
+            "mindrrate" => self.mindrrate = number,
+            "minimgerr" => self.minimgerr = number,
+            "poverl" => self.overlap = number,
+            "ratio_patch_valid" => self.ratio_patch_valid = number,
+            "unit_disturb" => self.unit_disturb = number,
+            _ => self.min_prob = number,
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod set_tests {
+    use super::*;
+
+    #[test]
+    fn set_by_settings_name() {
+        let mut p = Params::default();
+        p.set("patchsz", "8").unwrap();
+        p.set("BDISparam.poverl", "0.4").unwrap();
+        assert_eq!((p.patch_size, p.stride()), (8, 4));
+        assert_eq!(p.set("patchsz", "8.5").unwrap_err().to_string(), "BDISparam.patchsz: must be a whole number ≥ 0, found 8.5");
+        assert!(p.set("nope", "1").unwrap_err().to_string().contains("unknown parameter `nope`"));
+    }
+}
