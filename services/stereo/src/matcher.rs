@@ -75,6 +75,9 @@ struct Level {
     /// 1 where the right pixel and the one below it are both valid (the bilinear validity rule reads the row
     /// below even though its weight is 0, §4).
     right_ok: Vec<u8>,
+    /// Summed-area table of unusable right samples (a sample at column c needs `right_ok` at c and c+1), so
+    /// "is this patch footprint fully usable" costs four reads.
+    bad_sat: Vec<u32>,
     /// Fused flow u (≤ 0, level px; NaN invalid) and pixel probability.
     flow: Vec<f32>,
     prob: Vec<f32>,
@@ -85,6 +88,15 @@ struct Level {
     count: Vec<u16>,
     /// Variance accumulators (Σ w²·var).
     var_num: Vec<f32>,
+}
+
+/// Residual statistics at one shift.
+#[derive(Debug, Clone, Copy)]
+struct Eval {
+    n: usize,
+    sum_gr: f32,
+    sum_r2: f32,
+    mares: f32,
 }
 
 /// The result of one patch search.
@@ -112,9 +124,22 @@ pub struct Matcher {
     gauss: Vec<f32>,
     template: Vec<f32>,
     grad: Vec<f32>,
+    /// 1 where the template pixel is valid (normalised value ≠ 0), else 0; and g·T' per pixel.
+    tmpl_mask: Vec<f32>,
+    grad_t: Vec<f32>,
     residual: Vec<f32>,
+    /// Per-patch constants of the fast evaluation: template mean, Σg, Σg·T', ΣT', whether every template pixel
+    /// is valid.
+    tmpl_mean: f32,
+    sum_g: f32,
+    sum_gt: f32,
+    sum_t: f32,
+    tmpl_all_valid: bool,
     /// Per patch of the current level: result and reference point.
     patches: Vec<(usize, usize, PatchResult, f32)>,
+    /// Bilinear taps of the output upsampling per output column and row (index, index, weight of the second).
+    col_taps: Vec<(u32, u32, f32)>,
+    row_taps: Vec<(u32, u32, f32)>,
     /// Speckle filter scratch.
     labels: Vec<u32>,
     stack: Vec<usize>,
@@ -151,8 +176,17 @@ impl Matcher {
             gauss,
             template: vec![0.0; p * p],
             grad: vec![0.0; p * p],
+            tmpl_mask: vec![0.0; p * p],
+            grad_t: vec![0.0; p * p],
             residual: vec![0.0; p * p],
+            tmpl_mean: 0.0,
+            sum_g: 0.0,
+            sum_gt: 0.0,
+            sum_t: 0.0,
+            tmpl_all_valid: false,
             patches: Vec::new(),
+            col_taps: Vec::new(),
+            row_taps: Vec::new(),
             labels: Vec::new(),
             stack: Vec::new(),
             members: Vec::new(),
@@ -170,8 +204,12 @@ impl Matcher {
         let padded_w = w.div_ceil(unit) * unit;
         let padded_h = h.div_ceil(unit) * unit;
         if padded_w == self.padded_w && padded_h == self.padded_h && !self.levels.is_empty() {
-            self.pad_x = (padded_w - w) / 2;
-            self.pad_y = (padded_h - h) / 2;
+            let (pad_x, pad_y) = ((padded_w - w) / 2, (padded_h - h) / 2);
+            if (pad_x, pad_y, self.col_taps.len(), self.row_taps.len()) != (self.pad_x, self.pad_y, w, h) {
+                self.pad_x = pad_x;
+                self.pad_y = pad_y;
+                self.compute_taps(w, h);
+            }
             return Ok(());
         }
         // The coarsest level must hold at least one patch position.
@@ -196,6 +234,7 @@ impl Matcher {
                     right: vec![0.0; bordered],
                     left_ix: vec![0.0; bordered],
                     right_ok: vec![0; bordered],
+                    bad_sat: vec![0; (stride + 1) * (lh + 2 * border + 1)],
                     flow: vec![f32::NAN; lw * lh],
                     prob: vec![0.0; lw * lh],
                     num: vec![0.0; lw * lh],
@@ -216,7 +255,31 @@ impl Matcher {
         self.labels = vec![0; finest.w * finest.h];
         self.stack = Vec::with_capacity(finest.w * finest.h);
         self.members = Vec::with_capacity(finest.w * finest.h);
+        self.compute_taps(w, h);
         Ok(())
+    }
+
+    /// OpenCV INTER_LINEAR taps for upsampling the finest searched level by 2^lv_l: source coordinate
+    /// (x + 0.5)/f − 0.5, clamped at the borders; padding offsets included.
+    fn compute_taps(&mut self, w: usize, h: usize) {
+        let lv_l = self.params.lv_l as usize;
+        let factor = (1usize << lv_l) as f32;
+        let (lw, lh) = (self.levels[lv_l].w, self.levels[lv_l].h);
+        let tap = |x: usize, n: usize| -> (u32, u32, f32) {
+            let sx = (x as f32 + 0.5) / factor - 0.5;
+            if sx <= 0.0 {
+                return (0, 0, 0.0);
+            }
+            let x0 = sx.floor() as usize;
+            if x0 + 1 >= n {
+                return ((n - 1) as u32, (n - 1) as u32, 0.0);
+            }
+            (x0 as u32, (x0 + 1) as u32, sx - x0 as f32)
+        };
+        self.col_taps.clear();
+        self.col_taps.extend((0..w).map(|x| tap(x + self.pad_x, lw)));
+        self.row_taps.clear();
+        self.row_taps.extend((0..h).map(|y| tap(y + self.pad_y, lh)));
     }
 
     /// Computes disparity and confidence for a rectified pair, into `out` (its buffers are reused).
@@ -299,21 +362,39 @@ impl Matcher {
                 }
             }
         }
-        for level in &mut self.levels {
-            level.left_ix.fill(0.0);
-            level.right_ok.fill(0);
+        // Gradients, usable-sample masks and their summed-area table only where patches are searched. Borders
+        // and the first/last gradient column are never written, so they stay 0 from allocation.
+        let lv_l = self.params.lv_l as usize;
+        for level in &mut self.levels[lv_l..] {
             for y in 0..level.h {
                 let row = (y + border) * level.stride + border;
+                let img = &level.left[row..row + level.w];
+                let ix = &mut level.left_ix[row..row + level.w];
                 for x in 1..level.w.saturating_sub(1) {
-                    let i = row + x;
-                    let (a, b) = (level.left[i - 1], level.left[i + 1]);
-                    level.left_ix[i] = if a == 0.0 || b == 0.0 { 0.0 } else { b - a };
+                    let (a, b) = (img[x - 1], img[x + 1]);
+                    ix[x] = if a == 0.0 || b == 0.0 { 0.0 } else { b - a };
                 }
             }
-            // right_ok over the whole bordered area: border pixels are 0 and so never usable.
             let n = level.right.len();
-            for i in 0..n - level.stride {
-                level.right_ok[i] = u8::from(level.right[i] != 0.0 && level.right[i + level.stride] != 0.0);
+            let stride = level.stride;
+            let (upper, lower) = level.right.split_at(stride);
+            let _ = upper;
+            for ((ok, &v), &below) in level.right_ok[..n - stride].iter_mut().zip(&level.right[..n - stride]).zip(lower) {
+                *ok = u8::from(v != 0.0 && below != 0.0);
+            }
+            let rows = n / stride;
+            let w1 = stride + 1;
+            for y in 0..rows {
+                let mut row_sum = 0u32;
+                let ok = &level.right_ok[y * stride..(y + 1) * stride];
+                let (above, below) = level.bad_sat.split_at_mut((y + 1) * w1);
+                let above = &above[y * w1..];
+                let below = &mut below[..w1];
+                for x in 0..stride {
+                    let usable = x + 1 < stride && ok[x] & ok[(x + 1).min(stride - 1)] != 0;
+                    row_sum += u32::from(!usable);
+                    below[x + 1] = above[x + 1] + row_sum;
+                }
             }
         }
     }
@@ -420,7 +501,8 @@ impl Matcher {
         Some((valid, abs_sum, sq_sum))
     }
 
-    /// Loads the template (mean-normalised left samples) and gradients of the patch at `q`; returns the Hessian.
+    /// Loads the template (mean-normalised left samples) and gradients of the patch at `q`, and the per-patch
+    /// constants of the fast evaluation; returns the Hessian.
     fn load_template(&mut self, level: usize, qx: usize, qy: usize) -> f32 {
         let p = self.params.patch_size as usize;
         let half = p / 2;
@@ -430,10 +512,11 @@ impl Matcher {
         let mut n = 0usize;
         for b in 0..p {
             let row = (qy + b + border - half) * stride + border + qx - half;
-            for a in 0..p {
-                let v = l.left[row + a];
-                self.template[b * p + a] = v;
-                self.grad[b * p + a] = l.left_ix[row + a];
+            let (src, srcg) = (&l.left[row..row + p], &l.left_ix[row..row + p]);
+            let (dst, dstg) = (&mut self.template[b * p..(b + 1) * p], &mut self.grad[b * p..(b + 1) * p]);
+            dst.copy_from_slice(src);
+            dstg.copy_from_slice(srcg);
+            for &v in src {
                 if v != 0.0 {
                     sum += v;
                     n += 1;
@@ -441,38 +524,150 @@ impl Matcher {
             }
         }
         let mean = if n > 0 { sum / n as f32 } else { 0.0 };
-        let mut hessian = 0.0f32;
+        let (mut hessian, mut sum_g, mut sum_gt, mut sum_t) = (0.0f32, 0.0f32, 0.0f32, 0.0f32);
+        let mut all_valid = n == p * p;
         for k in 0..p * p {
-            if self.template[k] > 0.0 {
-                self.template[k] -= mean;
+            let mut t = self.template[k];
+            if t > 0.0 {
+                t -= mean;
+                self.template[k] = t;
             }
-            hessian += self.grad[k] * self.grad[k];
+            let g = self.grad[k];
+            hessian += g * g;
+            sum_g += g;
+            sum_gt += g * t;
+            sum_t += t;
+            // A template pixel equal to its mean normalises to exactly 0 and counts as invalid (§4).
+            all_valid &= t != 0.0;
+            self.tmpl_mask[k] = if t != 0.0 { 1.0 } else { 0.0 };
+            self.grad_t[k] = g * t;
         }
+        self.tmpl_mean = mean;
+        self.sum_g = sum_g;
+        self.sum_gt = sum_gt;
+        self.sum_t = sum_t;
+        self.tmpl_all_valid = all_valid;
         if hessian == 0.0 { 1e-10 } else { hessian }
+    }
+
+    /// Residual statistics of the patch at `q` shifted by `u`: valid count, Σ g·r, Σ r², and mean |r| (the last
+    /// only from the exact path). `None` when the shift leaves the level's bounds.
+    ///
+    /// Fast path, when every template pixel is valid and every right sample usable (one summed-area lookup):
+    /// with s̃ = S − m_T and Ã = mean s̃, the normalised residual is r = s̃ − Ã − T', so
+    /// Σ g·r = Σ g·s̃ − Ã·Σg − Σ g·T' and Σ r² = Σ (s̃ − T')² − 2Ã·Σ(s̃ − T') + n·Ã², one pass over the samples.
+    /// Patches touching invalid pixels take the masked one-pass [`Self::eval_masked`]; only when the stopping
+    /// rules need the mean |r| does every evaluation take the exact two-pass [`Self::residual_at`]. (The one-pass
+    /// forms do not reproduce the original's quirk that a sample exactly equal to its patch mean counts as
+    /// invalid; such ties are measure-zero.)
+    fn eval(&mut self, level: usize, qx: usize, qy: usize, u: f32, want_r2: bool, exact: bool) -> Option<Eval> {
+        let p = self.params.patch_size as usize;
+        let half = (p / 2) as f32;
+        let l = &self.levels[level];
+        let x_pos = qx as f32 + u;
+        if !(x_pos >= -half && x_pos <= l.w as f32 + half - 2.0) {
+            return None;
+        }
+        if exact {
+            let (n, abs_sum, sq_sum) = self.residual_at(level, qx, qy, u)?;
+            let mut gr = 0.0f32;
+            for k in 0..p * p {
+                gr += self.grad[k] * self.residual[k];
+            }
+            return Some(Eval { n, sum_gr: gr, sum_r2: sq_sum, mares: abs_sum / (p * p) as f32 });
+        }
+        let x0 = x_pos - half;
+        let c0f = (x0 + 1e-5).ceil() - 1.0;
+        let frac = x0 - c0f;
+        let border = self.border as isize;
+        let col = (c0f as isize + border) as usize;
+        let row0 = (qy as isize - half as isize + border) as usize;
+        let footprint_usable = {
+            let w1 = l.stride + 1;
+            let (x1, y1) = (col + p, row0 + p);
+            let sat = &l.bad_sat;
+            sat[y1 * w1 + x1] + sat[row0 * w1 + col] == sat[row0 * w1 + x1] + sat[y1 * w1 + col]
+        };
+        if !(footprint_usable && self.tmpl_all_valid) {
+            return Some(self.eval_masked(level, row0, col, frac, want_r2));
+        }
+        let n = (p * p) as f32;
+        let rows = RowSource { right: &l.right, stride: l.stride, row0, col, p };
+        if want_r2 {
+            let (a_sum, e_sum) = kernels::sum_and_sq_diff(&rows, &self.template, frac, self.tmpl_mean);
+            let am = a_sum / n;
+            let r2 = e_sum - 2.0 * am * (a_sum - self.sum_t) + n * am * am;
+            return Some(Eval { n: p * p, sum_gr: f32::NAN, sum_r2: r2.max(0.0), mares: f32::NAN });
+        }
+        let (a_sum, b_sum) = kernels::sum_and_dot(&rows, &self.grad, frac, self.tmpl_mean);
+        let am = a_sum / n;
+        Some(Eval { n: p * p, sum_gr: b_sum - am * self.sum_g - self.sum_gt, sum_r2: f32::NAN, mares: f32::NAN })
+    }
+
+    /// The one-pass evaluation for patches that touch invalid pixels: the sums of the fast path, each sample
+    /// weighted by its validity v (both bilinear columns usable) and the template's m (pixel valid).
+    /// With Ã = Σv·s̃ / Σv: Σ g·r = Σ vm·g·s̃ − Ã·Σ vm·g − Σ vm·g·T' and
+    /// Σ r² = Σ vm·(s̃ − T')² − 2Ã·Σ vm·(s̃ − T') + Ã²·Σ vm.
+    fn eval_masked(&self, level: usize, row0: usize, col: usize, frac: f32, want_r2: bool) -> Eval {
+        let p = self.params.patch_size as usize;
+        let l = &self.levels[level];
+        let m_t = self.tmpl_mean;
+        let (mut a_sum, mut n_s, mut b_sum, mut c_sum, mut d_sum, mut n_r, mut e_sum, mut f_sum) =
+            (0.0f32, 0.0f32, 0.0f32, 0.0f32, 0.0f32, 0.0f32, 0.0f32, 0.0f32);
+        for b in 0..p {
+            let base = (row0 + b) * l.stride + col;
+            let r = &l.right[base..base + p + 1];
+            let ok = &l.right_ok[base..base + p + 1];
+            let k0 = b * p;
+            let (g, m, gt, t) = (&self.grad[k0..k0 + p], &self.tmpl_mask[k0..k0 + p], &self.grad_t[k0..k0 + p], &self.template[k0..k0 + p]);
+            for a in 0..p {
+                let v = f32::from(ok[a] & ok[a + 1]);
+                let sv = r[a] + frac * (r[a + 1] - r[a]) - m_t;
+                a_sum += v * sv;
+                n_s += v;
+                let vm = v * m[a];
+                n_r += vm;
+                if want_r2 {
+                    let d = sv - t[a];
+                    e_sum += vm * d * d;
+                    f_sum += vm * d;
+                } else {
+                    b_sum += vm * g[a] * sv;
+                    c_sum += vm * g[a];
+                    d_sum += vm * gt[a];
+                }
+            }
+        }
+        let am = if n_s > 0.0 { a_sum / n_s } else { 0.0 };
+        Eval {
+            n: n_r as usize,
+            sum_gr: b_sum - am * c_sum - d_sum,
+            sum_r2: (e_sum - 2.0 * am * f_sum + n_r * am * am).max(0.0),
+            mares: f32::NAN,
+        }
     }
 
     /// §4 search from `u0`, then §6.1 confidence.
     fn search_patch(&mut self, level: usize, qx: usize, qy: usize, u0: f32) -> PatchResult {
         let prm = self.params;
         let p = prm.patch_size as usize;
-        let pp = (p * p) as f32;
         let failed = PatchResult { u: u0, b: 0.0, var: f32::NAN };
+        // The stopping rules that read the mean |r| are inactive with the shipped parameters
+        // (miniter = maxiter, minimgerr = 0, §4.4); only when they are active does every step take the exact path.
+        let exact = prm.miniter < prm.maxiter || prm.minimgerr > 0.0;
         let hessian = self.load_template(level, qx, qy);
-        let Some((_, abs0, _)) = self.residual_at(level, qx, qy, u0) else {
+        let Some(first) = self.eval(level, qx, qy, u0, false, exact) else {
             return failed;
         };
         let mut u = u0;
-        let mut mares = abs0 / pp;
+        let mut sum_gr = first.sum_gr;
+        let mut mares = first.mares;
         let mut first_step_sq = 0.0f32;
         let outlier = (p / 2) as f32;
         let mut t = 0u32;
         loop {
             t += 1;
-            let mut num = 0.0f32;
-            for k in 0..p * p {
-                num += self.grad[k] * self.residual[k];
-            }
-            let delta = num / hessian;
+            let delta = sum_gr / hessian;
             if t == 1 {
                 first_step_sq = delta * delta;
             }
@@ -481,46 +676,57 @@ impl Matcher {
                 u = u0;
                 break;
             }
-            let Some((_, abs_sum, _)) = self.residual_at(level, qx, qy, candidate) else {
+            let last = t >= prm.maxiter;
+            // Without the rate tests the last step's residual only feeds the confidence, which takes its own.
+            if last && !exact {
+                let x_pos = qx as f32 + candidate;
+                let half = (p / 2) as f32;
+                u = if x_pos >= -half && x_pos <= self.levels[level].w as f32 + half - 2.0 { candidate } else { u0 };
+                break;
+            }
+            let Some(next) = self.eval(level, qx, qy, candidate, false, exact) else {
                 u = u0;
                 break;
             };
             u = candidate;
+            sum_gr = next.sum_gr;
             let mares_prev = mares;
-            mares = abs_sum / pp;
-            let keep_going = t < prm.maxiter
-                && f64::from(mares) > prm.minimgerr
-                && (t < prm.miniter || f64::from(delta * delta) >= prm.mindprate * prm.mindprate * f64::from(first_step_sq))
-                && (t < prm.miniter || f64::from(mares) <= prm.mindrrate * f64::from(mares_prev));
-            if !keep_going {
-                break;
+            mares = next.mares;
+            if exact {
+                let keep_going = !last
+                    && f64::from(mares) > prm.minimgerr
+                    && (t < prm.miniter || f64::from(delta * delta) >= prm.mindprate * prm.mindprate * f64::from(first_step_sq))
+                    && (t < prm.miniter || f64::from(mares) <= prm.mindrrate * f64::from(mares_prev));
+                if !keep_going {
+                    break;
+                }
             }
         }
         // §6.1 confidence at the final position.
         let min_valid = (prm.ratio_patch_valid * (p * p) as f64).ceil() as usize;
-        let Some((n0, _, sq0)) = self.residual_at(level, qx, qy, u) else {
+        let Some(centre) = self.eval(level, qx, qy, u, true, exact) else {
             return failed;
         };
-        if n0 == 0 || n0 < min_valid {
+        if centre.n == 0 || centre.n < min_valid {
             return failed;
         }
         if prm.algorithm == Algorithm::Dis {
             return PatchResult { u, b: 1.0, var: f32::NAN };
         }
-        let e0 = sq0 / n0 as f32;
-        let centre = (-0.5f32).exp();
-        let mut total = centre;
+        let e0 = centre.sum_r2 / centre.n as f32;
+        let centre_score = (-0.5f32).exp();
+        let mut total = centre_score;
         let w = prm.num_window as i32;
         let delta = prm.unit_disturb as f32;
         let mut log_scores = [0f32; 33];
         for k in (-w..=w).filter(|&k| k != 0) {
-            let Some((n, _, sq)) = self.residual_at(level, qx, qy, u + k as f32 * delta) else {
+            let Some(probe) = self.eval(level, qx, qy, u + k as f32 * delta, true, exact) else {
                 return failed;
             };
-            if n == 0 || n < min_valid {
+            if probe.n == 0 || probe.n < min_valid {
                 return failed;
             }
-            let ek = sq / n as f32;
+            let ek = probe.sum_r2 / probe.n as f32;
             // The optimum must be a strict minimum against every probed neighbour.
             if ek <= e0 {
                 return failed;
@@ -530,7 +736,7 @@ impl Matcher {
             total += y.exp();
         }
         log_scores[w as usize] = -0.5;
-        let b = centre / total;
+        let b = centre_score / total;
         let var = if prm.variance { variance_fit(&log_scores[..(2 * w + 1) as usize], total.ln(), delta, p) } else { f32::NAN };
         PatchResult { u, b, var }
     }
@@ -649,49 +855,101 @@ impl Matcher {
         } else {
             out.variance = None;
         }
-        // OpenCV INTER_LINEAR: source coordinate (x + 0.5)/f − 0.5, clamped at the borders.
-        let tap = |x: usize, n: usize| -> (usize, usize, f32) {
-            let sx = (x as f32 + 0.5) / factor - 0.5;
-            if sx <= 0.0 {
-                return (0, 0, 0.0);
-            }
-            let x0 = sx.floor() as usize;
-            if x0 + 1 >= n {
-                return (n - 1, n - 1, 0.0);
-            }
-            (x0, x0 + 1, sx - x0 as f32)
-        };
         for y in 0..h {
-            let (y0, y1, fy) = tap(y + self.pad_y, level.h);
-            for x in 0..w {
-                let (x0, x1, fx) = tap(x + self.pad_x, level.w);
-                let idx = [(y0, x0, (1.0 - fx) * (1.0 - fy)), (y0, x1, fx * (1.0 - fy)), (y1, x0, (1.0 - fx) * fy), (y1, x1, fx * fy)];
+            let (y0, y1, fy) = self.row_taps[y];
+            let (r0, r1) = (y0 as usize * level.w, y1 as usize * level.w);
+            let disparity = &mut out.disparity[y * w..(y + 1) * w];
+            let confidence = &mut out.confidence[y * w..(y + 1) * w];
+            for (x, &(x0, x1, fx)) in self.col_taps.iter().enumerate() {
+                let (x0, x1) = (x0 as usize, x1 as usize);
+                let idx = [
+                    (r0 + x0, (1.0 - fx) * (1.0 - fy)),
+                    (r0 + x1, fx * (1.0 - fy)),
+                    (r1 + x0, (1.0 - fx) * fy),
+                    (r1 + x1, fx * fy),
+                ];
                 let mut flow = 0.0f32;
                 let mut prob = 0.0f32;
-                for &(yy, xx, wgt) in &idx {
-                    let k = yy * level.w + xx;
+                for &(k, wgt) in &idx {
                     flow += wgt * level.flow[k];
                     prob += wgt * level.prob[k];
                 }
                 let d = -flow * factor;
-                let k = y * w + x;
-                let valid = d.is_finite() && d > 0.0;
-                out.disparity[k] = if valid { d } else { f32::NAN };
-                out.confidence[k] = if valid { prob.clamp(0.0, 1.0) } else { 0.0 };
+                // NaN fails the comparison: invalid.
+                let valid = d > 0.0;
+                disparity[x] = if valid { d } else { f32::NAN };
+                confidence[x] = if valid { prob.clamp(0.0, 1.0) } else { 0.0 };
                 if let Some(var) = out.variance.as_mut() {
-                    var[k] = if valid { self.pixel_variance(lv_l, &idx) * factor * factor } else { f32::NAN };
+                    var[y * w + x] = if valid { self.pixel_variance(lv_l, &idx) * factor * factor } else { f32::NAN };
                 }
             }
         }
     }
 
-    /// Fused variance Σw²·var / (Σw)² at the nearest level pixel of the stencil.
-    fn pixel_variance(&self, s: usize, idx: &[(usize, usize, f32); 4]) -> f32 {
+    /// Fused variance Σw²·var / (Σw)² at the stencil's heaviest level pixel.
+    fn pixel_variance(&self, s: usize, idx: &[(usize, f32); 4]) -> f32 {
         let level = &self.levels[s];
-        let (yy, xx, _) = idx.iter().copied().fold((0, 0, -1.0f32), |best, t| if t.2 > best.2 { t } else { best });
-        let k = yy * level.w + xx;
+        let (k, _) = idx.iter().copied().fold((0, -1.0f32), |best, t| if t.1 > best.1 { t } else { best });
         let den = level.den[k];
         if den > 0.0 { level.var_num[k] / (den * den) } else { f32::NAN }
+    }
+}
+
+/// The right-image rows under a shifted patch: row `row0 + b` from column `col`, p + 1 samples each (bilinear).
+#[derive(Debug, Clone, Copy)]
+struct RowSource<'a> {
+    right: &'a [f32],
+    stride: usize,
+    row0: usize,
+    col: usize,
+    p: usize,
+}
+
+impl RowSource<'_> {
+    #[inline(always)]
+    fn row(&self, b: usize) -> &[f32] {
+        let base = (self.row0 + b) * self.stride + self.col;
+        &self.right[base..base + self.p + 1]
+    }
+}
+
+/// The inner loops of the fully-valid patch evaluation.
+mod kernels {
+    use super::RowSource;
+
+    /// (Σ s̃, Σ w·s̃) with s̃ = bilinear sample − offset, over a p×p patch; `weights` row-major p×p.
+    #[inline(always)]
+    pub(super) fn sum_and_dot(rows: &RowSource<'_>, weights: &[f32], frac: f32, offset: f32) -> (f32, f32) {
+        let p = rows.p;
+        let (mut a, mut d) = (0.0f32, 0.0f32);
+        for b in 0..p {
+            let r = rows.row(b);
+            let w = &weights[b * p..(b + 1) * p];
+            for (pair, &wv) in r.windows(2).zip(w) {
+                let sv = pair[0] + frac * (pair[1] - pair[0]) - offset;
+                a += sv;
+                d += wv * sv;
+            }
+        }
+        (a, d)
+    }
+
+    /// (Σ s̃, Σ (s̃ − t)²) over a p×p patch; `template` row-major p×p.
+    #[inline(always)]
+    pub(super) fn sum_and_sq_diff(rows: &RowSource<'_>, template: &[f32], frac: f32, offset: f32) -> (f32, f32) {
+        let p = rows.p;
+        let (mut a, mut e) = (0.0f32, 0.0f32);
+        for b in 0..p {
+            let r = rows.row(b);
+            let t = &template[b * p..(b + 1) * p];
+            for (pair, &tv) in r.windows(2).zip(t) {
+                let sv = pair[0] + frac * (pair[1] - pair[0]) - offset;
+                a += sv;
+                let diff = sv - tv;
+                e += diff * diff;
+            }
+        }
+        (a, e)
     }
 }
 

@@ -1,0 +1,28 @@
+//! Matches one pair `repeats` times: the target of the callgrind instruction counts in BENCHMARKS.md.
+//! Usage: one_pair <slam|colon|slam-dis|colon-dis> LEFT RIGHT [repeats]
+use bdis_stereo::{Algorithm, DisparityMap, GrayImage, Matcher, Params};
+
+fn main() {
+    let args: Vec<String> = std::env::args().collect();
+    if args.len() < 4 {
+        eprintln!("usage: one_pair <slam|colon|slam-dis|colon-dis> LEFT RIGHT [repeats]");
+        std::process::exit(2);
+    }
+    let params = match args[1].as_str() {
+        "slam" => Params::default(),
+        "colon" => Params::colon(),
+        "slam-dis" => Params { algorithm: Algorithm::Dis, ..Params::default() },
+        "colon-dis" => Params { algorithm: Algorithm::Dis, ..Params::colon() },
+        other => panic!("unknown preset {other}"),
+    };
+    let l = image::open(&args[2]).unwrap().to_luma8();
+    let r = image::open(&args[3]).unwrap().to_luma8();
+    let repeats: usize = args.get(4).map_or(1, |s| s.parse().unwrap());
+    let (w, h) = (l.width() as usize, l.height() as usize);
+    let mut m = Matcher::new(params).unwrap();
+    let mut out = DisparityMap::default();
+    for _ in 0..repeats {
+        m.compute_into(GrayImage { width: w, height: h, data: l.as_raw() }, GrayImage { width: w, height: h, data: r.as_raw() }, &mut out).unwrap();
+    }
+    println!("density {:.3}", out.density());
+}
