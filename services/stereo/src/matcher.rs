@@ -124,9 +124,6 @@ pub struct Matcher {
     gauss: Vec<f32>,
     template: Vec<f32>,
     grad: Vec<f32>,
-    /// 1 where the template pixel is valid (normalised value ≠ 0), else 0; and g·T' per pixel.
-    tmpl_mask: Vec<f32>,
-    grad_t: Vec<f32>,
     residual: Vec<f32>,
     /// Per-patch constants of the fast evaluation: template mean, Σg, Σg·T', ΣT', whether every template pixel
     /// is valid.
@@ -176,8 +173,6 @@ impl Matcher {
             gauss,
             template: vec![0.0; p * p],
             grad: vec![0.0; p * p],
-            tmpl_mask: vec![0.0; p * p],
-            grad_t: vec![0.0; p * p],
             residual: vec![0.0; p * p],
             tmpl_mean: 0.0,
             sum_g: 0.0,
@@ -539,8 +534,6 @@ impl Matcher {
             sum_t += t;
             // A template pixel equal to its mean normalises to exactly 0 and counts as invalid (§4).
             all_valid &= t != 0.0;
-            self.tmpl_mask[k] = if t != 0.0 { 1.0 } else { 0.0 };
-            self.grad_t[k] = g * t;
         }
         self.tmpl_mean = mean;
         self.sum_g = sum_g;
@@ -556,10 +549,10 @@ impl Matcher {
     /// Fast path, when every template pixel is valid and every right sample usable (one summed-area lookup):
     /// with s̃ = S − m_T and Ã = mean s̃, the normalised residual is r = s̃ − Ã − T', so
     /// Σ g·r = Σ g·s̃ − Ã·Σg − Σ g·T' and Σ r² = Σ (s̃ − T')² − 2Ã·Σ(s̃ − T') + n·Ã², one pass over the samples.
-    /// Patches touching invalid pixels take the masked one-pass [`Self::eval_masked`]; only when the stopping
-    /// rules need the mean |r| does every evaluation take the exact two-pass [`Self::residual_at`]. (The one-pass
-    /// forms do not reproduce the original's quirk that a sample exactly equal to its patch mean counts as
-    /// invalid; such ties are measure-zero.)
+    /// Patches touching invalid pixels, and every evaluation when the stopping rules need the mean |r|, take the
+    /// exact two-pass [`Self::residual_at`]. The one-pass form cannot see a sample exactly equal to its patch
+    /// mean (invalid in the original); the only systematic case, a flat patch, is detected from the samples'
+    /// range and treated as the original treats it: no valid pixel.
     fn eval(&mut self, level: usize, qx: usize, qy: usize, u: f32, want_r2: bool, exact: bool) -> Option<Eval> {
         let p = self.params.patch_size as usize;
         let half = (p / 2) as f32;
@@ -589,7 +582,15 @@ impl Matcher {
             sat[y1 * w1 + x1] + sat[row0 * w1 + col] == sat[row0 * w1 + x1] + sat[y1 * w1 + col]
         };
         if !(footprint_usable && self.tmpl_all_valid) {
-            return Some(self.eval_masked(level, row0, col, frac, want_r2));
+            // Patches touching invalid pixels (a minority) take the exact two-pass evaluation: there, samples
+            // equal to their mean (flat dark areas) must count as invalid exactly as in the original, which
+            // keeps textureless patches from passing the confidence test.
+            let (n, abs_sum, sq_sum) = self.residual_at(level, qx, qy, u)?;
+            let mut gr = 0.0f32;
+            for (g, r) in self.grad.iter().zip(&self.residual) {
+                gr += g * r;
+            }
+            return Some(Eval { n, sum_gr: gr, sum_r2: sq_sum, mares: abs_sum / (p * p) as f32 });
         }
         let n = (p * p) as f32;
         let rows = RowSource { right: &l.right, stride: l.stride, row0, col, p };
@@ -602,49 +603,6 @@ impl Matcher {
         let (a_sum, b_sum) = kernels::sum_and_dot(&rows, &self.grad, frac, self.tmpl_mean);
         let am = a_sum / n;
         Some(Eval { n: p * p, sum_gr: b_sum - am * self.sum_g - self.sum_gt, sum_r2: f32::NAN, mares: f32::NAN })
-    }
-
-    /// The one-pass evaluation for patches that touch invalid pixels: the sums of the fast path, each sample
-    /// weighted by its validity v (both bilinear columns usable) and the template's m (pixel valid).
-    /// With Ã = Σv·s̃ / Σv: Σ g·r = Σ vm·g·s̃ − Ã·Σ vm·g − Σ vm·g·T' and
-    /// Σ r² = Σ vm·(s̃ − T')² − 2Ã·Σ vm·(s̃ − T') + Ã²·Σ vm.
-    fn eval_masked(&self, level: usize, row0: usize, col: usize, frac: f32, want_r2: bool) -> Eval {
-        let p = self.params.patch_size as usize;
-        let l = &self.levels[level];
-        let m_t = self.tmpl_mean;
-        let (mut a_sum, mut n_s, mut b_sum, mut c_sum, mut d_sum, mut n_r, mut e_sum, mut f_sum) =
-            (0.0f32, 0.0f32, 0.0f32, 0.0f32, 0.0f32, 0.0f32, 0.0f32, 0.0f32);
-        for b in 0..p {
-            let base = (row0 + b) * l.stride + col;
-            let r = &l.right[base..base + p + 1];
-            let ok = &l.right_ok[base..base + p + 1];
-            let k0 = b * p;
-            let (g, m, gt, t) = (&self.grad[k0..k0 + p], &self.tmpl_mask[k0..k0 + p], &self.grad_t[k0..k0 + p], &self.template[k0..k0 + p]);
-            for a in 0..p {
-                let v = f32::from(ok[a] & ok[a + 1]);
-                let sv = r[a] + frac * (r[a + 1] - r[a]) - m_t;
-                a_sum += v * sv;
-                n_s += v;
-                let vm = v * m[a];
-                n_r += vm;
-                if want_r2 {
-                    let d = sv - t[a];
-                    e_sum += vm * d * d;
-                    f_sum += vm * d;
-                } else {
-                    b_sum += vm * g[a] * sv;
-                    c_sum += vm * g[a];
-                    d_sum += vm * gt[a];
-                }
-            }
-        }
-        let am = if n_s > 0.0 { a_sum / n_s } else { 0.0 };
-        Eval {
-            n: n_r as usize,
-            sum_gr: b_sum - am * c_sum - d_sum,
-            sum_r2: (e_sum - 2.0 * am * f_sum + n_r * am * am).max(0.0),
-            mares: f32::NAN,
-        }
     }
 
     /// §4 search from `u0`, then §6.1 confidence.
