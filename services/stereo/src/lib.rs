@@ -2,6 +2,7 @@
 //! the evaluation against ground truth. Pure compute: no files, no processes.
 
 pub mod eval;
+pub mod kernels;
 pub mod matcher;
 pub mod params;
 pub mod preview;

@@ -20,6 +20,9 @@
 //! * the variance fit runs only when asked for, and never for a degenerate candidate set;
 //! * the unused parts are not written: the right and vertical gradients, `usefbcon`, the other cost functions.
 
+use wide::f32x4;
+
+use crate::kernels;
 use crate::params::{Algorithm, ParamError, Params};
 
 /// An 8-bit grey image, rows of `width` bytes.
@@ -78,6 +81,8 @@ struct Level {
     /// Summed-area table of unusable right samples (a sample at column c needs `right_ok` at c and c+1), so
     /// "is this patch footprint fully usable" costs four reads.
     bad_sat: Vec<u32>,
+    /// 1.0 where a bilinear sample starting at this column is usable, else 0.0 (for the vector kernels).
+    usable: Vec<f32>,
     /// Fused flow u (≤ 0, level px; NaN invalid) and pixel probability.
     flow: Vec<f32>,
     prob: Vec<f32>,
@@ -124,7 +129,12 @@ pub struct Matcher {
     gauss: Vec<f32>,
     template: Vec<f32>,
     grad: Vec<f32>,
-    residual: Vec<f32>,
+    /// Row width of the padded patch arrays (p rounded up to 4), their copies, the column mask, and scratch.
+    pw: usize,
+    tmpl_pad: Vec<f32>,
+    grad_pad: Vec<f32>,
+    colmask: Vec<f32>,
+    samples: Vec<f32>,
     /// Per-patch constants of the fast evaluation: template mean, Σg, Σg·T', ΣT', whether every template pixel
     /// is valid.
     tmpl_mean: f32,
@@ -161,7 +171,8 @@ impl Matcher {
             .collect();
         // Samples reach p/2 beyond a patch's extreme position, the confidence probes W·δ further, and the
         // bilinear validity rule one more pixel and row: a border this wide keeps every read in bounds.
-        let border = p + (params.num_window as f64 * params.unit_disturb).ceil() as usize + 2;
+        // (+ 6: the vector kernels read whole 4-lane chunks, up to 3 samples past a row of the patch.)
+        let border = p + (params.num_window as f64 * params.unit_disturb).ceil() as usize + 6;
         Ok(Self {
             params,
             padded_w: 0,
@@ -173,7 +184,11 @@ impl Matcher {
             gauss,
             template: vec![0.0; p * p],
             grad: vec![0.0; p * p],
-            residual: vec![0.0; p * p],
+            pw: p.div_ceil(4) * 4,
+            tmpl_pad: vec![0.0; p * p.div_ceil(4) * 4],
+            grad_pad: vec![0.0; p * p.div_ceil(4) * 4],
+            colmask: (0..p.div_ceil(4) * 4).map(|j| if j < p { 1.0 } else { 0.0 }).collect(),
+            samples: vec![0.0; p * p.div_ceil(4) * 4],
             tmpl_mean: 0.0,
             sum_g: 0.0,
             sum_gt: 0.0,
@@ -204,6 +219,9 @@ impl Matcher {
                 self.pad_x = pad_x;
                 self.pad_y = pad_y;
                 self.compute_taps(w, h);
+                // Another image size with the same padded size: the old pixels in the new padding must go.
+                self.levels[0].left.fill(0.0);
+                self.levels[0].right.fill(0.0);
             }
             return Ok(());
         }
@@ -230,6 +248,7 @@ impl Matcher {
                     left_ix: vec![0.0; bordered],
                     right_ok: vec![0; bordered],
                     bad_sat: vec![0; (stride + 1) * (lh + 2 * border + 1)],
+                    usable: vec![0.0; bordered],
                     flow: vec![f32::NAN; lw * lh],
                     prob: vec![0.0; lw * lh],
                     num: vec![0.0; lw * lh],
@@ -325,8 +344,8 @@ impl Matcher {
         let (pad_x, pad_y) = (self.pad_x, self.pad_y);
         {
             let l0 = &mut self.levels[0];
-            l0.left.fill(0.0);
-            l0.right.fill(0.0);
+            // Borders and padding are never written, so they keep the zeros of their allocation (`prepare`
+            // clears level 0 again when the padding moves); only the image area is overwritten.
             for y in 0..left.height {
                 let dst = (y + pad_y + border) * l0.stride + pad_x + border;
                 let src = y * left.width;
@@ -341,8 +360,6 @@ impl Matcher {
                 let (a, b) = self.levels.split_at_mut(s);
                 (&mut b[0], &a[s - 1])
             };
-            coarser.left.fill(0.0);
-            coarser.right.fill(0.0);
             for y in 0..coarser.h {
                 for x in 0..coarser.w {
                     let dst = (y + border) * coarser.stride + x + border;
@@ -385,8 +402,10 @@ impl Matcher {
                 let (above, below) = level.bad_sat.split_at_mut((y + 1) * w1);
                 let above = &above[y * w1..];
                 let below = &mut below[..w1];
+                let usable_row = &mut level.usable[y * stride..(y + 1) * stride];
                 for x in 0..stride {
                     let usable = x + 1 < stride && ok[x] & ok[(x + 1).min(stride - 1)] != 0;
+                    usable_row[x] = if usable { 1.0 } else { 0.0 };
                     row_sum += u32::from(!usable);
                     below[x + 1] = above[x + 1] + row_sum;
                 }
@@ -438,64 +457,6 @@ impl Matcher {
         }
     }
 
-    /// Normalised residual `r = S_u − T` of the patch at `q` shifted by `u` (§4). Returns the number of valid
-    /// entries, Σ|r| and Σr², or `None` when the shifted patch leaves the level's bounds.
-    fn residual_at(&mut self, level: usize, qx: usize, qy: usize, u: f32) -> Option<(usize, f32, f32)> {
-        let p = self.params.patch_size as usize;
-        let half = (p / 2) as f32;
-        let l = &self.levels[level];
-        let x_pos = qx as f32 + u;
-        if !(x_pos >= -half && x_pos <= l.w as f32 + half - 2.0) {
-            return None;
-        }
-        // All samples of a patch share the fractional part: x = x_pos − p/2 + a for integer a.
-        let x0 = x_pos - half;
-        let c0 = (x0 + 1e-5).ceil() - 1.0;
-        let frac = x0 - c0;
-        let c0 = c0 as isize;
-        let border = self.border as isize;
-        let stride = l.stride as isize;
-        let y0 = qy as isize - half as isize;
-        let mut sum = 0.0f32;
-        let mut n = 0usize;
-        // First pass: samples (0 = invalid) into the residual buffer, and their mean.
-        for b in 0..p {
-            let row = (y0 + b as isize + border) * stride + border;
-            for a in 0..p {
-                let i = (row + c0 + a as isize) as usize;
-                let v = if l.right_ok[i] != 0 && l.right_ok[i + 1] != 0 {
-                    l.right[i] * (1.0 - frac) + l.right[i + 1] * frac
-                } else {
-                    0.0
-                };
-                self.residual[b * p + a] = v;
-                if v > 0.0 {
-                    sum += v;
-                    n += 1;
-                }
-            }
-        }
-        let mean = if n > 0 { sum / n as f32 } else { 0.0 };
-        let mut valid = 0usize;
-        let mut abs_sum = 0.0f32;
-        let mut sq_sum = 0.0f32;
-        for k in 0..p * p {
-            let sv = self.residual[k];
-            let sn = if sv > 0.0 { sv - mean } else { 0.0 };
-            let t = self.template[k];
-            let r = if sn != 0.0 && t != 0.0 {
-                valid += 1;
-                sn - t
-            } else {
-                0.0
-            };
-            self.residual[k] = r;
-            abs_sum += r.abs();
-            sq_sum += r * r;
-        }
-        Some((valid, abs_sum, sq_sum))
-    }
-
     /// Loads the template (mean-normalised left samples) and gradients of the patch at `q`, and the per-patch
     /// constants of the fast evaluation; returns the Hessian.
     fn load_template(&mut self, level: usize, qx: usize, qy: usize) -> f32 {
@@ -535,6 +496,11 @@ impl Matcher {
             // A template pixel equal to its mean normalises to exactly 0 and counts as invalid (§4).
             all_valid &= t != 0.0;
         }
+        let pw = self.pw;
+        for b in 0..p {
+            self.tmpl_pad[b * pw..b * pw + p].copy_from_slice(&self.template[b * p..(b + 1) * p]);
+            self.grad_pad[b * pw..b * pw + p].copy_from_slice(&self.grad[b * p..(b + 1) * p]);
+        }
         self.tmpl_mean = mean;
         self.sum_g = sum_g;
         self.sum_gt = sum_gt;
@@ -561,46 +527,42 @@ impl Matcher {
         if !(x_pos >= -half && x_pos <= l.w as f32 + half - 2.0) {
             return None;
         }
-        if exact {
-            let (n, abs_sum, sq_sum) = self.residual_at(level, qx, qy, u)?;
-            let mut gr = 0.0f32;
-            for k in 0..p * p {
-                gr += self.grad[k] * self.residual[k];
-            }
-            return Some(Eval { n, sum_gr: gr, sum_r2: sq_sum, mares: abs_sum / (p * p) as f32 });
-        }
         let x0 = x_pos - half;
         let c0f = (x0 + 1e-5).ceil() - 1.0;
-        let frac = x0 - c0f;
         let border = self.border as isize;
-        let col = (c0f as isize + border) as usize;
-        let row0 = (qy as isize - half as isize + border) as usize;
+        let win = kernels::Window {
+            right: &l.right,
+            usable: &l.usable,
+            stride: l.stride,
+            row0: (qy as isize - half as isize + border) as usize,
+            col: (c0f as isize + border) as usize,
+            p,
+            pw: self.pw,
+            frac: x0 - c0f,
+        };
         let footprint_usable = {
             let w1 = l.stride + 1;
+            let (col, row0) = (win.col, win.row0);
             let (x1, y1) = (col + p, row0 + p);
             let sat = &l.bad_sat;
             sat[y1 * w1 + x1] + sat[row0 * w1 + col] == sat[row0 * w1 + x1] + sat[y1 * w1 + col]
         };
-        if !(footprint_usable && self.tmpl_all_valid) {
-            // Patches touching invalid pixels (a minority) take the exact two-pass evaluation: there, samples
-            // equal to their mean (flat dark areas) must count as invalid exactly as in the original, which
-            // keeps textureless patches from passing the confidence test.
-            let (n, abs_sum, sq_sum) = self.residual_at(level, qx, qy, u)?;
-            let mut gr = 0.0f32;
-            for (g, r) in self.grad.iter().zip(&self.residual) {
-                gr += g * r;
-            }
-            return Some(Eval { n, sum_gr: gr, sum_r2: sq_sum, mares: abs_sum / (p * p) as f32 });
+        if exact || !(footprint_usable && self.tmpl_all_valid) {
+            // Patches touching invalid pixels (a minority), and every evaluation when the stopping rules need
+            // the mean |r|, take the exact two-pass residual: samples equal to their mean (flat dark areas) count
+            // as invalid exactly as in the original, which keeps textureless patches from passing the
+            // confidence test.
+            let e = kernels::exact::<f32x4>(&win, &self.tmpl_pad, &self.grad_pad, &self.colmask, &mut self.samples);
+            return Some(Eval { n: e.valid as usize, sum_gr: e.sum_gr, sum_r2: e.sum_r2, mares: e.sum_abs / (p * p) as f32 });
         }
         let n = (p * p) as f32;
-        let rows = RowSource { right: &l.right, stride: l.stride, row0, col, p };
         if want_r2 {
-            let (a_sum, e_sum) = kernels::sum_and_sq_diff(&rows, &self.template, frac, self.tmpl_mean);
+            let (a_sum, e_sum) = kernels::sum_and_sq_diff::<f32x4>(&win, &self.tmpl_pad, &self.colmask, self.tmpl_mean);
             let am = a_sum / n;
             let r2 = e_sum - 2.0 * am * (a_sum - self.sum_t) + n * am * am;
             return Some(Eval { n: p * p, sum_gr: f32::NAN, sum_r2: r2.max(0.0), mares: f32::NAN });
         }
-        let (a_sum, b_sum) = kernels::sum_and_dot(&rows, &self.grad, frac, self.tmpl_mean);
+        let (a_sum, b_sum) = kernels::sum_and_dot::<f32x4>(&win, &self.grad_pad, &self.colmask, self.tmpl_mean);
         let am = a_sum / n;
         Some(Eval { n: p * p, sum_gr: b_sum - am * self.sum_g - self.sum_gt, sum_r2: f32::NAN, mares: f32::NAN })
     }
@@ -850,64 +812,6 @@ impl Matcher {
         let (k, _) = idx.iter().copied().fold((0, -1.0f32), |best, t| if t.1 > best.1 { t } else { best });
         let den = level.den[k];
         if den > 0.0 { level.var_num[k] / (den * den) } else { f32::NAN }
-    }
-}
-
-/// The right-image rows under a shifted patch: row `row0 + b` from column `col`, p + 1 samples each (bilinear).
-#[derive(Debug, Clone, Copy)]
-struct RowSource<'a> {
-    right: &'a [f32],
-    stride: usize,
-    row0: usize,
-    col: usize,
-    p: usize,
-}
-
-impl RowSource<'_> {
-    #[inline(always)]
-    fn row(&self, b: usize) -> &[f32] {
-        let base = (self.row0 + b) * self.stride + self.col;
-        &self.right[base..base + self.p + 1]
-    }
-}
-
-/// The inner loops of the fully-valid patch evaluation.
-mod kernels {
-    use super::RowSource;
-
-    /// (Σ s̃, Σ w·s̃) with s̃ = bilinear sample − offset, over a p×p patch; `weights` row-major p×p.
-    #[inline(always)]
-    pub(super) fn sum_and_dot(rows: &RowSource<'_>, weights: &[f32], frac: f32, offset: f32) -> (f32, f32) {
-        let p = rows.p;
-        let (mut a, mut d) = (0.0f32, 0.0f32);
-        for b in 0..p {
-            let r = rows.row(b);
-            let w = &weights[b * p..(b + 1) * p];
-            for (pair, &wv) in r.windows(2).zip(w) {
-                let sv = pair[0] + frac * (pair[1] - pair[0]) - offset;
-                a += sv;
-                d += wv * sv;
-            }
-        }
-        (a, d)
-    }
-
-    /// (Σ s̃, Σ (s̃ − t)²) over a p×p patch; `template` row-major p×p.
-    #[inline(always)]
-    pub(super) fn sum_and_sq_diff(rows: &RowSource<'_>, template: &[f32], frac: f32, offset: f32) -> (f32, f32) {
-        let p = rows.p;
-        let (mut a, mut e) = (0.0f32, 0.0f32);
-        for b in 0..p {
-            let r = rows.row(b);
-            let t = &template[b * p..(b + 1) * p];
-            for (pair, &tv) in r.windows(2).zip(t) {
-                let sv = pair[0] + frac * (pair[1] - pair[0]) - offset;
-                a += sv;
-                let diff = sv - tv;
-                e += diff * diff;
-            }
-        }
-        (a, e)
     }
 }
 
