@@ -149,6 +149,7 @@ pub struct Matcher {
     row_taps: Vec<(u32, u32, f32)>,
     /// Speckle filter scratch.
     labels: Vec<u32>,
+    next_label: u32,
     stack: Vec<usize>,
     members: Vec<usize>,
 }
@@ -198,6 +199,7 @@ impl Matcher {
             col_taps: Vec::new(),
             row_taps: Vec::new(),
             labels: Vec::new(),
+            next_label: 1,
             stack: Vec::new(),
             members: Vec::new(),
         })
@@ -267,6 +269,7 @@ impl Matcher {
         self.patches = Vec::with_capacity(max_patches);
         let finest = &self.levels[self.params.lv_l as usize];
         self.labels = vec![0; finest.w * finest.h];
+        self.next_label = 1;
         self.stack = Vec::with_capacity(finest.w * finest.h);
         self.members = Vec::with_capacity(finest.w * finest.h);
         self.compute_taps(w, h);
@@ -346,12 +349,15 @@ impl Matcher {
             let l0 = &mut self.levels[0];
             // Borders and padding are never written, so they keep the zeros of their allocation (`prepare`
             // clears level 0 again when the padding moves); only the image area is overwritten.
+            let w = left.width;
             for y in 0..left.height {
                 let dst = (y + pad_y + border) * l0.stride + pad_x + border;
-                let src = y * left.width;
-                for x in 0..left.width {
-                    l0.left[dst + x] = f32::from(left.data[src + x]);
-                    l0.right[dst + x] = f32::from(right.data[src + x]);
+                let src = y * w;
+                for (d, &v) in l0.left[dst..dst + w].iter_mut().zip(&left.data[src..src + w]) {
+                    *d = f32::from(v);
+                }
+                for (d, &v) in l0.right[dst..dst + w].iter_mut().zip(&right.data[src..src + w]) {
+                    *d = f32::from(v);
                 }
             }
         }
@@ -360,17 +366,20 @@ impl Matcher {
                 let (a, b) = self.levels.split_at_mut(s);
                 (&mut b[0], &a[s - 1])
             };
+            let (cw, fs) = (coarser.w, finer.stride);
             for y in 0..coarser.h {
-                for x in 0..coarser.w {
-                    let dst = (y + border) * coarser.stride + x + border;
-                    let src = (2 * y + border) * finer.stride + 2 * x + border;
-                    let img = &finer.left;
-                    let (a, b, c, d) = (img[src], img[src + 1], img[src + finer.stride], img[src + finer.stride + 1]);
-                    coarser.left[dst] = if a == 0.0 || b == 0.0 || c == 0.0 || d == 0.0 { 0.0 } else { 0.25 * (a + b + c + d) };
-                    let img = &finer.right;
-                    let (a, b, c, d) = (img[src], img[src + 1], img[src + finer.stride], img[src + finer.stride + 1]);
-                    let n = u8::from(a != 0.0) + u8::from(b != 0.0) + u8::from(c != 0.0) + u8::from(d != 0.0);
-                    coarser.right[dst] = if n == 0 { 0.0 } else { (a + b + c + d) / f32::from(n) };
+                let dst = (y + border) * coarser.stride + border;
+                let src = (2 * y + border) * fs + border;
+                let (top, bottom) = (&finer.left[src..src + 2 * cw], &finer.left[src + fs..src + fs + 2 * cw]);
+                for ((out, t), b) in coarser.left[dst..dst + cw].iter_mut().zip(top.chunks_exact(2)).zip(bottom.chunks_exact(2)) {
+                    let (a, b, c, d) = (t[0], t[1], b[0], b[1]);
+                    *out = if a == 0.0 || b == 0.0 || c == 0.0 || d == 0.0 { 0.0 } else { 0.25 * (a + b + c + d) };
+                }
+                let (top, bottom) = (&finer.right[src..src + 2 * cw], &finer.right[src + fs..src + fs + 2 * cw]);
+                for ((out, t), b) in coarser.right[dst..dst + cw].iter_mut().zip(top.chunks_exact(2)).zip(bottom.chunks_exact(2)) {
+                    let (a, b, c, d) = (t[0], t[1], b[0], b[1]);
+                    let n = f32::from(u8::from(a != 0.0) + u8::from(b != 0.0) + u8::from(c != 0.0) + u8::from(d != 0.0));
+                    *out = if n == 0.0 { 0.0 } else { (a + b + c + d) / n };
                 }
             }
         }
@@ -670,43 +679,56 @@ impl Matcher {
         let want_var = self.params.variance && s == self.params.lv_l as usize;
         let level = &mut self.levels[s];
         let (lw, lh) = (level.w, level.h);
-        level.num.fill(0.0);
-        level.den.fill(0.0);
-        level.prob_sum.fill(0.0);
-        level.count.fill(0);
+        // The accumulators are cleared as they are consumed below, so they start at 0 without a pass of their
+        // own; with variances the finest level's weights are read again at output time, so that level is
+        // cleared up front instead.
         if want_var {
+            level.num.fill(0.0);
+            level.den.fill(0.0);
+            level.prob_sum.fill(0.0);
+            level.count.fill(0);
             level.var_num.fill(0.0);
         }
         for &(qx, qy, r, prob) in &self.patches {
-            for b in 0..p {
-                let y = qy as isize + b as isize - half as isize;
-                if y < 0 || y >= lh as isize {
-                    continue;
+            // The patch covers q + (a − p/2, b − p/2), a, b < p; clip it to the level once.
+            let (x_lo, x_hi) = (qx.saturating_sub(half), (qx + half).min(lw));
+            let (y_lo, y_hi) = (qy.saturating_sub(half), (qy + half).min(lh));
+            let (a0, b0) = (x_lo + half - qx, y_lo + half - qy);
+            for (bi, y) in (y_lo..y_hi).enumerate() {
+                let row = y * lw;
+                let gauss = &self.gauss[(b0 + bi) * p + a0..(b0 + bi) * p + a0 + (x_hi - x_lo)];
+                let range = row + x_lo..row + x_hi;
+                let (num, den) = (&mut level.num[range.clone()], &mut level.den[range.clone()]);
+                let (psum, count) = (&mut level.prob_sum[range.clone()], &mut level.count[range.clone()]);
+                for i in 0..gauss.len() {
+                    let wgt = if bayesian { prob * gauss[i] } else { 1.0 };
+                    num[i] += wgt * r.u;
+                    den[i] += wgt;
+                    psum[i] += prob;
+                    count[i] += 1;
                 }
-                for a in 0..p {
-                    let x = qx as isize + a as isize - half as isize;
-                    if x < 0 || x >= lw as isize {
-                        continue;
-                    }
-                    let k = y as usize * lw + x as usize;
-                    let wgt = if bayesian { prob * self.gauss[b * p + a] } else { 1.0 };
-                    level.num[k] += wgt * r.u;
-                    level.den[k] += wgt;
-                    level.prob_sum[k] += prob;
-                    level.count[k] += 1;
-                    if want_var {
-                        level.var_num[k] += wgt * wgt * r.var;
+                if want_var {
+                    for (i, v) in level.var_num[range].iter_mut().enumerate() {
+                        let wgt = if bayesian { prob * gauss[i] } else { 1.0 };
+                        *v += wgt * wgt * r.var;
                     }
                 }
             }
         }
         for k in 0..lw * lh {
-            if level.count[k] > 0 && level.den[k] > 0.0 {
-                level.flow[k] = level.num[k] / level.den[k];
-                level.prob[k] = level.prob_sum[k] / f32::from(level.count[k]);
+            let (count, den) = (level.count[k], level.den[k]);
+            if count > 0 && den > 0.0 {
+                level.flow[k] = level.num[k] / den;
+                level.prob[k] = level.prob_sum[k] / f32::from(count);
             } else {
                 level.flow[k] = f32::NAN;
                 level.prob[k] = 0.0;
+            }
+            if !want_var {
+                level.num[k] = 0.0;
+                level.den[k] = 0.0;
+                level.prob_sum[k] = 0.0;
+                level.count[k] = 0;
             }
         }
     }
@@ -717,10 +739,15 @@ impl Matcher {
         let level = &mut self.levels[s];
         let (lw, lh) = (level.w, level.h);
         let labels = &mut self.labels[..lw * lh];
-        labels.fill(0);
-        let mut next = 1u32;
+        // Labels below `first` belong to earlier levels or calls and mean "not visited": no clearing pass.
+        if self.next_label > u32::MAX - (lw * lh) as u32 - 1 {
+            labels.fill(0);
+            self.next_label = 1;
+        }
+        let first = self.next_label;
+        let mut next = first;
         for seed in 0..lw * lh {
-            if labels[seed] != 0 || !level.flow[seed].is_finite() {
+            if labels[seed] >= first || !level.flow[seed].is_finite() {
                 continue;
             }
             self.stack.clear();
@@ -732,7 +759,7 @@ impl Matcher {
                 let f = level.flow[k];
                 let (x, y) = (k % lw, k / lw);
                 let mut visit = |n: usize| {
-                    if labels[n] == 0 && level.flow[n].is_finite() && (level.flow[n] - f).abs() <= SPECKLE_DIFF {
+                    if labels[n] < first && level.flow[n].is_finite() && (level.flow[n] - f).abs() <= SPECKLE_DIFF {
                         labels[n] = next;
                         self.stack.push(n);
                     }
@@ -758,6 +785,7 @@ impl Matcher {
             }
             next += 1;
         }
+        self.next_label = next;
     }
 
     /// §5 end: the finest level's flow ×2^lv_l, bilinear upsampling (NaN spreads), crop, sign → disparity.
