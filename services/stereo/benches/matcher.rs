@@ -1,0 +1,44 @@
+//! Criterion benchmarks of the matchers at 640×480, single thread: BDIS and plain DIS with the BDIS-SLAM
+//! parameters (patch 10, overlap 0.60 → stride 3) and the synthetic-colon parameters (patch 8, overlap 0.40).
+//! Input: `../shared/data/bdis/31` pair 1 when present, else a rendered tissue plane (bdis-synth is not a
+//! dependency here, so a procedural texture stands in).
+//!
+//! cargo bench -p bdis-stereo --bench matcher
+
+use bdis_stereo::{Algorithm, DisparityMap, GrayImage, Matcher, Params};
+use criterion::{Criterion, criterion_group, criterion_main};
+
+fn pair() -> (Vec<u8>, Vec<u8>, usize, usize, &'static str) {
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data/bdis/31");
+    if let (Ok(l), Ok(r)) = (image::open(dir.join("left/1.png")), image::open(dir.join("right/1.png"))) {
+        let (l, r) = (l.to_luma8(), r.to_luma8());
+        let (w, h) = (l.width() as usize, l.height() as usize);
+        return (l.into_raw(), r.into_raw(), w, h, "set31-1");
+    }
+    let (w, h) = (640, 480);
+    let tex = |x: f32, y: f32| -> u8 { (128.0 + 60.0 * (x * 0.13).sin() * (y * 0.11).cos() + 40.0 * ((x + 2.0 * y) * 0.05).sin()) as u8 };
+    let l = (0..w * h).map(|i| tex((i % w) as f32, (i / w) as f32)).collect();
+    let r = (0..w * h).map(|i| tex((i % w) as f32 + 12.0, (i / w) as f32)).collect();
+    (l, r, w, h, "synthetic")
+}
+
+fn bench(c: &mut Criterion) {
+    let (l, r, w, h, name) = pair();
+    let mut group = c.benchmark_group(format!("stereo-640x480-{name}"));
+    group.sample_size(30);
+    for (label, params) in [
+        ("bdis-slam-params", Params::default()),
+        ("bdis-colon-params", Params::colon()),
+        ("dis-slam-params", Params { algorithm: Algorithm::Dis, ..Params::default() }),
+        ("dis-colon-params", Params { algorithm: Algorithm::Dis, ..Params::colon() }),
+    ] {
+        let mut matcher = Matcher::new(params).expect("valid parameters");
+        let mut out = DisparityMap::default();
+        let (left, right) = (GrayImage { width: w, height: h, data: &l }, GrayImage { width: w, height: h, data: &r });
+        group.bench_function(label, |b| b.iter(|| matcher.compute_into(left, right, &mut out).expect("same-size pair")));
+    }
+    group.finish();
+}
+
+criterion_group!(benches, bench);
+criterion_main!(benches);
