@@ -209,3 +209,104 @@ mod tests {
         assert_eq!(s.hop_latency_us.unwrap().p50, 0.1);
     }
 }
+
+/// What the probe reports about a depth topic.
+#[derive(Debug, Clone, Default, Serialize, Deserialize, PartialEq)]
+pub struct DepthSummary {
+    pub topic: String,
+    pub samples_received: u64,
+    /// Every keyframe id seen, ascending, once each.
+    pub keyframe_ids: Vec<u64>,
+    /// Samples whose keyframe id had been seen before (a replacement stereo instance re-did it).
+    pub duplicates: u64,
+    pub end_of_stream: bool,
+    pub width: u32,
+    pub height: u32,
+    /// Mean fraction of pixels with a disparity over the received keyframes.
+    pub mean_density: f64,
+    pub payload_mapping: Option<String>,
+    pub payload_in_shared_memory: bool,
+    pub hop_latency_us: Option<Percentiles>,
+    pub age_us: Option<Percentiles>,
+    pub malformed: u64,
+}
+
+/// Accumulates what the probe sees on the depth topic.
+#[derive(Debug)]
+pub struct DepthChecker {
+    summary: DepthSummary,
+    seen: std::collections::BTreeSet<u64>,
+    prefix: String,
+    density_sum: f64,
+    hop: Histogram<u64>,
+    age: Histogram<u64>,
+    all_in_shm: bool,
+}
+
+impl DepthChecker {
+    pub fn new(topic: &str, prefix: &str) -> Self {
+        Self {
+            summary: DepthSummary { topic: topic.to_string(), ..Default::default() },
+            seen: Default::default(),
+            prefix: prefix.to_string(),
+            density_sum: 0.0,
+            hop: hist(),
+            age: hist(),
+            all_in_shm: true,
+        }
+    }
+
+    pub fn keyframe(&mut self, view: &bdis_ipc::DepthView<'_>, t_receive_ns: u64) {
+        let h = view.header;
+        let s = &mut self.summary;
+        s.samples_received += 1;
+        if !self.seen.insert(h.kf_id) {
+            s.duplicates += 1;
+        }
+        s.width = h.width;
+        s.height = h.height;
+        let valid = view.disparity.iter().filter(|d| d.is_finite()).count();
+        self.density_sum += valid as f64 / view.disparity.len().max(1) as f64;
+        let ptr = view.disparity.as_ptr().cast::<u8>();
+        if s.payload_mapping.is_none() {
+            s.payload_mapping = bdis_ipc::shm::mapping_file_of(ptr).map(|p| p.display().to_string());
+        }
+        self.all_in_shm &= bdis_ipc::shm::is_in_run_shared_memory(ptr, &self.prefix);
+        let _ = self.hop.record(clock::elapsed_ns(h.t_publish_ns, t_receive_ns).max(1));
+        let _ = self.age.record(clock::elapsed_ns(h.t_capture_ns, t_receive_ns).max(1));
+    }
+
+    pub fn malformed(&mut self) {
+        self.summary.malformed += 1;
+    }
+
+    pub fn end_of_stream(&mut self) {
+        self.summary.end_of_stream = true;
+    }
+
+    pub fn received(&self) -> u64 {
+        self.summary.samples_received
+    }
+
+    pub fn status_line(&self) -> String {
+        let p50 = |h: &Histogram<u64>| if h.is_empty() { 0.0 } else { h.value_at_quantile(0.5) as f64 / 1000.0 };
+        format!(
+            "{}: {} keyframes ({} duplicates) | hop p50 {:.0} µs | age p50 {:.1} ms",
+            self.summary.topic,
+            self.seen.len(),
+            self.summary.duplicates,
+            p50(&self.hop),
+            p50(&self.age) / 1000.0
+        )
+    }
+
+    pub fn summary(&self) -> DepthSummary {
+        let mut s = self.summary.clone();
+        s.keyframe_ids = self.seen.iter().copied().collect();
+        s.mean_density = self.density_sum / s.samples_received.max(1) as f64;
+        s.payload_in_shared_memory = s.samples_received > 0 && self.all_in_shm;
+        s.hop_latency_us = percentiles(&self.hop);
+        s.age_us = percentiles(&self.age);
+        s
+    }
+}

@@ -28,6 +28,9 @@ pub struct ProbeArgs {
     /// Give up when nothing arrives for this many seconds (default: wait for end of stream or Ctrl-C).
     #[arg(long)]
     idle_timeout: Option<f64>,
+    /// How long a topic may have no producer (e.g. while a stereo instance is replaced) before the probe gives up.
+    #[arg(long, default_value_t = 10.0)]
+    producer_grace: f64,
     /// Name of this process in the run.
     #[arg(long, env = "BDIS_SERVICE_NAME", default_value = "probe")]
     name: String,
@@ -51,6 +54,7 @@ pub fn probe(args: ProbeArgs) -> Result<()> {
     match Topic::parse(&args.topic) {
         Some(Topic::Frames) => probe_frames(&args),
         Some(Topic::Telemetry) => probe_telemetry(&args),
+        Some(Topic::Depth) => probe_depth(&args),
         None => bail!(
             "unknown topic `{}` (topics: {})",
             args.topic,
@@ -66,7 +70,7 @@ fn iox(what: &'static str) -> impl FnOnce(&dyn std::fmt::Debug) -> anyhow::Error
 fn probe_frames(args: &ProbeArgs) -> Result<()> {
     let ipc = Ipc::open(&args.name, &args.ipc_prefix)?;
     let frames = ipc.frames()?;
-    let subscriber = ipc.frame_subscriber(&frames)?;
+    let subscriber = ipc.frame_subscriber(&frames, 0)?;
     let listener = ipc.listener(&ipc.events(Topic::Frames)?)?;
     let consumed = ipc.notifier(&ipc.frames_consumed()?)?;
     let mut telemetry = TelemetryPublisher::new(&ipc, &args.name, Some(Topic::Frames), None)?;
@@ -169,11 +173,7 @@ fn probe_frames(args: &ProbeArgs) -> Result<()> {
 
     // The summary is written whatever happened: it is what this consumer produced.
     let summary = checker.summary();
-    let summary_path = args
-        .summary
-        .clone()
-        .or_else(|| std::env::var_os(bdis_slam::supervisor::RUN_DIR_ENV).map(|d| PathBuf::from(d).join(format!("{}.json", args.name))));
-    if let Some(path) = &summary_path {
+    if let Some(path) = &summary_path(args) {
         let text = serde_json::to_string_pretty(&summary).context("serialise the probe summary")?;
         std::fs::write(path, text).with_context(|| format!("{}: cannot write the probe summary", path.display()))?;
     }
@@ -201,6 +201,120 @@ fn probe_frames(args: &ProbeArgs) -> Result<()> {
             if stop_requested && !end_of_stream {
                 tracing::info!("stop requested");
             }
+            telemetry.finished();
+            Ok(())
+        }
+    }
+}
+
+/// Where the summary goes: `--summary`, else `<run folder>/<name>.json` inside a run.
+fn summary_path(args: &ProbeArgs) -> Option<PathBuf> {
+    args.summary
+        .clone()
+        .or_else(|| std::env::var_os(bdis_slam::supervisor::RUN_DIR_ENV).map(|d| PathBuf::from(d).join(format!("{}.json", args.name))))
+}
+
+fn probe_depth(args: &ProbeArgs) -> Result<()> {
+    let ipc = Ipc::open(&args.name, &args.ipc_prefix)?;
+    let depth = ipc.depth()?;
+    let subscriber = ipc.depth_subscriber(&depth)?;
+    let listener = ipc.listener(&ipc.events(Topic::Depth)?)?;
+    let mut telemetry = TelemetryPublisher::new(&ipc, &args.name, Some(Topic::Depth), None)?;
+    let waitset = WaitSetBuilder::new().create::<ipc::Service>().map_err(|e| iox("create a WaitSet")(&e))?;
+    let guard = waitset.attach_deadline(&listener, Duration::from_secs(1)).map_err(|e| iox("attach the depth listener")(&e))?;
+    let mut checker = bdis_slam::probe::DepthChecker::new("depth", &args.ipc_prefix);
+    telemetry.ready();
+    let mut no_producer_since: Option<u64> = None;
+    let mut last_status = monotonic_ns();
+    let mut failure = None;
+    'outer: loop {
+        let mut deadline_missed = false;
+        let result = waitset
+            .wait_and_process_once(|id| {
+                deadline_missed |= id.has_missed_deadline(&guard);
+                CallbackProgression::Continue
+            })
+            .map_err(|e| iox("wait for depth")(&e))?;
+        if matches!(result, WaitSetRunResult::TerminationRequest | WaitSetRunResult::Interrupt) {
+            break;
+        }
+        let _ = bdis_ipc::drain_events(&listener);
+        loop {
+            let sample = match subscriber.receive() {
+                Ok(Some(s)) => s,
+                Ok(None) => break,
+                Err(e) => {
+                    failure = Some(anyhow!("receive a depth keyframe: {e:?}"));
+                    break 'outer;
+                }
+            };
+            let t_receive_ns = monotonic_ns();
+            let header = *sample.user_header();
+            if header.is_end_of_stream() {
+                checker.end_of_stream();
+                break 'outer;
+            }
+            match bdis_ipc::DepthView::new(sample.user_header(), sample.payload()) {
+                Ok(view) => checker.keyframe(&view, t_receive_ns),
+                Err(e) => {
+                    tracing::warn!("{e}");
+                    checker.malformed();
+                }
+            }
+            drop(sample);
+            telemetry.message(
+                MessageTiming {
+                    frame_seq: header.kf_id,
+                    t_capture_ns: header.t_capture_ns,
+                    t_upstream_publish_ns: header.t_publish_ns,
+                    t_receive_ns,
+                    t_done_ns: monotonic_ns(),
+                },
+                0,
+            );
+        }
+        let now = monotonic_ns();
+        if now - last_status >= 1_000_000_000 {
+            status(&checker.status_line());
+            last_status = now;
+        }
+        if deadline_missed {
+            ipc.cleanup_dead_nodes();
+            // A producer may be between instances (a stereo swap); give up only after the grace period.
+            if checker.received() > 0 && depth.dynamic_config().number_of_publishers() == 0 {
+                let since = *no_producer_since.get_or_insert(now);
+                if (now - since) as f64 / 1e9 >= args.producer_grace {
+                    failure = Some(anyhow!("no depth producer for {:.0} s, and no end of stream", args.producer_grace));
+                    break;
+                }
+            } else {
+                no_producer_since = None;
+            }
+        }
+    }
+    if std::io::stdout().is_terminal() {
+        println!();
+    }
+    let summary = checker.summary();
+    if let Some(path) = summary_path(args) {
+        let text = serde_json::to_string_pretty(&summary).context("serialise the probe summary")?;
+        std::fs::write(&path, text).with_context(|| format!("{}: cannot write the probe summary", path.display()))?;
+    }
+    println!(
+        "{}: {} keyframes ({} duplicates), mean density {:.1} %, end of stream: {}, zero copy: {}",
+        args.name,
+        summary.keyframe_ids.len(),
+        summary.duplicates,
+        100.0 * summary.mean_density,
+        if summary.end_of_stream { "yes" } else { "no" },
+        if summary.payload_in_shared_memory { "yes" } else { "no" },
+    );
+    match failure {
+        Some(e) => {
+            telemetry.failed();
+            Err(e)
+        }
+        None => {
             telemetry.finished();
             Ok(())
         }

@@ -21,12 +21,14 @@ use iceoryx2::service::port_factory::event::PortFactory as EventFactory;
 use iceoryx2::service::port_factory::publish_subscribe::PortFactory as PubSubFactory;
 
 pub mod clock;
+pub mod depth;
 pub mod frame;
 pub mod process;
 pub mod shm;
 pub mod telemetry;
 
 pub use clock::monotonic_ns;
+pub use depth::{DepthHeader, DepthView};
 pub use frame::{FrameHeader, FrameLayout, FrameView};
 pub use telemetry::{TelemetryKind, TelemetryPublisher, TelemetryRecord};
 
@@ -55,16 +57,19 @@ pub enum Topic {
     Frames,
     /// Pipeline telemetry: fixed-size [`TelemetryRecord`]s from every process to the launcher.
     Telemetry,
+    /// Depth keyframes from stereo: `[u8]` = disparity f32, confidence f32, left RGB; header [`DepthHeader`].
+    Depth,
 }
 
 impl Topic {
-    pub const ALL: [Topic; 2] = [Topic::Frames, Topic::Telemetry];
+    pub const ALL: [Topic; 3] = [Topic::Frames, Topic::Telemetry, Topic::Depth];
 
     /// The short name users type (`bdis-slam probe frames`).
     pub fn short_name(self) -> &'static str {
         match self {
             Topic::Frames => "frames",
             Topic::Telemetry => "telemetry",
+            Topic::Depth => "depth",
         }
     }
 
@@ -73,6 +78,7 @@ impl Topic {
         match self {
             Topic::Frames => "bdis/v1/frames",
             Topic::Telemetry => "bdis/v1/telemetry",
+            Topic::Depth => "bdis/v1/depth",
         }
     }
 
@@ -122,16 +128,26 @@ pub struct Ipc {
 /// The pub/sub side of a topic, with its same-named event service for wake-ups.
 pub type FramesService = PubSubFactory<ipc::Service, [u8], FrameHeader>;
 pub type TelemetryService = PubSubFactory<ipc::Service, TelemetryRecord, ()>;
+pub type DepthService = PubSubFactory<ipc::Service, [u8], DepthHeader>;
 pub type Events = EventFactory<ipc::Service>;
 
-/// QoS of the frames topic. Sizing (IPC-NOTES §2): samples per publisher segment =
-/// subscribers · (buffer + borrowed) + history + loaned = 4 · (2 + 2) + 0 + 1 = 17 frames of 5·W·H bytes
-/// (26 MB at 640×480); tmpfs backs only the pages that are touched.
+/// QoS of every topic. Sizing (IPC-NOTES §2): samples per publisher segment =
+/// subscribers · (buffer + borrowed) + history + loaned; frames: 4 · (2 + 2) + 2 + 1 = 19 frames of 5·W·H bytes
+/// (29 MB at 640×480); depth: 3 · (4 + 2) + 0 + 1 = 19 keyframes of 11·W·H bytes (64 MB at 640×480). tmpfs backs
+/// only the pages that are touched.
 pub mod qos {
     pub const FRAMES_MAX_PUBLISHERS: usize = 2;
     pub const FRAMES_MAX_SUBSCRIBERS: usize = 4;
     pub const FRAMES_BUFFER: usize = 2;
     pub const FRAMES_BORROWED: usize = 2;
+    /// The last frames are kept for a consumer that (re)joins: a replacement stereo instance picks up the
+    /// frame its predecessor died on. With on-demand pacing at most one frame is in flight, so 2 is enough; a
+    /// joining subscriber receives at most its buffer size of them.
+    pub const FRAMES_HISTORY: usize = 2;
+    pub const DEPTH_MAX_PUBLISHERS: usize = 2;
+    pub const DEPTH_MAX_SUBSCRIBERS: usize = 3;
+    pub const DEPTH_BUFFER: usize = 4;
+    pub const DEPTH_BORROWED: usize = 2;
     pub const MAX_NODES: usize = 32;
     pub const TELEMETRY_MAX_PUBLISHERS: usize = 16;
     pub const TELEMETRY_MAX_SUBSCRIBERS: usize = 3;
@@ -201,7 +217,7 @@ impl Ipc {
                 .max_nodes(qos::MAX_NODES)
                 .subscriber_max_buffer_size(qos::FRAMES_BUFFER)
                 .subscriber_max_borrowed_samples(qos::FRAMES_BORROWED)
-                .history_size(0)
+                .history_size(qos::FRAMES_HISTORY)
                 .enable_safe_overflow(true)
                 .open_or_create()
         })
@@ -267,9 +283,58 @@ impl Ipc {
             .map_err(iox("create the frames publisher"))
     }
 
-    /// A frames subscriber with the service's full buffer (loses nothing at the rate it keeps up with).
-    pub fn frame_subscriber(&self, service: &FramesService) -> Result<Subscriber<ipc::Service, [u8], FrameHeader>, IpcError> {
-        service.subscriber_builder().buffer_size(qos::FRAMES_BUFFER).create().map_err(iox("create the frames subscriber"))
+    /// A frames subscriber with the service's full buffer (loses nothing at the rate it keeps up with), asking
+    /// for up to `history` recent frames when it joins (0 for a consumer that only wants what comes next).
+    pub fn frame_subscriber(
+        &self,
+        service: &FramesService,
+        history: usize,
+    ) -> Result<Subscriber<ipc::Service, [u8], FrameHeader>, IpcError> {
+        service
+            .subscriber_builder()
+            .buffer_size(qos::FRAMES_BUFFER)
+            .history_request(history.min(qos::FRAMES_HISTORY).min(qos::FRAMES_BUFFER))
+            .create()
+            .map_err(iox("create the frames subscriber"))
+    }
+
+    pub fn depth(&self) -> Result<DepthService, IpcError> {
+        let name = Self::service_name(Topic::Depth)?;
+        let alignment = Alignment::new(8).ok_or_else(|| IpcError::Contract { topic: "depth", detail: "alignment 8".into() })?;
+        Self::with_retry("open the depth service", || {
+            self.node
+                .service_builder(&name)
+                .publish_subscribe::<[u8]>()
+                .user_header::<DepthHeader>()
+                .payload_alignment(alignment)
+                .max_publishers(qos::DEPTH_MAX_PUBLISHERS)
+                .max_subscribers(qos::DEPTH_MAX_SUBSCRIBERS)
+                .max_nodes(qos::MAX_NODES)
+                .subscriber_max_buffer_size(qos::DEPTH_BUFFER)
+                .subscriber_max_borrowed_samples(qos::DEPTH_BORROWED)
+                .history_size(0)
+                .enable_safe_overflow(true)
+                .open_or_create()
+        })
+    }
+
+    /// A depth publisher for keyframes of up to `max_bytes` (see [`DepthHeader::payload_len`]).
+    pub fn depth_publisher(
+        &self,
+        service: &DepthService,
+        max_bytes: usize,
+    ) -> Result<Publisher<ipc::Service, [u8], DepthHeader>, IpcError> {
+        service
+            .publisher_builder()
+            .initial_max_slice_len(max_bytes)
+            .allocation_strategy(AllocationStrategy::Static)
+            .max_loaned_samples(1)
+            .create()
+            .map_err(iox("create the depth publisher"))
+    }
+
+    pub fn depth_subscriber(&self, service: &DepthService) -> Result<Subscriber<ipc::Service, [u8], DepthHeader>, IpcError> {
+        service.subscriber_builder().buffer_size(qos::DEPTH_BUFFER).create().map_err(iox("create the depth subscriber"))
     }
 
     pub fn notifier(&self, events: &Events) -> Result<Notifier<ipc::Service>, IpcError> {
