@@ -70,7 +70,7 @@ fn iox(what: &'static str) -> impl FnOnce(&dyn std::fmt::Debug) -> anyhow::Error
 fn probe_frames(args: &ProbeArgs) -> Result<()> {
     let ipc = Ipc::open(&args.name, &args.ipc_prefix)?;
     let frames = ipc.frames()?;
-    let subscriber = ipc.frame_subscriber(&frames, 0)?;
+    let subscriber = ipc.frame_subscriber(&frames)?;
     let listener = ipc.listener(&ipc.events(Topic::Frames)?)?;
     let consumed = ipc.notifier(&ipc.frames_consumed()?)?;
     let mut telemetry = TelemetryPublisher::new(&ipc, &args.name, Some(Topic::Frames), None)?;
@@ -80,8 +80,8 @@ fn probe_frames(args: &ProbeArgs) -> Result<()> {
 
     let mut checker = FrameChecker::new("frames", args.checksums, &args.ipc_prefix);
     telemetry.ready();
-    // One credit: ready for the first frame (on-demand acquisition waits for it).
-    bdis_ipc::notify(&consumed, event_id::CONSUMED)?;
+    // Ready for a frame (an on-demand acquisition waits for it).
+    bdis_ipc::notify(&consumed, event_id::JOINED)?;
 
     let mut window_start = monotonic_ns();
     let mut window_frames = 0u64;

@@ -102,11 +102,20 @@ fn run(args: Args) -> Result<()> {
     // that subscribed before this process existed sent its first one into the void, so an existing subscriber
     // counts as one credit.
     let mut credits: u64 = u64::from(frames.dynamic_config().number_of_subscribers() > 0);
+    // On demand, frames sent but not yet released by a consumer. When a consumer (re)joins mid-stream (a
+    // replacement stereo instance), these are sent again: the instance that held them may have died with them.
+    let mut unacked: std::collections::VecDeque<usize> = std::collections::VecDeque::with_capacity(8);
+    let on_demand = args.pacing == Pacing::OnDemand;
+    // Set when iceoryx2 reports a consumer's notifier dead (its process died and was cleaned up): the next
+    // consumer to join gets the frames the dead one held. A consumer joining while all others live gets none.
+    let mut consumer_died = false;
     let t_start_ns = monotonic_ns();
     let mut published: u64 = 0;
     let mut end = End::Completed;
+    let mut index = 0usize;
 
-    'frames: for (index, entry) in sequence.frames.iter().take(frame_count).enumerate() {
+    'frames: while index < frame_count {
+        let entry = &sequence.frames[index];
         // Wait until the frame is due: a consumer's credit (on demand) or its time (recorded / fixed rate).
         let due_ns = schedule.due_offset_ns(index, entry.t_source_s).map(|offset| t_start_ns + offset);
         let mut waited_ms: u64 = 0;
@@ -117,15 +126,16 @@ fn run(args: Args) -> Result<()> {
                 None => Duration::from_secs(1),
                 Some(due) => Duration::from_nanos(due.saturating_sub(now)),
             };
-            let mut got_credit = false;
+            let (mut released, mut joined, mut died) = (0u64, 0u64, 0u64);
             let result = waitset
                 .wait_and_process_once_with_timeout(
                     |id| {
                         if id.has_event_from(&consumed_guard) {
-                            let _ = consumed.try_wait(|activation| {
-                                if activation.id.as_value() == event_id::CONSUMED {
-                                    got_credit = true;
-                                }
+                            let _ = consumed.try_wait(|activation| match activation.id.as_value() {
+                                event_id::CONSUMED => released += activation.count,
+                                event_id::JOINED => joined += activation.count,
+                                event_id::NOTIFIER_DEAD => died += activation.count,
+                                _ => {}
                             });
                         }
                         CallbackProgression::Continue
@@ -133,12 +143,24 @@ fn run(args: Args) -> Result<()> {
                     timeout,
                 )
                 .map_err(|e| anyhow::anyhow!("wait for the next frame: {e:?}"))?;
-            if got_credit {
-                credits += 1;
+            credits += released + joined;
+            for _ in 0..released {
+                unacked.pop_front();
             }
             if matches!(result, WaitSetRunResult::TerminationRequest | WaitSetRunResult::Interrupt) {
                 end = End::StopRequested;
                 break 'frames;
+            }
+            consumer_died |= died > 0;
+            if on_demand && joined > 0 && consumer_died {
+                consumer_died = false;
+                if let Some(&first) = unacked.front() {
+                    tracing::info!("a consumer replaced one that died: sending frames {first}..{index} again");
+                    unacked.clear();
+                    credits = joined;
+                    index = first;
+                    continue 'frames;
+                }
             }
             match due_ns {
                 None if credits > 0 => {
@@ -191,6 +213,10 @@ fn run(args: Args) -> Result<()> {
         }
         published += 1;
         telemetry.message(MessageTiming { frame_seq: index as u64, t_capture_ns, t_done_ns: t_publish_ns, ..Default::default() }, 0);
+        if on_demand {
+            unacked.push_back(index);
+        }
+        index += 1;
     }
 
     // End of stream in every case, so consumers stop cleanly and keep what they have.

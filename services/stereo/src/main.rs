@@ -2,10 +2,10 @@
 //! acquisition as a keyframe, matches it in place in shared memory (BDIS or plain DIS), and publishes a depth
 //! keyframe (disparity, confidence, RGB, intrinsics) written once into a loaned sample.
 //!
-//! Replaceable at any moment: it joins with a request for the frames topic's history, so a new instance first
-//! receives the frame its predecessor died on; it may therefore publish a keyframe twice, and consumers
-//! de-duplicate by keyframe id. With on-demand pacing, acquisition waits for this service's credits, so no frame
-//! passes while no instance runs.
+//! Replaceable at any moment: with on-demand pacing, acquisition sends a frame only when a consumer has released
+//! the last one, and when a consumer joins it sends again the frames nobody released, so a new instance first
+//! receives the frame its predecessor died on. A keyframe may therefore be published twice; consumers
+//! de-duplicate by keyframe id.
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -13,7 +13,7 @@ use std::time::Duration;
 
 use anyhow::{Context, Result, anyhow, bail};
 use bdis_ipc::telemetry::MessageTiming;
-use bdis_ipc::{DepthHeader, FrameView, Ipc, TelemetryPublisher, Topic, event_id, monotonic_ns, qos};
+use bdis_ipc::{DepthHeader, FrameView, Ipc, TelemetryPublisher, Topic, event_id, monotonic_ns};
 use bdis_stereo::{Algorithm, DisparityMap, GrayImage, Matcher, Params};
 use clap::Parser;
 use iceoryx2::prelude::*;
@@ -85,7 +85,7 @@ fn run(args: Args) -> Result<()> {
 
     let ipc = Ipc::open(&args.name, &args.ipc_prefix)?;
     let frames = ipc.frames()?;
-    let subscriber = ipc.frame_subscriber(&frames, qos::FRAMES_HISTORY)?;
+    let subscriber = ipc.frame_subscriber(&frames)?;
     let frame_events = ipc.listener(&ipc.events(Topic::Frames)?)?;
     let credits = ipc.notifier(&ipc.frames_consumed()?)?;
     let depth = ipc.depth()?;
@@ -99,8 +99,9 @@ fn run(args: Args) -> Result<()> {
     let mut last_kf: Option<u64> = None;
     let mut published = 0u64;
     telemetry.ready();
-    // Ready for a frame: an on-demand acquisition sends the next one (and, with it, the topic's history).
-    bdis_ipc::notify(&credits, event_id::CONSUMED)?;
+    // Ready for a frame. An on-demand acquisition that is already running sends again what it sent but nobody
+    // released: the frame a killed predecessor was working on.
+    bdis_ipc::notify(&credits, event_id::JOINED)?;
     tracing::info!("stereo ({:?}, every {} frames) ready", params.algorithm, args.every);
 
     let algorithm_id = if params.algorithm == Algorithm::Bdis { DepthHeader::BDIS } else { DepthHeader::DIS };

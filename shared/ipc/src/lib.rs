@@ -47,6 +47,9 @@ pub mod event_id {
     pub const NOTIFIER_DEAD: usize = 3;
     /// A consumer released a frame (on-demand pacing).
     pub const CONSUMED: usize = 4;
+    /// A consumer started and is ready for a frame; frames an earlier instance may have died with are sent
+    /// again (on-demand pacing).
+    pub const JOINED: usize = 5;
     pub const MAX: usize = 7;
 }
 
@@ -132,18 +135,14 @@ pub type DepthService = PubSubFactory<ipc::Service, [u8], DepthHeader>;
 pub type Events = EventFactory<ipc::Service>;
 
 /// QoS of every topic. Sizing (IPC-NOTES §2): samples per publisher segment =
-/// subscribers · (buffer + borrowed) + history + loaned; frames: 4 · (2 + 2) + 2 + 1 = 19 frames of 5·W·H bytes
-/// (29 MB at 640×480); depth: 3 · (4 + 2) + 0 + 1 = 19 keyframes of 11·W·H bytes (64 MB at 640×480). tmpfs backs
+/// subscribers · (buffer + borrowed) + history + loaned; frames: 4 · (2 + 2) + 0 + 1 = 17 frames of 5·W·H bytes
+/// (26 MB at 640×480); depth: 3 · (4 + 2) + 0 + 1 = 19 keyframes of 11·W·H bytes (64 MB at 640×480). tmpfs backs
 /// only the pages that are touched.
 pub mod qos {
     pub const FRAMES_MAX_PUBLISHERS: usize = 2;
     pub const FRAMES_MAX_SUBSCRIBERS: usize = 4;
     pub const FRAMES_BUFFER: usize = 2;
     pub const FRAMES_BORROWED: usize = 2;
-    /// The last frames are kept for a consumer that (re)joins: a replacement stereo instance picks up the
-    /// frame its predecessor died on. With on-demand pacing at most one frame is in flight, so 2 is enough; a
-    /// joining subscriber receives at most its buffer size of them.
-    pub const FRAMES_HISTORY: usize = 2;
     pub const DEPTH_MAX_PUBLISHERS: usize = 2;
     pub const DEPTH_MAX_SUBSCRIBERS: usize = 3;
     pub const DEPTH_BUFFER: usize = 4;
@@ -217,7 +216,7 @@ impl Ipc {
                 .max_nodes(qos::MAX_NODES)
                 .subscriber_max_buffer_size(qos::FRAMES_BUFFER)
                 .subscriber_max_borrowed_samples(qos::FRAMES_BORROWED)
-                .history_size(qos::FRAMES_HISTORY)
+                .history_size(0)
                 .enable_safe_overflow(true)
                 .open_or_create()
         })
@@ -283,19 +282,9 @@ impl Ipc {
             .map_err(iox("create the frames publisher"))
     }
 
-    /// A frames subscriber with the service's full buffer (loses nothing at the rate it keeps up with), asking
-    /// for up to `history` recent frames when it joins (0 for a consumer that only wants what comes next).
-    pub fn frame_subscriber(
-        &self,
-        service: &FramesService,
-        history: usize,
-    ) -> Result<Subscriber<ipc::Service, [u8], FrameHeader>, IpcError> {
-        service
-            .subscriber_builder()
-            .buffer_size(qos::FRAMES_BUFFER)
-            .history_request(history.min(qos::FRAMES_HISTORY).min(qos::FRAMES_BUFFER))
-            .create()
-            .map_err(iox("create the frames subscriber"))
+    /// A frames subscriber with the service's full buffer (loses nothing at the rate it keeps up with).
+    pub fn frame_subscriber(&self, service: &FramesService) -> Result<Subscriber<ipc::Service, [u8], FrameHeader>, IpcError> {
+        service.subscriber_builder().buffer_size(qos::FRAMES_BUFFER).create().map_err(iox("create the frames subscriber"))
     }
 
     pub fn depth(&self) -> Result<DepthService, IpcError> {
