@@ -42,6 +42,9 @@ struct DemoArgs {
     /// Pacing: on-demand (as fast as the pipeline consumes), recorded (30 fps), or a rate such as 60hz.
     #[arg(long, default_value = "on-demand")]
     pacing: bdis_acquisition::Pacing,
+    /// Every N-th frame becomes a keyframe for dense stereo (until the tracker chooses keyframes).
+    #[arg(long, default_value_t = 5)]
+    keyframe_every: u64,
 }
 
 #[derive(Debug, clap::Args)]
@@ -61,6 +64,10 @@ struct RunArgs {
     /// Have the probe checksum every frame's pixels (for integrity checks; costs ~1 ms per VGA frame).
     #[arg(long, requires = "sequence")]
     checksums: bool,
+    /// Also run the stereo service, taking every N-th frame as a keyframe (needs --settings with the image
+    /// size); the probe then checks the depth keyframes.
+    #[arg(long, requires = "settings", value_name = "N")]
+    stereo_every: Option<u64>,
     /// Run folder to write (default: runs/<UTC time>-<name>).
     #[arg(long)]
     out: Option<PathBuf>,
@@ -93,6 +100,7 @@ fn plan_for_sequence(
     settings: Option<&Path>,
     pacing: bdis_acquisition::Pacing,
     checksums: bool,
+    stereo_every: Option<u64>,
 ) -> Result<bdis_slam::launch_file::LaunchFile> {
     use bdis_slam::launch_file::{LaunchFile, RunSection, ServiceSpec};
     // Check the input before anything starts: a bad sequence or settings file is reported here, by file and
@@ -109,19 +117,32 @@ fn plan_for_sequence(
         bdis_acquisition::Pacing::Fixed(hz) => format!("{hz}hz"),
     };
     acquisition_args.extend(["--pacing".to_string(), pacing]);
-    let mut probe_args = vec!["probe".to_string(), "frames".to_string()];
-    if checksums {
-        probe_args.push("--checksums".into());
-    }
     let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
     let name = sequence.file_name().map_or_else(|| "sequence".into(), |n| n.to_string_lossy().into_owned());
-    Ok(LaunchFile {
-        run: RunSection { name: Some(name), ..Default::default() },
-        services: vec![
-            ServiceSpec { name: "acquisition".into(), binary: "bdis-acquisition".into(), args: acquisition_args, core: Some(0), env: Default::default() },
-            ServiceSpec { name: "probe".into(), binary: "bdis-slam".into(), args: probe_args, core: Some(1 % cores), env: Default::default() },
-        ],
-    })
+    let spec = |name: &str, binary: &str, args: Vec<String>, core: usize| ServiceSpec {
+        name: name.into(),
+        binary: binary.into(),
+        args,
+        core: Some(core % cores),
+        env: Default::default(),
+    };
+    let mut services = vec![spec("acquisition", "bdis-acquisition", acquisition_args, 0)];
+    match (stereo_every, &input.settings_path) {
+        (Some(every), Some(settings)) => {
+            let settings = absolute(settings)?.display().to_string();
+            services.push(spec("stereo", "bdis-stereo", vec!["--settings".into(), settings, "--every".into(), every.to_string()], 1));
+            services.push(spec("probe", "bdis-slam", vec!["probe".into(), "depth".into(), "--preview".into(), "${RUN_DIR}/depth-preview.png".into()], 0));
+        }
+        (Some(_), None) => anyhow::bail!("--stereo-every needs --settings (the stereo service reads the camera from it)"),
+        (None, _) => {
+            let mut probe_args = vec!["probe".to_string(), "frames".to_string()];
+            if checksums {
+                probe_args.push("--checksums".into());
+            }
+            services.push(spec("probe", "bdis-slam", probe_args, 1));
+        }
+    }
+    Ok(LaunchFile { run: RunSection { name: Some(name), ..Default::default() }, services })
 }
 
 fn run(args: RunArgs) -> Result<ExitCode> {
@@ -129,7 +150,7 @@ fn run(args: RunArgs) -> Result<ExitCode> {
     let (launch, launch_path) = match (&args.launch_file, &args.sequence) {
         (Some(path), _) => (LaunchFile::load(path)?, path.clone()),
         (None, Some(sequence)) => {
-            (plan_for_sequence(sequence, args.settings.as_deref(), args.pacing, args.checksums)?, PathBuf::from("launch.toml"))
+            (plan_for_sequence(sequence, args.settings.as_deref(), args.pacing, args.checksums, args.stereo_every)?, PathBuf::from("launch.toml"))
         }
         (None, None) => anyhow::bail!("give a launch file or --sequence"),
     };
@@ -218,25 +239,35 @@ fn demo(args: DemoArgs) -> Result<ExitCode> {
     let preview = run_dir.join("preview.png");
     write_side_by_side(&sequence.join("left/1.png"), &sequence.join("right/1.png"), &preview)?;
 
-    let launch = plan_for_sequence(&sequence, Some(&settings), args.pacing, false)?;
+    let launch = plan_for_sequence(&sequence, Some(&settings), args.pacing, false, Some(args.keyframe_every))?;
     let (code, result) = execute_and_report(&launch, Path::new("launch.toml"), &run_dir, None)?;
-    let probe = result.latency.processes.iter().find(|p| p.name == "probe");
-    let hop = result.latency.hops.first();
+    let find = |name: &str| result.latency.processes.iter().find(|p| p.name == name);
+    let depth: Option<bdis_slam::probe::DepthSummary> =
+        std::fs::read_to_string(run_dir.join("probe.json")).ok().and_then(|t| serde_json::from_str(&t).ok());
     println!();
     println!("demo summary");
-    println!("  frames      {} rendered, {} received by the consumer", args.frames, probe.map_or(0, |p| p.messages));
-    println!("  rate        {:.1} frames/s (on-demand: as fast as the consumer takes them)", probe.map_or(0.0, |p| p.rate_hz));
-    if let Some(h) = hop {
-        println!("  transport   {}→{} p50 {:.0} µs, p99 {:.0} µs (zero copy, shared memory)", h.from, h.to, h.latency_us.p50, h.latency_us.p99);
+    println!("  frames      {} rendered, {} published by acquisition", args.frames, find("acquisition").map_or(0, |p| p.messages));
+    if let Some(d) = &depth {
+        println!(
+            "  keyframes   {} depth keyframes (every {}th frame), mean density {:.1} % of pixels",
+            d.keyframe_ids.len(),
+            args.keyframe_every,
+            100.0 * d.mean_density
+        );
     }
-    for p in &result.latency.processes {
-        if let Some(t) = p.processing_us {
-            println!("  {:<11} processing p50 {:.2} ms, p99 {:.2} ms", p.name, t.p50 / 1000.0, t.p99 / 1000.0);
-        }
+    if let Some(s) = find("stereo").and_then(|p| p.processing_us) {
+        println!("  stereo      BDIS per keyframe p50 {:.1} ms, p99 {:.1} ms (matching and publishing 640×480)", s.p50 / 1000.0, s.p99 / 1000.0);
     }
-    println!("  look at     {} (first stereo pair), {}", preview.display(), run_dir.join("latency.json").display());
-    println!("  not yet     tracking, BDIS stereo and the mosaic map are still to come (issues #6, #3, #7);");
-    println!("              the probe stands in for the tracker.");
+    for h in &result.latency.hops {
+        println!("  transport   {}→{} ({}) p50 {:.0} µs, p99 {:.0} µs, zero copy", h.from, h.to, h.topic, h.latency_us.p50, h.latency_us.p99);
+    }
+    if let Some(a) = find("probe").and_then(|p| p.age_us) {
+        println!("  latency     capture → depth keyframe received p50 {:.1} ms, p99 {:.1} ms", a.p50 / 1000.0, a.p99 / 1000.0);
+    }
+    println!("  look at     {} (a depth keyframe), {} (first stereo pair)", run_dir.join("depth-preview.png").display(), preview.display());
+    println!("              {}", run_dir.join("latency.json").display());
+    println!("  not yet     tracking and the mosaic map are still to come (issues #6, #7): keyframes are every");
+    println!("              {}th frame and have no pose; the probe stands in for the mosaic.", args.keyframe_every);
     Ok(code)
 }
 

@@ -25,6 +25,9 @@ pub struct ProbeArgs {
     /// Stop after this many frames.
     #[arg(long)]
     max_frames: Option<u64>,
+    /// Depth topic: write the last keyframe as a PNG (left image beside the colour-mapped disparity).
+    #[arg(long)]
+    preview: Option<PathBuf>,
     /// Give up when nothing arrives for this many seconds (default: wait for end of stream or Ctrl-C).
     #[arg(long)]
     idle_timeout: Option<f64>,
@@ -223,6 +226,7 @@ fn probe_depth(args: &ProbeArgs) -> Result<()> {
     let waitset = WaitSetBuilder::new().create::<ipc::Service>().map_err(|e| iox("create a WaitSet")(&e))?;
     let guard = waitset.attach_deadline(&listener, Duration::from_secs(1)).map_err(|e| iox("attach the depth listener")(&e))?;
     let mut checker = bdis_slam::probe::DepthChecker::new("depth", &args.ipc_prefix);
+    let mut last: (u32, u32, Vec<f32>, Vec<u8>) = (0, 0, Vec::new(), Vec::new());
     telemetry.ready();
     let mut no_producer_since: Option<u64> = None;
     let mut last_status = monotonic_ns();
@@ -255,7 +259,18 @@ fn probe_depth(args: &ProbeArgs) -> Result<()> {
                 break 'outer;
             }
             match bdis_ipc::DepthView::new(sample.user_header(), sample.payload()) {
-                Ok(view) => checker.keyframe(&view, t_receive_ns),
+                Ok(view) => {
+                    checker.keyframe(&view, t_receive_ns);
+                    if args.preview.is_some() {
+                        // A copy only when a preview is asked for: the sample goes back to the producer now.
+                        last.0 = header.width;
+                        last.1 = header.height;
+                        last.2.clear();
+                        last.2.extend_from_slice(view.disparity);
+                        last.3.clear();
+                        last.3.extend_from_slice(view.rgb);
+                    }
+                }
                 Err(e) => {
                     tracing::warn!("{e}");
                     checker.malformed();
@@ -296,6 +311,20 @@ fn probe_depth(args: &ProbeArgs) -> Result<()> {
         println!();
     }
     let summary = checker.summary();
+    if let (Some(path), true) = (&args.preview, last.0 > 0) {
+        let (w, h) = (last.0, last.1);
+        let mut colours = Vec::new();
+        bdis_stereo::preview::colorize(&last.2, &mut colours);
+        let mut both = image::RgbImage::new(2 * w, h);
+        for y in 0..h {
+            for x in 0..w {
+                let k = (y * w + x) as usize;
+                both.put_pixel(x, y, image::Rgb([last.3[3 * k], last.3[3 * k + 1], last.3[3 * k + 2]]));
+                both.put_pixel(w + x, y, image::Rgb([colours[3 * k], colours[3 * k + 1], colours[3 * k + 2]]));
+            }
+        }
+        both.save(path).with_context(|| format!("{}: cannot write the preview", path.display()))?;
+    }
     if let Some(path) = summary_path(args) {
         let text = serde_json::to_string_pretty(&summary).context("serialise the probe summary")?;
         std::fs::write(&path, text).with_context(|| format!("{}: cannot write the probe summary", path.display()))?;

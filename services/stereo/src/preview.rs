@@ -27,8 +27,16 @@ pub fn colorize(disparity: &[f32], rgb_out: &mut Vec<u8>) -> (f32, f32) {
         return (0.0, 0.0);
     }
     valid.sort_by(f32::total_cmp);
-    let lo = valid[valid.len() * 2 / 100];
-    let hi = valid[(valid.len() * 98 / 100).min(valid.len() - 1)].max(lo + 1e-3);
+    let (mut lo, mut hi) = (valid[valid.len() * 2 / 100], valid[(valid.len() * 98 / 100).min(valid.len() - 1)]);
+    // At least 2 px or 20 % of the median wide, centred: sub-pixel noise on a flat scene should not be painted
+    // as a rainbow.
+    let median = valid[valid.len() / 2];
+    let min_span = (0.2 * median).max(2.0);
+    if hi - lo < min_span {
+        let mid = 0.5 * (lo + hi);
+        lo = mid - 0.5 * min_span;
+        hi = mid + 0.5 * min_span;
+    }
     for &d in disparity {
         let c = if d.is_finite() { ramp((d - lo) / (hi - lo)) } else { [0, 0, 0] };
         rgb_out.extend_from_slice(&c);
