@@ -148,11 +148,39 @@ fn the_demo_renders_a_sequence_and_runs_the_pipeline_over_it() {
     );
     let stdout = text(&out.stdout);
     assert!(out.status.success(), "{stdout}\n{}", text(&out.stderr));
-    assert!(stdout.contains("frames      12 rendered, 12 received by the consumer"), "{stdout}");
-    assert!(stdout.contains("acquisition→probe p50"), "{stdout}");
-    let preview = image::open(tmp.path().join("preview.png")).unwrap();
-    assert_eq!((preview.width(), preview.height()), (1280, 480));
-    let summary = probe_summary(tmp.path());
-    assert_eq!((summary.frames_received, summary.frames_missing), (12, 0));
-    assert!(summary.payload_in_shared_memory);
+    assert!(stdout.contains("frames      12 rendered, 12 published by acquisition"), "{stdout}");
+    assert!(stdout.contains("keyframes   3 depth keyframes (every 5th frame)"), "{stdout}");
+    assert!(stdout.contains("acquisition→stereo (frames) p50"), "{stdout}");
+    for preview in ["preview.png", "depth-preview.png"] {
+        let img = image::open(tmp.path().join(preview)).unwrap();
+        assert_eq!((img.width(), img.height()), (1280, 480));
+    }
+    let depth: bdis_slam::probe::DepthSummary = serde_json::from_str(&std::fs::read_to_string(tmp.path().join("probe.json")).unwrap()).unwrap();
+    assert_eq!(depth.keyframe_ids, vec![0, 5, 10]);
+    assert!(depth.end_of_stream && depth.payload_in_shared_memory);
+    assert!(depth.mean_density > 0.8, "a textured plane is matched almost everywhere: {}", depth.mean_density);
+}
+
+#[test]
+fn hamlyn6_through_the_stereo_service() {
+    if data_set("6").is_none() {
+        return;
+    }
+    let tmp = TempDir::new("h6stereo");
+    let prefix = prefix("h6st");
+    let launch = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("launch/hamlyn6-stereo.toml");
+    let out = run_with_timeout(
+        Command::new(bdis_slam()).arg("run").arg(&launch).args(["--ipc-prefix", &prefix, "--out"]).arg(tmp.path()),
+        Duration::from_secs(120),
+    );
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let depth: bdis_slam::probe::DepthSummary = serde_json::from_str(&std::fs::read_to_string(tmp.path().join("probe.json")).unwrap()).unwrap();
+    assert_eq!(depth.keyframe_ids, vec![0, 5, 10, 15, 20]);
+    assert_eq!(depth.duplicates, 0);
+    assert!(depth.end_of_stream && depth.payload_in_shared_memory);
+    // The in-vivo frames have a black border; BDIS answers most of the rest.
+    assert!(depth.mean_density > 0.6, "density {}", depth.mean_density);
+    let stdout = text(&out.stdout);
+    assert!(stdout.contains("acquisition→stereo (frames)") && stdout.contains("stereo→probe (depth)"), "{stdout}");
+    assert_no_leftovers(&prefix);
 }
