@@ -31,7 +31,8 @@ pub struct Percentiles {
 }
 
 impl Percentiles {
-    fn of(h: &Histogram<u64>) -> Option<Self> {
+    /// The percentiles of a histogram of nanoseconds, in µs; `None` when it is empty.
+    pub fn of(h: &Histogram<u64>) -> Option<Self> {
         if h.is_empty() {
             return None;
         }

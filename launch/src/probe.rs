@@ -167,14 +167,7 @@ impl FrameChecker {
 }
 
 fn percentiles(h: &Histogram<u64>) -> Option<Percentiles> {
-    (!h.is_empty()).then(|| Percentiles {
-        count: h.len(),
-        p50: h.value_at_quantile(0.5) as f64 / 1000.0,
-        p90: h.value_at_quantile(0.9) as f64 / 1000.0,
-        p99: h.value_at_quantile(0.99) as f64 / 1000.0,
-        max: h.max() as f64 / 1000.0,
-        mean: h.mean() / 1000.0,
-    })
+    Percentiles::of(h)
 }
 
 #[cfg(test)]

@@ -5,7 +5,7 @@ use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
-use bdis_stereo::{Algorithm, DisparityMap, GrayImage, Matcher, Params};
+use bdis_stereo::{DisparityMap, GrayImage, Matcher, Params};
 
 #[derive(Debug, clap::Args)]
 pub struct StereoArgs {
@@ -49,16 +49,7 @@ fn params_of(args: &StereoArgs) -> Result<Params> {
         (None, "colon") => Params::colon(),
         (None, other) => bail!("--preset: `{other}` is not a parameter set (slam, colon)"),
     };
-    for p in &args.params {
-        let (name, value) = p.split_once('=').with_context(|| format!("--param `{p}`: expected NAME=VALUE"))?;
-        params.set(name, value).with_context(|| format!("--param `{p}`"))?;
-    }
-    params.algorithm = match args.algorithm.as_str() {
-        "bdis" => Algorithm::Bdis,
-        "dis" => Algorithm::Dis,
-        other => bail!("--algorithm: `{other}` is not an algorithm (bdis, dis)"),
-    };
-    params.validate()?;
+    params.apply_overrides(&args.params, &args.algorithm)?;
     Ok(params)
 }
 

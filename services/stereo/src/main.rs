@@ -65,15 +65,7 @@ fn run(args: Args) -> Result<()> {
     // Everything that can be wrong with the input is found before shared memory is touched.
     let settings = bdis_core::Settings::load(&args.settings)?;
     let mut params = Params::from_settings(&settings.bdis);
-    for p in &args.params {
-        let (name, value) = p.split_once('=').with_context(|| format!("--param `{p}`: expected NAME=VALUE"))?;
-        params.set(name, value).with_context(|| format!("--param `{p}`"))?;
-    }
-    params.algorithm = match args.algorithm.as_str() {
-        "bdis" => Algorithm::Bdis,
-        "dis" => Algorithm::Dis,
-        other => bail!("--algorithm: `{other}` is not an algorithm (bdis, dis)"),
-    };
+    params.apply_overrides(&args.params, &args.algorithm)?;
     if args.every == 0 {
         bail!("--every: must be ≥ 1");
     }

@@ -224,3 +224,21 @@ mod set_tests {
         assert!(p.set("nope", "1").unwrap_err().to_string().contains("unknown parameter `nope`"));
     }
 }
+
+impl Params {
+    /// Applies command-line overrides: `NAME=VALUE` settings (`--param`) and the algorithm's name (`bdis`, `dis`).
+    pub fn apply_overrides(&mut self, assignments: &[String], algorithm: &str) -> Result<(), ParamError> {
+        for a in assignments {
+            let (name, value) = a
+                .split_once('=')
+                .ok_or_else(|| ParamError { name: "?", message: format!("`{a}`: expected NAME=VALUE") })?;
+            self.set(name, value)?;
+        }
+        self.algorithm = match algorithm {
+            "bdis" => Algorithm::Bdis,
+            "dis" => Algorithm::Dis,
+            other => return Err(ParamError { name: "algorithm", message: format!("`{other}` is not an algorithm (bdis, dis)") }),
+        };
+        self.validate()
+    }
+}
