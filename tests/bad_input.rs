@@ -1,3 +1,4 @@
+#![allow(clippy::unwrap_used, clippy::expect_used)] // test code: a panic is the failure report
 //! Bad input: one clear line naming the file and the field, a non-zero exit, no panic, no shared memory left
 //! behind, and whatever was already produced is kept.
 

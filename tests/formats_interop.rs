@@ -1,3 +1,4 @@
+#![allow(clippy::unwrap_used, clippy::expect_used)] // test code: a panic is the failure report
 //! Files the project writes (PFM, PLY, TUM, KITTI) read back identically by the project and by an independent
 //! reader: `tests/interop/read_formats.py`, numpy only, written from the format specifications. The expected
 //! values go to the Python side as JSON (serde_json, not our writers), with f32 values as their bit patterns.

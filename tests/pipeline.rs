@@ -1,3 +1,4 @@
+#![allow(clippy::unwrap_used, clippy::expect_used)] // test code: a panic is the failure report
 //! End to end: `bdis-slam run` starts acquisition and the probe as real processes over real iceoryx2.
 
 mod common;

@@ -1,3 +1,4 @@
+#![allow(clippy::unwrap_used, clippy::expect_used)] // test code: a panic is the failure report
 //! `bdis-slam stereo` from the command line: outputs a person and a program can read, clear errors.
 
 mod common;

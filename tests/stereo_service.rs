@@ -1,3 +1,4 @@
+#![allow(clippy::unwrap_used, clippy::expect_used)] // test code: a panic is the failure report
 //! The stereo service over real iceoryx2: depth keyframes for every keyframe, and a `kill -9` in the middle of
 //! a run loses none of them when a new instance takes over.
 

@@ -1,3 +1,4 @@
+#![allow(clippy::unwrap_used, clippy::expect_used)] // test code: a panic is the failure report
 //! Helpers for end-to-end tests: they start the real binaries over real iceoryx2, each test under its own
 //! shared-memory prefix so tests run in parallel without seeing each other.
 #![allow(dead_code)]

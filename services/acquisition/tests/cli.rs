@@ -1,3 +1,4 @@
+#![allow(clippy::unwrap_used, clippy::expect_used)] // test code: a panic is the failure report
 //! The `bdis-acquisition` binary on its own: checks input before creating any shared memory.
 
 use std::process::Command;

@@ -1,3 +1,4 @@
+#![allow(clippy::unwrap_used, clippy::expect_used)] // test code: a panic is the failure report
 //! Criterion benchmarks of the matchers at 640×480, single thread: BDIS and plain DIS with the BDIS-SLAM
 //! parameters (patch 10, overlap 0.60 → stride 3) and the synthetic-colon parameters (patch 8, overlap 0.40).
 //! Input: `../shared/data/bdis/31` pair 1 when present, else a rendered tissue plane (bdis-synth is not a

@@ -1,3 +1,4 @@
+#![allow(clippy::unwrap_used, clippy::expect_used)] // test code: a panic is the failure report
 //! Matches one pair `repeats` times: the target of the callgrind instruction counts in BENCHMARKS.md.
 //! Usage: one_pair <slam|colon|slam-dis|colon-dis> LEFT RIGHT [repeats]
 use bdis_stereo::{Algorithm, DisparityMap, GrayImage, Matcher, Params};

@@ -1,3 +1,4 @@
+#![allow(clippy::unwrap_used, clippy::expect_used)] // test code: a panic is the failure report
 //! Accuracy against the authors' C++ on the bundled data (figures of the reference measured on this machine
 //! type, ../shared/data/bdis/README.md and issue #3). "No worse than the original" is the bar.
 

@@ -1,3 +1,4 @@
+#![allow(clippy::unwrap_used, clippy::expect_used)] // test code: a panic is the failure report
 //! Hot-path discipline: once warmed up on a size, the matcher allocates nothing per pair.
 
 use std::alloc::{GlobalAlloc, Layout, System};

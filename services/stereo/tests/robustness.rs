@@ -1,3 +1,4 @@
+#![allow(clippy::unwrap_used, clippy::expect_used)] // test code: a panic is the failure report
 //! Bad input gives a clear error, never a panic; inputs without texture give an all-invalid map, not garbage.
 
 use bdis_stereo::{Algorithm, GrayImage, MatchError, Matcher, Params};

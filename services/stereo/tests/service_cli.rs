@@ -1,3 +1,4 @@
+#![allow(clippy::unwrap_used, clippy::expect_used)] // test code: a panic is the failure report
 //! The `bdis-stereo` service binary refuses bad input before it touches shared memory.
 
 use std::process::Command;

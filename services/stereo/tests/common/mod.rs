@@ -1,3 +1,4 @@
+#![allow(clippy::unwrap_used, clippy::expect_used)] // test code: a panic is the failure report
 //! Test data access for the stereo tests.
 #![allow(dead_code)]
 
