@@ -54,7 +54,14 @@ fn missing_right_image() {
     std::fs::remove_file(seq.join("right/3.png")).unwrap();
     let (code, line, _, _) = run(&tmp, &seq, Some(&settings));
     assert_eq!(code, Some(1));
-    assert!(line.ends_with(&format!("{}: missing right image for {}", seq.join("right/3.png").display(), seq.join("left/3.png").display())), "{line}");
+    assert!(
+        line.ends_with(&format!(
+            "{}: missing right image for {}",
+            seq.join("right/3.png").display(),
+            seq.join("left/3.png").display()
+        )),
+        "{line}"
+    );
 }
 
 #[test]
@@ -75,7 +82,11 @@ fn left_right_size_mismatch() {
     let (code, line, _, _) = run(&tmp, &seq, Some(&settings));
     assert_eq!(code, Some(1));
     assert!(
-        line.contains(&format!("{}: size 40×32 differs from the left image {} (48×32)", seq.join("right/2.png").display(), seq.join("left/2.png").display())),
+        line.contains(&format!(
+            "{}: size 40×32 differs from the left image {} (48×32)",
+            seq.join("right/2.png").display(),
+            seq.join("left/2.png").display()
+        )),
         "{line}"
     );
 }
@@ -88,7 +99,10 @@ fn times_txt_shorter_or_longer_than_the_images() {
         std::fs::write(seq.join("times.txt"), times).unwrap();
         let (code, line, _, _) = run(&tmp, &seq, Some(&settings));
         assert_eq!(code, Some(1));
-        assert!(line.ends_with(&format!("{}: {n} timestamps for 4 image pairs", seq.join("times.txt").display())), "{line}");
+        assert!(
+            line.ends_with(&format!("{}: {n} timestamps for 4 image pairs", seq.join("times.txt").display())),
+            "{line}"
+        );
     }
 }
 
@@ -99,7 +113,10 @@ fn malformed_or_incomplete_settings() {
     let good = std::fs::read_to_string(&settings).unwrap();
     let cases = [
         (good.replace("Camera.fx: 100.0\n", ""), "missing required key `Camera.fx`".to_string()),
-        (good.replace("Camera.fx: 100.0", "Camera.fx: .nan"), ":2: `Camera.fx`: must be a finite number, found `.nan`".into()),
+        (
+            good.replace("Camera.fx: 100.0", "Camera.fx: .nan"),
+            ":2: `Camera.fx`: must be a finite number, found `.nan`".into(),
+        ),
         (good.replace("Camera.fx: 100.0", "Camera.fx: 0"), ":2: `Camera.fx`: must be > 0, found 0".into()),
         (good.replace("Camera.bf: 500.0", "Camera.bf: -3"), ":9: `Camera.bf`: must be > 0, found -3".into()),
         (good.replace("Camera.bf: 500.0", "Camera.bf: 2055.77s"), ":9: `Camera.bf`: `2055.77s` is not a number".into()),
@@ -130,7 +147,8 @@ fn an_image_that_breaks_mid_stream_keeps_what_was_produced() {
         serde_json::from_str(&std::fs::read_to_string(run_dir.join("probe.json")).unwrap()).unwrap();
     assert_eq!(summary.frames_received, 3);
     assert!(summary.end_of_stream);
-    let latency: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(run_dir.join("latency.json")).unwrap()).unwrap();
+    let latency: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(run_dir.join("latency.json")).unwrap()).unwrap();
     assert_eq!(latency["processes"][1]["messages"].as_u64(), Some(3), "{latency}");
 }
 

@@ -58,7 +58,10 @@ fn pfm_ply_tum_kitti_round_trip_through_us_and_numpy() {
             let a = i as f64 * 0.21;
             StampedPose {
                 t_s: 1_700_000_000.0 + a,
-                world_from_camera: Isometry3::new(Vector3::new(a, -a * 2.0, 0.3 * a * a), Vector3::new(0.2 * a, a.cos() - 1.0, 0.1)),
+                world_from_camera: Isometry3::new(
+                    Vector3::new(a, -a * 2.0, 0.3 * a * a),
+                    Vector3::new(0.2 * a, a.cos() - 1.0, 0.1),
+                ),
             }
         })
         .collect();
@@ -70,7 +73,9 @@ fn pfm_ply_tum_kitti_round_trip_through_us_and_numpy() {
         assert!((a.to_homogeneous() - b.to_homogeneous()).abs().max() < 1e-14);
     }
 
-    let bits = |v: &[f32]| v.iter().map(|x| if x.is_nan() { f32::INFINITY.to_bits() } else { x.to_bits() }).collect::<Vec<u32>>();
+    let bits = |v: &[f32]| {
+        v.iter().map(|x| if x.is_nan() { f32::INFINITY.to_bits() } else { x.to_bits() }).collect::<Vec<u32>>()
+    };
     let expected = serde_json::json!({
         "disparity": { "width": w, "height": h, "bits": bits(&disparity) },
         "rgb": { "width": 2, "height": 2, "bits": bits(&rgb) },

@@ -10,7 +10,8 @@ use bdis_slam::probe::{ProbeSummary, fnv1a64};
 use common::*;
 
 fn probe_summary(run_dir: &std::path::Path) -> ProbeSummary {
-    let text = std::fs::read_to_string(run_dir.join("probe.json")).expect("the probe writes probe.json into the run folder");
+    let text =
+        std::fs::read_to_string(run_dir.join("probe.json")).expect("the probe writes probe.json into the run folder");
     serde_json::from_str(&text).unwrap()
 }
 
@@ -60,7 +61,9 @@ fn streams_every_hamlyn6_frame_in_order_and_reads_it_in_place() {
     assert_eq!((summary.width, summary.height), (640, 480));
     let expected: Vec<String> = names
         .iter()
-        .map(|n| format!("{:016x}", fnv1a64(image::open(set6.join(format!("left/{n}.png"))).unwrap().to_rgb8().as_raw())))
+        .map(|n| {
+            format!("{:016x}", fnv1a64(image::open(set6.join(format!("left/{n}.png"))).unwrap().to_rgb8().as_raw()))
+        })
         .collect();
     assert_eq!(summary.left_rgb_fnv1a64, expected);
 
@@ -72,7 +75,8 @@ fn streams_every_hamlyn6_frame_in_order_and_reads_it_in_place() {
     // The printed table gives the acquisition→probe hop in microseconds; latency.json has the same figures.
     let p50 = hop_p50_us(&stdout);
     assert!(p50 > 0.0 && p50 < 1_000_000.0, "{p50}");
-    let latency: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(run_dir.join("latency.json")).unwrap()).unwrap();
+    let latency: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(run_dir.join("latency.json")).unwrap()).unwrap();
     let hop = &latency["hops"][0];
     assert_eq!((hop["from"].as_str(), hop["to"].as_str()), (Some("acquisition"), Some("probe")));
     assert_eq!(hop["latency_us"]["count"].as_u64(), Some(25));
@@ -134,7 +138,8 @@ fn sigterm_stops_the_pipeline_upstream_first_and_keeps_what_it_produced() {
     assert!(summary.end_of_stream, "acquisition was stopped first and still sent end of stream");
     assert!(summary.frames_received >= 1 && summary.frames_received < 60, "{}", summary.frames_received);
     assert_eq!(summary.frames_missing, 0);
-    let latency: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(run_dir.join("latency.json")).unwrap()).unwrap();
+    let latency: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(run_dir.join("latency.json")).unwrap()).unwrap();
     assert_eq!(latency["stop_requested"], serde_json::json!(true));
     assert!(latency["services"].as_array().unwrap().iter().all(|s| s["exit"] == "ok"), "{latency}");
     assert_no_leftovers(&prefix);
@@ -156,7 +161,8 @@ fn the_demo_renders_a_sequence_and_runs_the_pipeline_over_it() {
         let img = image::open(tmp.path().join(preview)).unwrap();
         assert_eq!((img.width(), img.height()), (1280, 480));
     }
-    let depth: bdis_slam::probe::DepthSummary = serde_json::from_str(&std::fs::read_to_string(tmp.path().join("probe.json")).unwrap()).unwrap();
+    let depth: bdis_slam::probe::DepthSummary =
+        serde_json::from_str(&std::fs::read_to_string(tmp.path().join("probe.json")).unwrap()).unwrap();
     assert_eq!(depth.keyframe_ids, vec![0, 5, 10]);
     assert!(depth.end_of_stream && depth.payload_in_shared_memory);
     assert!(depth.mean_density > 0.8, "a textured plane is matched almost everywhere: {}", depth.mean_density);
@@ -175,7 +181,8 @@ fn hamlyn6_through_the_stereo_service() {
         Duration::from_secs(120),
     );
     assert!(out.status.success(), "{}", text(&out.stderr));
-    let depth: bdis_slam::probe::DepthSummary = serde_json::from_str(&std::fs::read_to_string(tmp.path().join("probe.json")).unwrap()).unwrap();
+    let depth: bdis_slam::probe::DepthSummary =
+        serde_json::from_str(&std::fs::read_to_string(tmp.path().join("probe.json")).unwrap()).unwrap();
     assert_eq!(depth.keyframe_ids, vec![0, 5, 10, 15, 20]);
     assert_eq!(depth.duplicates, 0);
     assert!(depth.end_of_stream && depth.payload_in_shared_memory);

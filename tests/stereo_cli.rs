@@ -13,7 +13,15 @@ fn one_pair_writes_disparity_confidence_and_preview() {
     let tmp = TempDir::new("stereo1");
     let seq = tmp.path().join("seq");
     // A tissue plane whose ground-truth disparity is exactly 4 px.
-    let rig = bdis_synth::StereoRig { width: 256, height: 192, fx: 260.0, fy: 260.0, cx: 128.0, cy: 96.0, baseline_mm: 50.0 * 4.0 / 260.0 };
+    let rig = bdis_synth::StereoRig {
+        width: 256,
+        height: 192,
+        fx: 260.0,
+        fy: 260.0,
+        cx: 128.0,
+        cy: 96.0,
+        baseline_mm: 50.0 * 4.0 / 260.0,
+    };
     let scene = bdis_synth::PlaneScene { depth_mm: 50.0, texture: bdis_synth::TissueTexture { seed: 11 } };
     assert!((scene.disparity_px(&rig) - 4.0).abs() < 1e-9);
     bdis_synth::write_plane_sweep(&seq, &rig, &scene, 1, 30.0, 0.0, |_| {}).unwrap();
@@ -54,7 +62,13 @@ fn bad_input_is_one_line_and_exit_1() {
     image::RgbImage::new(60, 48).save(seq.join("right/1.png")).unwrap();
     let base = |extra: &[&str]| {
         let mut c = Command::new(bdis_slam());
-        c.args(["stereo", "--left"]).arg(seq.join("left/1.png")).arg("--right").arg(seq.join("right/1.png")).arg("--out").arg(tmp.path().join("x.pfm")).args(extra);
+        c.args(["stereo", "--left"])
+            .arg(seq.join("left/1.png"))
+            .arg("--right")
+            .arg(seq.join("right/1.png"))
+            .arg("--out")
+            .arg(tmp.path().join("x.pfm"))
+            .args(extra);
         run_with_timeout(&mut c, Duration::from_secs(30))
     };
     let out = base(&[]);
@@ -64,6 +78,10 @@ fn bad_input_is_one_line_and_exit_1() {
     assert_eq!(stderr.lines().count(), 1, "{stderr}");
     let out = base(&["--param", "patchsz=0"]);
     assert_eq!(out.status.code(), Some(1));
-    assert!(text(&out.stderr).contains("BDISparam.patchsz: must be even and in 2..=64, found 0"), "{}", text(&out.stderr));
+    assert!(
+        text(&out.stderr).contains("BDISparam.patchsz: must be even and in 2..=64, found 0"),
+        "{}",
+        text(&out.stderr)
+    );
     assert!(!tmp.path().join("x.pfm").exists(), "nothing is written on error");
 }

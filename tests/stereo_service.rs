@@ -8,8 +8,8 @@ use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
 use bdis_slam::probe::DepthSummary;
-use iceoryx2::prelude::*;
 use common::*;
+use iceoryx2::prelude::*;
 
 fn spawn(bin: std::path::PathBuf, args: &[&str], prefix: &str, log: &std::path::Path) -> Child {
     let log = std::fs::File::create(log).unwrap();
@@ -56,11 +56,18 @@ fn a_killed_stereo_instance_is_replaced_without_losing_a_keyframe() {
     let settings_arg = settings.to_str().unwrap();
     let probe_json = tmp.path().join("probe.json");
 
-    let mut probe = spawn(bdis_slam(), &["probe", "depth", "--summary", probe_json.to_str().unwrap()], &prefix, &tmp.path().join("probe.log"));
+    let mut probe = spawn(
+        bdis_slam(),
+        &["probe", "depth", "--summary", probe_json.to_str().unwrap()],
+        &prefix,
+        &tmp.path().join("probe.log"),
+    );
     // The probe must be subscribed before the first keyframe is published.
     let ipc = bdis_ipc::Ipc::open("test", &prefix).unwrap();
     let depth = ipc.depth().unwrap();
-    wait_for("the probe's subscription", Duration::from_secs(20), || depth.dynamic_config().number_of_subscribers() >= 1);
+    wait_for("the probe's subscription", Duration::from_secs(20), || {
+        depth.dynamic_config().number_of_subscribers() >= 1
+    });
 
     let stereo_args = ["--settings", settings_arg, "--every", "2"];
     let log1 = tmp.path().join("stereo1.log");

@@ -223,7 +223,12 @@ impl LatencyAggregator {
                     .iter()
                     .find(|(_, p)| &p.output_topic == topic)
                     .map_or_else(|| "?".to_string(), |(n, _)| n.clone());
-                Percentiles::of(h).map(|latency_us| HopReport { from, to: to.clone(), topic: topic.clone(), latency_us })
+                Percentiles::of(h).map(|latency_us| HopReport {
+                    from,
+                    to: to.clone(),
+                    topic: topic.clone(),
+                    latency_us,
+                })
             })
             .collect();
         LatencyReport { processes, hops, telemetry_records_lost: self.records_lost }
@@ -233,14 +238,20 @@ impl LatencyAggregator {
 impl LatencyReport {
     /// The table printed at the end of a run.
     pub fn table(&self) -> String {
-        let ms = |p: &Option<Percentiles>| p.map_or_else(|| "-".to_string(), |p| format!("{:.3} / {:.3}", p.p50 / 1000.0, p.p99 / 1000.0));
+        let ms = |p: &Option<Percentiles>| {
+            p.map_or_else(|| "-".to_string(), |p| format!("{:.3} / {:.3}", p.p50 / 1000.0, p.p99 / 1000.0))
+        };
         let mut out = String::new();
         let _ = writeln!(
             out,
             "{:<14} {:>6} {:>8} {:>7} {:>18} {:>18} {:>18} {:>7}",
             "process", "msgs", "rate Hz", "dropped", "processing ms", "queue wait ms", "output age ms", "cpu s"
         );
-        let _ = writeln!(out, "{:<14} {:>6} {:>8} {:>7} {:>18} {:>18} {:>18} {:>7}", "", "", "", "", "p50 / p99", "p50 / p99", "p50 / p99", "");
+        let _ = writeln!(
+            out,
+            "{:<14} {:>6} {:>8} {:>7} {:>18} {:>18} {:>18} {:>7}",
+            "", "", "", "", "p50 / p99", "p50 / p99", "p50 / p99", ""
+        );
         for p in &self.processes {
             let _ = writeln!(
                 out,
@@ -257,7 +268,11 @@ impl LatencyReport {
         }
         if !self.hops.is_empty() {
             let _ = writeln!(out);
-            let _ = writeln!(out, "{:<34} {:>6} {:>9} {:>9} {:>9} {:>9}", "hop (topic)", "msgs", "p50 µs", "p90 µs", "p99 µs", "max µs");
+            let _ = writeln!(
+                out,
+                "{:<34} {:>6} {:>9} {:>9} {:>9} {:>9}",
+                "hop (topic)", "msgs", "p50 µs", "p90 µs", "p99 µs", "max µs"
+            );
             for h in &self.hops {
                 let _ = writeln!(
                     out,
@@ -272,7 +287,8 @@ impl LatencyReport {
             }
         }
         if self.telemetry_records_lost > 0 {
-            let _ = writeln!(out, "note: {} telemetry records were lost; figures are partial", self.telemetry_records_lost);
+            let _ =
+                writeln!(out, "note: {} telemetry records were lost; figures are partial", self.telemetry_records_lost);
         }
         out
     }
@@ -303,7 +319,14 @@ mod tests {
             // probe: receives 50 µs (+i ns) after publish, works 1 ms.
             let rx = t0 + 10_000_000 + 50_000 + i;
             if i != 50 {
-                agg.record(&rec("probe", TelemetryKind::Message, i + 1 - u64::from(i > 50), [t0, t0 + 10_000_000, rx, rx + 1_000_000], "frames", ""));
+                agg.record(&rec(
+                    "probe",
+                    TelemetryKind::Message,
+                    i + 1 - u64::from(i > 50),
+                    [t0, t0 + 10_000_000, rx, rx + 1_000_000],
+                    "frames",
+                    "",
+                ));
             }
         }
         assert!(agg.is_ready("acq") && agg.is_ready("probe"));

@@ -112,7 +112,8 @@ pub struct ResolvedService {
 
 impl LaunchFile {
     pub fn load(path: &Path) -> Result<Self, LaunchError> {
-        let text = std::fs::read_to_string(path).map_err(|source| LaunchError::Io { path: path.to_path_buf(), source })?;
+        let text =
+            std::fs::read_to_string(path).map_err(|source| LaunchError::Io { path: path.to_path_buf(), source })?;
         Self::parse(&text, path)
     }
 
@@ -160,10 +161,14 @@ impl LaunchFile {
             if s.binary.is_empty() {
                 return Err(invalid(path, &key("binary"), "must not be empty"));
             }
-            if let Some(core) = s.core {
-                if core >= cores {
-                    return Err(invalid(path, &key("core"), format!("{core}, but this machine has cores 0..{}", cores - 1)));
-                }
+            if let Some(core) = s.core
+                && core >= cores
+            {
+                return Err(invalid(
+                    path,
+                    &key("core"),
+                    format!("{core}, but this machine has cores 0..{}", cores - 1),
+                ));
             }
         }
         Ok(())
@@ -177,12 +182,19 @@ impl LaunchFile {
             .iter()
             .enumerate()
             .map(|(i, s)| {
-                let program = find_binary(&s.binary)
-                    .ok_or_else(|| invalid(path, &format!("service[{i}].binary"), format!("`{}` not found (next to bdis-slam or on PATH)", s.binary)))?;
+                let program = find_binary(&s.binary).ok_or_else(|| {
+                    invalid(
+                        path,
+                        &format!("service[{i}].binary"),
+                        format!("`{}` not found (next to bdis-slam or on PATH)", s.binary),
+                    )
+                })?;
                 let args = s
                     .args
                     .iter()
-                    .map(|a| expand(a, &launch_dir, run_dir).map_err(|m| invalid(path, &format!("service[{i}].args"), m)))
+                    .map(|a| {
+                        expand(a, &launch_dir, run_dir).map_err(|m| invalid(path, &format!("service[{i}].args"), m))
+                    })
                     .collect::<Result<_, _>>()?;
                 Ok(ResolvedService { spec: s.clone(), program, args })
             })
@@ -224,8 +236,7 @@ pub fn find_binary(name: &str) -> Option<PathBuf> {
     if let Some(sibling) = exe.parent().map(|d| d.join(name)).filter(|p| p.is_file()) {
         return Some(sibling);
     }
-    std::env::var_os("PATH")
-        .and_then(|paths| std::env::split_paths(&paths).map(|d| d.join(name)).find(|p| p.is_file()))
+    std::env::var_os("PATH").and_then(|paths| std::env::split_paths(&paths).map(|d| d.join(name)).find(|p| p.is_file()))
 }
 
 #[cfg(test)]
@@ -241,7 +252,8 @@ mod tests {
         assert_eq!(f.run.stop_grace_s, 5.0);
         let e = LaunchFile::parse(&GOOD.replace("core = 0", "cores = 0"), Path::new("l.toml")).unwrap_err().to_string();
         assert!(e.starts_with("l.toml:7: unknown field `cores`"), "{e}");
-        let e = LaunchFile::parse(&GOOD.replace("core = 0", "core = 999"), Path::new("l.toml")).unwrap_err().to_string();
+        let e =
+            LaunchFile::parse(&GOOD.replace("core = 0", "core = 999"), Path::new("l.toml")).unwrap_err().to_string();
         assert!(e.starts_with("l.toml: `service[0].core`: 999, but this machine has cores"), "{e}");
         let e = LaunchFile::parse(&GOOD.replace("\"probe\"\nbinary", "\"acquisition\"\nbinary"), Path::new("l.toml"))
             .unwrap_err()

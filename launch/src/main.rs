@@ -130,10 +130,22 @@ fn plan_for_sequence(
     match (stereo_every, &input.settings_path) {
         (Some(every), Some(settings)) => {
             let settings = absolute(settings)?.display().to_string();
-            services.push(spec("stereo", "bdis-stereo", vec!["--settings".into(), settings, "--every".into(), every.to_string()], 1));
-            services.push(spec("probe", "bdis-slam", vec!["probe".into(), "depth".into(), "--preview".into(), "${RUN_DIR}/depth-preview.png".into()], 0));
+            services.push(spec(
+                "stereo",
+                "bdis-stereo",
+                vec!["--settings".into(), settings, "--every".into(), every.to_string()],
+                1,
+            ));
+            services.push(spec(
+                "probe",
+                "bdis-slam",
+                vec!["probe".into(), "depth".into(), "--preview".into(), "${RUN_DIR}/depth-preview.png".into()],
+                0,
+            ));
         }
-        (Some(_), None) => anyhow::bail!("--stereo-every needs --settings (the stereo service reads the camera from it)"),
+        (Some(_), None) => {
+            anyhow::bail!("--stereo-every needs --settings (the stereo service reads the camera from it)")
+        }
         (None, _) => {
             let mut probe_args = vec!["probe".to_string(), "frames".to_string()];
             if checksums {
@@ -149,9 +161,10 @@ fn run(args: RunArgs) -> Result<ExitCode> {
     use bdis_slam::launch_file::LaunchFile;
     let (launch, launch_path) = match (&args.launch_file, &args.sequence) {
         (Some(path), _) => (LaunchFile::load(path)?, path.clone()),
-        (None, Some(sequence)) => {
-            (plan_for_sequence(sequence, args.settings.as_deref(), args.pacing, args.checksums, args.stereo_every)?, PathBuf::from("launch.toml"))
-        }
+        (None, Some(sequence)) => (
+            plan_for_sequence(sequence, args.settings.as_deref(), args.pacing, args.checksums, args.stereo_every)?,
+            PathBuf::from("launch.toml"),
+        ),
         (None, None) => anyhow::bail!("give a launch file or --sequence"),
     };
     let name = launch.run.name.clone().unwrap_or_else(|| "run".into());
@@ -166,7 +179,9 @@ fn make_run_dir(out: Option<&Path>, name: &str) -> Result<PathBuf> {
             std::fs::create_dir_all(dir).with_context(|| format!("{}: cannot create the run folder", dir.display()))?;
             Ok(dir.to_path_buf())
         }
-        None => bdis_slam::run_dir::create_run_dir(Path::new("runs"), name).context("runs/: cannot create the run folder"),
+        None => {
+            bdis_slam::run_dir::create_run_dir(Path::new("runs"), name).context("runs/: cannot create the run folder")
+        }
     }
 }
 
@@ -182,7 +197,8 @@ fn execute_and_report(
     let name = launch.run.name.clone().unwrap_or_else(|| "run".into());
     let services = launch.resolve(launch_path, &run_dir)?;
     let launch_text = toml::to_string_pretty(launch).context("serialise the launch plan")?;
-    std::fs::write(run_dir.join("launch.toml"), launch_text).with_context(|| format!("{}: cannot write launch.toml", run_dir.display()))?;
+    std::fs::write(run_dir.join("launch.toml"), launch_text)
+        .with_context(|| format!("{}: cannot write launch.toml", run_dir.display()))?;
     let prefix = ipc_prefix.unwrap_or_else(bdis_slam::run_dir::unique_prefix);
     eprintln!("bdis-slam: run `{name}` → {} (shared memory prefix {prefix})", run_dir.display());
 
@@ -203,7 +219,8 @@ fn execute_and_report(
         "telemetry_records_lost": result.latency.telemetry_records_lost,
     });
     let latency_path = run_dir.join("latency.json");
-    std::fs::write(&latency_path, serde_json::to_string_pretty(&json)?).with_context(|| format!("{}: cannot write", latency_path.display()))?;
+    std::fs::write(&latency_path, serde_json::to_string_pretty(&json)?)
+        .with_context(|| format!("{}: cannot write", latency_path.display()))?;
 
     println!();
     print!("{}", result.latency.table());
@@ -228,7 +245,12 @@ fn demo(args: DemoArgs) -> Result<ExitCode> {
     let rig = StereoRig::default();
     let scene = PlaneScene { depth_mm: 60.0, texture: TissueTexture { seed: 2026 } };
     let fps = 30.0;
-    eprintln!("bdis-slam demo: rendering {} stereo frames of a tissue plane at {} mm into {}", args.frames, scene.depth_mm, sequence.display());
+    eprintln!(
+        "bdis-slam demo: rendering {} stereo frames of a tissue plane at {} mm into {}",
+        args.frames,
+        scene.depth_mm,
+        sequence.display()
+    );
     let bar = indicatif::ProgressBar::new(args.frames as u64);
     bar.set_style(
         indicatif::ProgressStyle::with_template("rendering {bar:40} {pos}/{len} frames ({eta} left)")
@@ -246,7 +268,11 @@ fn demo(args: DemoArgs) -> Result<ExitCode> {
         std::fs::read_to_string(run_dir.join("probe.json")).ok().and_then(|t| serde_json::from_str(&t).ok());
     println!();
     println!("demo summary");
-    println!("  frames      {} rendered, {} published by acquisition", args.frames, find("acquisition").map_or(0, |p| p.messages));
+    println!(
+        "  frames      {} rendered, {} published by acquisition",
+        args.frames,
+        find("acquisition").map_or(0, |p| p.messages)
+    );
     if let Some(d) = &depth {
         println!(
             "  keyframes   {} depth keyframes (every {}th frame), mean density {:.1} % of pixels",
@@ -256,15 +282,30 @@ fn demo(args: DemoArgs) -> Result<ExitCode> {
         );
     }
     if let Some(s) = find("stereo").and_then(|p| p.processing_us) {
-        println!("  stereo      BDIS per keyframe p50 {:.1} ms, p99 {:.1} ms (matching and publishing 640×480)", s.p50 / 1000.0, s.p99 / 1000.0);
+        println!(
+            "  stereo      BDIS per keyframe p50 {:.1} ms, p99 {:.1} ms (matching and publishing 640×480)",
+            s.p50 / 1000.0,
+            s.p99 / 1000.0
+        );
     }
     for h in &result.latency.hops {
-        println!("  transport   {}→{} ({}) p50 {:.0} µs, p99 {:.0} µs, zero copy", h.from, h.to, h.topic, h.latency_us.p50, h.latency_us.p99);
+        println!(
+            "  transport   {}→{} ({}) p50 {:.0} µs, p99 {:.0} µs, zero copy",
+            h.from, h.to, h.topic, h.latency_us.p50, h.latency_us.p99
+        );
     }
     if let Some(a) = find("probe").and_then(|p| p.age_us) {
-        println!("  latency     capture → depth keyframe received p50 {:.1} ms, p99 {:.1} ms", a.p50 / 1000.0, a.p99 / 1000.0);
+        println!(
+            "  latency     capture → depth keyframe received p50 {:.1} ms, p99 {:.1} ms",
+            a.p50 / 1000.0,
+            a.p99 / 1000.0
+        );
     }
-    println!("  look at     {} (a depth keyframe), {} (first stereo pair)", run_dir.join("depth-preview.png").display(), preview.display());
+    println!(
+        "  look at     {} (a depth keyframe), {} (first stereo pair)",
+        run_dir.join("depth-preview.png").display(),
+        preview.display()
+    );
     println!("              {}", run_dir.join("latency.json").display());
     println!("  not yet     tracking and the mosaic map are still to come (issues #6, #7): keyframes are every");
     println!("              {}th frame and have no pose; the probe stands in for the mosaic.", args.keyframe_every);

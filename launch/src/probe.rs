@@ -110,7 +110,7 @@ impl FrameChecker {
         }
         // Checking every frame's mapping costs a /proc read; the first frame and every 64th are enough to show
         // the pixels are never copied to the heap.
-        if s.frames_received == 1 || s.frames_received % 64 == 0 {
+        if s.frames_received == 1 || s.frames_received.is_multiple_of(64) {
             self.all_in_shm &= bdis_ipc::shm::is_in_run_shared_memory(ptr, &self.prefix);
         }
         if self.checksums {

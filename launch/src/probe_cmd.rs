@@ -79,7 +79,9 @@ fn probe_frames(args: &ProbeArgs) -> Result<()> {
     let mut telemetry = TelemetryPublisher::new(&ipc, &args.name, Some(Topic::Frames), None)?;
     let waitset = WaitSetBuilder::new().create::<ipc::Service>().map_err(|e| iox("create a WaitSet")(&e))?;
     // The deadline both paces the status line and notices a silent producer.
-    let guard = waitset.attach_deadline(&listener, Duration::from_secs(1)).map_err(|e| iox("attach the frames listener")(&e))?;
+    let guard = waitset
+        .attach_deadline(&listener, Duration::from_secs(1))
+        .map_err(|e| iox("attach the frames listener")(&e))?;
 
     let mut checker = FrameChecker::new("frames", args.checksums, &args.ipc_prefix);
     telemetry.ready();
@@ -161,7 +163,10 @@ fn probe_frames(args: &ProbeArgs) -> Result<()> {
             // A silent producer: reclaim dead peers, then see whether anyone still publishes.
             ipc.cleanup_dead_nodes();
             if checker.frames_received() > 0 && frames.dynamic_config().number_of_publishers() == 0 {
-                failure = Some(anyhow!("the frames producer disappeared without end of stream after {} frames", checker.frames_received()));
+                failure = Some(anyhow!(
+                    "the frames producer disappeared without end of stream after {} frames",
+                    checker.frames_received()
+                ));
                 break;
             }
             if args.idle_timeout.is_some_and(|t| (now - last_rx) as f64 / 1e9 >= t) {
@@ -212,9 +217,10 @@ fn probe_frames(args: &ProbeArgs) -> Result<()> {
 
 /// Where the summary goes: `--summary`, else `<run folder>/<name>.json` inside a run.
 fn summary_path(args: &ProbeArgs) -> Option<PathBuf> {
-    args.summary
-        .clone()
-        .or_else(|| std::env::var_os(bdis_slam::supervisor::RUN_DIR_ENV).map(|d| PathBuf::from(d).join(format!("{}.json", args.name))))
+    args.summary.clone().or_else(|| {
+        std::env::var_os(bdis_slam::supervisor::RUN_DIR_ENV)
+            .map(|d| PathBuf::from(d).join(format!("{}.json", args.name)))
+    })
 }
 
 fn probe_depth(args: &ProbeArgs) -> Result<()> {
@@ -224,7 +230,8 @@ fn probe_depth(args: &ProbeArgs) -> Result<()> {
     let listener = ipc.listener(&ipc.events(Topic::Depth)?)?;
     let mut telemetry = TelemetryPublisher::new(&ipc, &args.name, Some(Topic::Depth), None)?;
     let waitset = WaitSetBuilder::new().create::<ipc::Service>().map_err(|e| iox("create a WaitSet")(&e))?;
-    let guard = waitset.attach_deadline(&listener, Duration::from_secs(1)).map_err(|e| iox("attach the depth listener")(&e))?;
+    let guard =
+        waitset.attach_deadline(&listener, Duration::from_secs(1)).map_err(|e| iox("attach the depth listener")(&e))?;
     let mut checker = bdis_slam::probe::DepthChecker::new("depth", &args.ipc_prefix);
     let mut last: (u32, u32, Vec<f32>, Vec<u8>) = (0, 0, Vec::new(), Vec::new());
     telemetry.ready();

@@ -34,7 +34,12 @@ pub struct RunResult {
 }
 
 /// Runs `services` (pipeline order, upstream first) with the timeouts of `launch.run`.
-pub fn execute(launch: &LaunchFile, services: &[ResolvedService], prefix: &str, run_dir: &Path) -> Result<RunResult, SuperviseError> {
+pub fn execute(
+    launch: &LaunchFile,
+    services: &[ResolvedService],
+    prefix: &str,
+    run_dir: &Path,
+) -> Result<RunResult, SuperviseError> {
     let started = std::time::Instant::now();
     let mut sup = Supervisor::new(prefix, run_dir)?;
     let ready_timeout = Duration::from_secs_f64(launch.run.ready_timeout_s);
@@ -92,7 +97,11 @@ pub fn execute(launch: &LaunchFile, services: &[ResolvedService], prefix: &str, 
                 if pos > 0 && upstream_done {
                     let deadline = *drain_deadline[pos].get_or_insert(now + drain_timeout);
                     if now >= deadline {
-                        tracing::warn!("{} did not finish within {:.0} s of its upstream; stopping it", sup.children[i].name, drain_timeout.as_secs_f64());
+                        tracing::warn!(
+                            "{} did not finish within {:.0} s of its upstream; stopping it",
+                            sup.children[i].name,
+                            drain_timeout.as_secs_f64()
+                        );
                         sup.stop_in_order(&[i], grace)?;
                     } else {
                         next_wake = next_wake.min(deadline - now);
@@ -103,14 +112,16 @@ pub fn execute(launch: &LaunchFile, services: &[ResolvedService], prefix: &str, 
                 break;
             }
             let running_before: Vec<bool> = sup.children.iter().map(|c| c.is_running()).collect();
-            let end = sup.pump(next_wake, |s| s.children.iter().zip(&running_before).any(|(c, &was)| was && !c.is_running()))?;
+            let end = sup
+                .pump(next_wake, |s| s.children.iter().zip(&running_before).any(|(c, &was)| was && !c.is_running()))?;
             if end == PumpEnd::StopRequested {
                 stop_requested = true;
                 break;
             }
             // A service that fails breaks the pipeline: stop the rest in order and report it.
             if let Some(c) = sup.children.iter().find(|c| !c.is_running() && !c.succeeded()) {
-                failure = Some(format!("{} failed ({}): {}", c.name, c.exit_text(), c.last_error_line().unwrap_or_default()));
+                failure =
+                    Some(format!("{} failed ({}): {}", c.name, c.exit_text(), c.last_error_line().unwrap_or_default()));
                 break;
             }
         }
@@ -119,10 +130,10 @@ pub fn execute(launch: &LaunchFile, services: &[ResolvedService], prefix: &str, 
         tracing::info!("stop requested: stopping services upstream first");
     }
     sup.stop_in_order(&order, grace)?;
-    if failure.is_none() {
-        if let Some(c) = sup.children.iter().find(|c| !c.succeeded()) {
-            failure = Some(format!("{} failed ({}): {}", c.name, c.exit_text(), c.last_error_line().unwrap_or_default()));
-        }
+    if failure.is_none()
+        && let Some(c) = sup.children.iter().find(|c| !c.succeeded())
+    {
+        failure = Some(format!("{} failed ({}): {}", c.name, c.exit_text(), c.last_error_line().unwrap_or_default()));
     }
     // Crashed children leave their nodes behind; reclaim them now rather than at the next run's start.
     sup.cleanup_dead();

@@ -73,7 +73,13 @@ struct Outputs {
     preview: Option<PathBuf>,
 }
 
-fn match_pair(matcher: &mut Matcher, left: &Path, right: &Path, out: &mut DisparityMap, outputs: &Outputs) -> Result<()> {
+fn match_pair(
+    matcher: &mut Matcher,
+    left: &Path,
+    right: &Path,
+    out: &mut DisparityMap,
+    outputs: &Outputs,
+) -> Result<()> {
     let (lg, lrgb) = load(left)?;
     let (rg, _) = load(right)?;
     matcher
@@ -126,7 +132,8 @@ pub fn stereo(args: StereoArgs) -> Result<()> {
     }
     let Some(sequence) = &args.sequence else { bail!("give --left and --right, or --sequence") };
     let sequence = bdis_acquisition::Sequence::open(sequence)?;
-    std::fs::create_dir_all(&args.out).with_context(|| format!("{}: cannot create the output folder", args.out.display()))?;
+    std::fs::create_dir_all(&args.out)
+        .with_context(|| format!("{}: cannot create the output folder", args.out.display()))?;
     let bar = if std::io::stderr().is_terminal() {
         indicatif::ProgressBar::new(sequence.len() as u64)
     } else {

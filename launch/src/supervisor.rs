@@ -129,13 +129,19 @@ impl Supervisor {
     pub fn new(prefix: &str, run_dir: &Path) -> Result<Self, SuperviseError> {
         let ipc = Ipc::open("launcher", prefix)?;
         let service = ipc.telemetry()?;
-        let telemetry = service
-            .subscriber_builder()
-            .buffer_size(qos::TELEMETRY_BUFFER)
-            .create()
-            .map_err(|e| IpcError::Iceoryx { context: "subscribe to telemetry".into(), detail: format!("{e:?}") })?;
+        let telemetry =
+            service.subscriber_builder().buffer_size(qos::TELEMETRY_BUFFER).create().map_err(|e| {
+                IpcError::Iceoryx { context: "subscribe to telemetry".into(), detail: format!("{e:?}") }
+            })?;
         let telemetry_listener = ipc.listener(&ipc.events(Topic::Telemetry)?)?;
-        Ok(Self { ipc, telemetry, telemetry_listener, latency: LatencyAggregator::new(), children: Vec::new(), run_dir: run_dir.to_path_buf() })
+        Ok(Self {
+            ipc,
+            telemetry,
+            telemetry_listener,
+            latency: LatencyAggregator::new(),
+            children: Vec::new(),
+            run_dir: run_dir.to_path_buf(),
+        })
     }
 
     pub fn prefix(&self) -> &str {
@@ -175,10 +181,10 @@ impl Supervisor {
                 if libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGTERM) != 0 {
                     return Err(std::io::Error::last_os_error());
                 }
-                if let Some(set) = &core_set {
-                    if libc::sched_setaffinity(0, std::mem::size_of::<libc::cpu_set_t>(), set) != 0 {
-                        return Err(std::io::Error::last_os_error());
-                    }
+                if let Some(set) = &core_set
+                    && libc::sched_setaffinity(0, std::mem::size_of::<libc::cpu_set_t>(), set) != 0
+                {
+                    return Err(std::io::Error::last_os_error());
                 }
                 Ok(())
             });
@@ -186,7 +192,11 @@ impl Supervisor {
         let child = cmd.spawn().map_err(os(format!("start {} ({})", service.spec.name, service.program.display())))?;
         let pid = child.id();
         let pidfd = PidFd::open(pid).map_err(os(format!("watch {} (pidfd_open)", service.spec.name)))?;
-        tracing::info!("started {} (pid {pid}{})", service.spec.name, service.spec.core.map_or(String::new(), |c| format!(", core {c}")));
+        tracing::info!(
+            "started {} (pid {pid}{})",
+            service.spec.name,
+            service.spec.core.map_or(String::new(), |c| format!(", core {c}"))
+        );
         self.children.push(Supervised {
             name: service.spec.name.clone(),
             core: service.spec.core,
@@ -255,7 +265,8 @@ impl Supervisor {
                 let waitset = WaitSetBuilder::new()
                     .create::<ipc::Service>()
                     .map_err(|e| IpcError::Iceoryx { context: "create a WaitSet".into(), detail: format!("{e:?}") })?;
-                let attach_err = |e| IpcError::Iceoryx { context: "attach to the WaitSet".into(), detail: format!("{e:?}") };
+                let attach_err =
+                    |e| IpcError::Iceoryx { context: "attach to the WaitSet".into(), detail: format!("{e:?}") };
                 let _telemetry = waitset.attach_notification(&self.telemetry_listener).map_err(attach_err)?;
                 let _tick = waitset.attach_interval(TELEMETRY_DRAIN_PERIOD).map_err(attach_err)?;
                 let _children = self

@@ -55,12 +55,18 @@ impl Drop for TempDir {
 /// A shared-memory prefix unique to this test.
 pub fn prefix(tag: &str) -> String {
     let nanos = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).unwrap().subsec_nanos();
-    format!("bt{}{}{:x}_", tag.chars().filter(|c| c.is_ascii_alphanumeric()).take(6).collect::<String>(), std::process::id(), nanos & 0xffff)
+    format!(
+        "bt{}{}{:x}_",
+        tag.chars().filter(|c| c.is_ascii_alphanumeric()).take(6).collect::<String>(),
+        std::process::id(),
+        nanos & 0xffff
+    )
 }
 
 /// Runs a command to its end, killing it (and failing the test) after `timeout`.
 pub fn run_with_timeout(cmd: &mut Command, timeout: Duration) -> Output {
-    let mut child = cmd.stdin(Stdio::null()).stdout(Stdio::piped()).stderr(Stdio::piped()).spawn().expect("start the command");
+    let mut child =
+        cmd.stdin(Stdio::null()).stdout(Stdio::piped()).stderr(Stdio::piped()).spawn().expect("start the command");
     let start = Instant::now();
     // Read the pipes on threads so a chatty child never blocks on a full pipe.
     let mut out = child.stdout.take().unwrap();
@@ -82,7 +88,10 @@ pub fn run_with_timeout(cmd: &mut Command, timeout: Duration) -> Output {
         if start.elapsed() > timeout {
             let _ = child.kill();
             let _ = child.wait();
-            panic!("{cmd:?} did not finish within {timeout:?}\nstderr:\n{}", String::from_utf8_lossy(&err_t.join().unwrap()));
+            panic!(
+                "{cmd:?} did not finish within {timeout:?}\nstderr:\n{}",
+                String::from_utf8_lossy(&err_t.join().unwrap())
+            );
         }
         std::thread::sleep(Duration::from_millis(20));
     };

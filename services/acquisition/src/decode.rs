@@ -52,7 +52,14 @@ fn decode_into(path: &Path, buf: &mut Vec<u8>, width: u32, height: u32) -> Resul
     let color = decoder.color_type();
     if !matches!(
         color,
-        ColorType::L8 | ColorType::La8 | ColorType::Rgb8 | ColorType::Rgba8 | ColorType::L16 | ColorType::La16 | ColorType::Rgb16 | ColorType::Rgba16
+        ColorType::L8
+            | ColorType::La8
+            | ColorType::Rgb8
+            | ColorType::Rgba8
+            | ColorType::L16
+            | ColorType::La16
+            | ColorType::Rgb16
+            | ColorType::Rgba16
     ) {
         return Err(DecodeError::Format { path: path.to_path_buf(), color });
     }

@@ -60,8 +60,9 @@ fn main() -> ExitCode {
 fn run(args: Args) -> Result<()> {
     let input = check_input(&args.sequence, args.settings.as_deref())?;
     let sequence = &input.sequence;
-    let layout = FrameLayout::packed(sequence.width, sequence.height)
-        .with_context(|| format!("{}: {}×{} images are too large", sequence.root.display(), sequence.width, sequence.height))?;
+    let layout = FrameLayout::packed(sequence.width, sequence.height).with_context(|| {
+        format!("{}: {}×{} images are too large", sequence.root.display(), sequence.width, sequence.height)
+    })?;
     let frame_count = args.max_frames.map_or(sequence.len(), |m| m.min(sequence.len()));
     if args.check {
         println!(
@@ -83,7 +84,8 @@ fn run(args: Args) -> Result<()> {
     let notifier = ipc.notifier(&ipc.events(Topic::Frames)?)?;
     let consumed = ipc.listener(&ipc.frames_consumed()?)?;
     let mut telemetry = TelemetryPublisher::new(&ipc, &args.name, None, Some(Topic::Frames))?;
-    let waitset = WaitSetBuilder::new().create::<ipc::Service>().map_err(|e| anyhow::anyhow!("create a WaitSet: {e:?}"))?;
+    let waitset =
+        WaitSetBuilder::new().create::<ipc::Service>().map_err(|e| anyhow::anyhow!("create a WaitSet: {e:?}"))?;
     let consumed_guard =
         waitset.attach_notification(&consumed).map_err(|e| anyhow::anyhow!("attach the consumed listener: {e:?}"))?;
     telemetry.ready();
@@ -169,7 +171,7 @@ fn run(args: Args) -> Result<()> {
                 }
                 None => {
                     waited_ms += timeout.as_millis() as u64;
-                    if waited_ms > 0 && waited_ms % 5000 == 0 {
+                    if waited_ms > 0 && waited_ms.is_multiple_of(5000) {
                         tracing::warn!("no consumer has asked for frame {index} for {} s", waited_ms / 1000);
                         ipc.cleanup_dead_nodes();
                     }
@@ -212,7 +214,10 @@ fn run(args: Args) -> Result<()> {
             tracing::warn!("frame {index}: {e}");
         }
         published += 1;
-        telemetry.message(MessageTiming { frame_seq: index as u64, t_capture_ns, t_done_ns: t_publish_ns, ..Default::default() }, 0);
+        telemetry.message(
+            MessageTiming { frame_seq: index as u64, t_capture_ns, t_done_ns: t_publish_ns, ..Default::default() },
+            0,
+        );
         if on_demand {
             unacked.push_back(index);
         }

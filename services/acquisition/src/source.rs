@@ -14,7 +14,9 @@ use bdis_core::{Distortion, StereoCamera};
 pub enum SourceError {
     #[error("{path}: sequence folder not found")]
     MissingFolder { path: PathBuf },
-    #[error("{path}: not a stereo sequence (expected images_rectified/{{left,right}}/, left/ + right/, or image_0/ + image_1/)")]
+    #[error(
+        "{path}: not a stereo sequence (expected images_rectified/{{left,right}}/, left/ + right/, or image_0/ + image_1/)"
+    )]
     UnknownLayout { path: PathBuf },
     #[error("{path}: cannot read: {detail}")]
     Io { path: PathBuf, detail: String },
@@ -113,7 +115,8 @@ fn image_size(path: &Path) -> Result<(u32, u32), SourceError> {
 
 /// Reads `times.txt`: one timestamp in seconds per non-empty line, non-decreasing.
 pub fn read_times(path: &Path) -> Result<Vec<f64>, SourceError> {
-    let text = std::fs::read_to_string(path).map_err(|e| SourceError::Io { path: path.to_path_buf(), detail: e.to_string() })?;
+    let text = std::fs::read_to_string(path)
+        .map_err(|e| SourceError::Io { path: path.to_path_buf(), detail: e.to_string() })?;
     let mut times = Vec::new();
     for (i, line) in text.lines().enumerate() {
         let line = line.trim();
@@ -122,11 +125,11 @@ pub fn read_times(path: &Path) -> Result<Vec<f64>, SourceError> {
         }
         // Some recorders write `index time`; the time is the last column.
         let field = line.split_whitespace().last().unwrap_or(line);
-        let t: f64 = field
-            .parse()
-            .ok()
-            .filter(|t: &f64| t.is_finite())
-            .ok_or_else(|| SourceError::TimesValue { path: path.to_path_buf(), line: i + 1, text: line.to_string() })?;
+        let t: f64 = field.parse().ok().filter(|t: &f64| t.is_finite()).ok_or_else(|| SourceError::TimesValue {
+            path: path.to_path_buf(),
+            line: i + 1,
+            text: line.to_string(),
+        })?;
         if times.last().is_some_and(|&prev| t < prev) {
             return Err(SourceError::TimesOrder { path: path.to_path_buf(), line: i + 1, t });
         }
@@ -137,8 +140,13 @@ pub fn read_times(path: &Path) -> Result<Vec<f64>, SourceError> {
 
 /// Reads KITTI's `calib.txt` (`P0:` and `P1:` 3×4 projection matrices): fx, fy, cx, cy from P0, bf = −P1[0,3].
 pub fn read_kitti_calib(path: &Path) -> Result<StereoCamera, SourceError> {
-    let text = std::fs::read_to_string(path).map_err(|e| SourceError::Io { path: path.to_path_buf(), detail: e.to_string() })?;
-    let bad = |field: &str, detail: String| SourceError::Calibration { path: path.to_path_buf(), field: field.into(), detail };
+    let text = std::fs::read_to_string(path)
+        .map_err(|e| SourceError::Io { path: path.to_path_buf(), detail: e.to_string() })?;
+    let bad = |field: &str, detail: String| SourceError::Calibration {
+        path: path.to_path_buf(),
+        field: field.into(),
+        detail,
+    };
     let matrix = |name: &str| -> Result<[f64; 12], SourceError> {
         let line = text
             .lines()
@@ -151,7 +159,8 @@ pub fn read_kitti_calib(path: &Path) -> Result<StereoCamera, SourceError> {
             .split_whitespace()
             .map(|v| v.parse::<f64>().map_err(|_| bad(name, format!("`{v}` is not a number"))))
             .collect::<Result<_, _>>()?;
-        let values: [f64; 12] = values.try_into().map_err(|v: Vec<f64>| bad(name, format!("{} values, expected 12", v.len())))?;
+        let values: [f64; 12] =
+            values.try_into().map_err(|v: Vec<f64>| bad(name, format!("{} values, expected 12", v.len())))?;
         if !values.iter().all(|v| v.is_finite()) {
             return Err(bad(name, "non-finite value".into()));
         }
@@ -169,9 +178,12 @@ pub fn read_kitti_calib(path: &Path) -> Result<StereoCamera, SourceError> {
         width: None,
         height: None,
     };
+    // Negated comparisons so that NaN is rejected too.
+    #[allow(clippy::neg_cmp_op_on_partial_ord)]
     if !(camera.fx > 0.0 && camera.fy > 0.0) {
         return Err(bad("P0", format!("focal lengths must be > 0 (fx {}, fy {})", camera.fx, camera.fy)));
     }
+    #[allow(clippy::neg_cmp_op_on_partial_ord)]
     if !(camera.bf > 0.0) {
         return Err(bad("P1", format!("−P1[0,3] = bf must be > 0, found {}", camera.bf)));
     }
@@ -205,7 +217,8 @@ impl Sequence {
             Layout::Hamlyn => {
                 // 1-based and consecutive: a gap is a missing image, not a shorter sequence.
                 let count = lefts.len();
-                let ext = lefts[0].extension().map(|e| e.to_string_lossy().into_owned()).unwrap_or_else(|| "png".into());
+                let ext =
+                    lefts[0].extension().map(|e| e.to_string_lossy().into_owned()).unwrap_or_else(|| "png".into());
                 for n in 1..=count {
                     let name = format!("{n}.{ext}");
                     let (left, right) = (left_dir.join(&name), right_dir.join(&name));
@@ -234,10 +247,10 @@ impl Sequence {
                 }
                 // A right image with no left partner means the folders disagree; say so rather than skip it.
                 for right in list_images(&right_dir)? {
-                    if let Some(name) = right.file_name() {
-                        if !left_dir.join(name).is_file() {
-                            return Err(SourceError::ExtraRight { path: right });
-                        }
+                    if let Some(name) = right.file_name()
+                        && !left_dir.join(name).is_file()
+                    {
+                        return Err(SourceError::ExtraRight { path: right });
                     }
                 }
             }
@@ -289,16 +302,16 @@ impl Sequence {
         for (field, expected, actual) in
             [("Camera.width", camera.width, self.width), ("Camera.height", camera.height, self.height)]
         {
-            if let Some(expected) = expected {
-                if expected != actual {
-                    return Err(SourceError::SettingsMismatch {
-                        settings: settings_path.to_path_buf(),
-                        field,
-                        expected,
-                        actual,
-                        image: self.frames[0].left.clone(),
-                    });
-                }
+            if let Some(expected) = expected
+                && expected != actual
+            {
+                return Err(SourceError::SettingsMismatch {
+                    settings: settings_path.to_path_buf(),
+                    field,
+                    expected,
+                    actual,
+                    image: self.frames[0].left.clone(),
+                });
             }
         }
         Ok(())

@@ -27,7 +27,10 @@ fn check_mode_summarises_a_sequence() {
 fn a_missing_sequence_is_one_line_and_exit_1() {
     let out = bin().args(["--sequence", "/nonexistent/seq"]).output().unwrap();
     assert_eq!(out.status.code(), Some(1));
-    assert_eq!(String::from_utf8_lossy(&out.stderr).trim(), "bdis-acquisition: error: /nonexistent/seq: sequence folder not found");
+    assert_eq!(
+        String::from_utf8_lossy(&out.stderr).trim(),
+        "bdis-acquisition: error: /nonexistent/seq: sequence folder not found"
+    );
 }
 
 #[test]

@@ -17,7 +17,9 @@ fn pair() -> (Vec<u8>, Vec<u8>, usize, usize, &'static str) {
         return (l.into_raw(), r.into_raw(), w, h, "set31-1");
     }
     let (w, h) = (640, 480);
-    let tex = |x: f32, y: f32| -> u8 { (128.0 + 60.0 * (x * 0.13).sin() * (y * 0.11).cos() + 40.0 * ((x + 2.0 * y) * 0.05).sin()) as u8 };
+    let tex = |x: f32, y: f32| -> u8 {
+        (128.0 + 60.0 * (x * 0.13).sin() * (y * 0.11).cos() + 40.0 * ((x + 2.0 * y) * 0.05).sin()) as u8
+    };
     let l = (0..w * h).map(|i| tex((i % w) as f32, (i / w) as f32)).collect();
     let r = (0..w * h).map(|i| tex((i % w) as f32 + 12.0, (i / w) as f32)).collect();
     (l, r, w, h, "synthetic")
@@ -36,7 +38,8 @@ fn bench(c: &mut Criterion) {
         let mut matcher = Matcher::new(params).expect("valid parameters");
         let mut out = DisparityMap::default();
         let (left, right) = (GrayImage { width: w, height: h, data: &l }, GrayImage { width: w, height: h, data: &r });
-        group.bench_function(label, |b| b.iter(|| matcher.compute_into(left, right, &mut out).expect("same-size pair")));
+        group
+            .bench_function(label, |b| b.iter(|| matcher.compute_into(left, right, &mut out).expect("same-size pair")));
     }
     group.finish();
 }

@@ -23,7 +23,12 @@ fn main() {
     let mut m = Matcher::new(params).unwrap();
     let mut out = DisparityMap::default();
     for _ in 0..repeats {
-        m.compute_into(GrayImage { width: w, height: h, data: l.as_raw() }, GrayImage { width: w, height: h, data: r.as_raw() }, &mut out).unwrap();
+        m.compute_into(
+            GrayImage { width: w, height: h, data: l.as_raw() },
+            GrayImage { width: w, height: h, data: r.as_raw() },
+            &mut out,
+        )
+        .unwrap();
     }
     println!("density {:.3}", out.density());
 }

@@ -6,7 +6,10 @@ use bdis_stereo::{Algorithm, GrayImage, Matcher, Params};
 fn gray(path: &std::path::Path) -> (Vec<u8>, Vec<bool>, usize, usize) {
     let rgb = image::open(path).unwrap().to_rgb8();
     let (w, h) = rgb.dimensions();
-    let g = rgb.pixels().map(|p| ((u32::from(p[0]) * 4899 + u32::from(p[1]) * 9617 + u32::from(p[2]) * 1868 + 8192) >> 14) as u8).collect();
+    let g = rgb
+        .pixels()
+        .map(|p| ((u32::from(p[0]) * 4899 + u32::from(p[1]) * 9617 + u32::from(p[2]) * 1868 + 8192) >> 14) as u8)
+        .collect();
     let region = rgb.pixels().map(|p| p[0] != 0).collect();
     (g, region, w as usize, h as usize)
 }
@@ -20,7 +23,9 @@ fn main() {
         for n in 1..=16 {
             let (l, region, w, h) = gray(&root.join(format!("left/{n}.png")));
             let (r, _, _, _) = gray(&root.join(format!("right/{n}.png")));
-            let out = m.compute(GrayImage { width: w, height: h, data: &l }, GrayImage { width: w, height: h, data: &r }).unwrap();
+            let out = m
+                .compute(GrayImage { width: w, height: h, data: &l }, GrayImage { width: w, height: h, data: &r })
+                .unwrap();
             let gt = bdis_core::formats::pfm::read_disparity(&root.join(format!("depth/{n}.pfm"))).unwrap();
             score.add(&out.disparity, &gt.data, &region, 260.0);
         }

@@ -185,7 +185,13 @@ pub struct Exact {
 /// sample mean is over valid samples; a normalised sample or template value of exactly 0 makes the pixel
 /// invalid. Two passes; `samples` (p × pw) is scratch.
 #[inline(always)]
-pub fn exact<L: Lanes>(win: &Window<'_>, template: &[f32], grad: &[f32], colmask: &[f32], samples: &mut [f32]) -> Exact {
+pub fn exact<L: Lanes>(
+    win: &Window<'_>,
+    template: &[f32],
+    grad: &[f32],
+    colmask: &[f32],
+    samples: &mut [f32],
+) -> Exact {
     let fr = L::splat(win.frac);
     let (mut a, mut n) = (L::splat(0.0), L::splat(0.0));
     let pw = win.pw;
@@ -249,17 +255,38 @@ mod tests {
             let pw = p.div_ceil(4) * 4;
             let stride = 64;
             for trial in 0..200 {
-                let right: Vec<f32> = (0..stride * 40).map(|_| if rng.next() < 0.1 { 0.0 } else { 1.0 + 254.0 * rng.next() }).collect();
-                let usable: Vec<f32> = (0..stride * 40).map(|i| if right[i] != 0.0 && right.get(i + 1).is_some_and(|v| *v != 0.0) { 1.0 } else { 0.0 }).collect();
+                let right: Vec<f32> =
+                    (0..stride * 40).map(|_| if rng.next() < 0.1 { 0.0 } else { 1.0 + 254.0 * rng.next() }).collect();
+                let usable: Vec<f32> = (0..stride * 40)
+                    .map(|i| if right[i] != 0.0 && right.get(i + 1).is_some_and(|v| *v != 0.0) { 1.0 } else { 0.0 })
+                    .collect();
                 let colmask: Vec<f32> = (0..pw).map(|j| if j < p { 1.0 } else { 0.0 }).collect();
-                let pad = |v: Vec<f32>| -> Vec<f32> { (0..p * pw).map(|k| if k % pw < p { v[(k / pw) * p + k % pw] } else { 0.0 }).collect() };
-                let template = pad((0..p * p).map(|_| if rng.next() < 0.1 { 0.0 } else { rng.next() * 100.0 - 50.0 }).collect());
+                let pad = |v: Vec<f32>| -> Vec<f32> {
+                    (0..p * pw).map(|k| if k % pw < p { v[(k / pw) * p + k % pw] } else { 0.0 }).collect()
+                };
+                let template =
+                    pad((0..p * p).map(|_| if rng.next() < 0.1 { 0.0 } else { rng.next() * 100.0 - 50.0 }).collect());
                 let grad = pad((0..p * p).map(|_| rng.next() * 40.0 - 20.0).collect());
-                let win = Window { right: &right, usable: &usable, stride, row0: 1 + trial % 20, col: 1 + trial % 30, p, pw, frac: rng.next() };
+                let win = Window {
+                    right: &right,
+                    usable: &usable,
+                    stride,
+                    row0: 1 + trial % 20,
+                    col: 1 + trial % 30,
+                    p,
+                    pw,
+                    frac: rng.next(),
+                };
                 let off = rng.next() * 200.0;
-                let (x, y) = (sum_and_dot::<wide::f32x4>(&win, &grad, &colmask, off), sum_and_dot::<Scalar4>(&win, &grad, &colmask, off));
+                let (x, y) = (
+                    sum_and_dot::<wide::f32x4>(&win, &grad, &colmask, off),
+                    sum_and_dot::<Scalar4>(&win, &grad, &colmask, off),
+                );
                 assert_eq!((x.0.to_bits(), x.1.to_bits()), (y.0.to_bits(), y.1.to_bits()));
-                let (x, y) = (sum_and_sq_diff::<wide::f32x4>(&win, &template, &colmask, off), sum_and_sq_diff::<Scalar4>(&win, &template, &colmask, off));
+                let (x, y) = (
+                    sum_and_sq_diff::<wide::f32x4>(&win, &template, &colmask, off),
+                    sum_and_sq_diff::<Scalar4>(&win, &template, &colmask, off),
+                );
                 assert_eq!((x.0.to_bits(), x.1.to_bits()), (y.0.to_bits(), y.1.to_bits()));
                 let mut s1 = vec![0.0; p * pw];
                 let mut s2 = vec![0.0; p * pw];

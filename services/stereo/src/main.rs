@@ -72,7 +72,10 @@ fn run(args: Args) -> Result<()> {
     let mut matcher = Matcher::new(params)?;
     let camera = settings.camera;
     let (Some(width), Some(height)) = (camera.width, camera.height) else {
-        bail!("{}: the stereo service needs `Camera.width` and `Camera.height` (it sizes its shared memory from them)", args.settings.display());
+        bail!(
+            "{}: the stereo service needs `Camera.width` and `Camera.height` (it sizes its shared memory from them)",
+            args.settings.display()
+        );
     };
 
     let ipc = Ipc::open(&args.name, &args.ipc_prefix)?;
@@ -84,7 +87,9 @@ fn run(args: Args) -> Result<()> {
     let depth_events = ipc.notifier(&ipc.events(Topic::Depth)?)?;
     let mut telemetry = TelemetryPublisher::new(&ipc, &args.name, Some(Topic::Frames), Some(Topic::Depth))?;
     let waitset = WaitSetBuilder::new().create::<ipc::Service>().map_err(|e| iox("create a WaitSet")(&e))?;
-    let guard = waitset.attach_deadline(&frame_events, Duration::from_secs(1)).map_err(|e| iox("attach the frames listener")(&e))?;
+    let guard = waitset
+        .attach_deadline(&frame_events, Duration::from_secs(1))
+        .map_err(|e| iox("attach the frames listener")(&e))?;
 
     let publisher = ipc.depth_publisher(&depth, DepthHeader::payload_len(width, height))?;
     let mut out = DisparityMap::default();
@@ -98,7 +103,8 @@ fn run(args: Args) -> Result<()> {
 
     let algorithm_id = if params.algorithm == Algorithm::Bdis { DepthHeader::BDIS } else { DepthHeader::DIS };
     'outer: loop {
-        let result = waitset.wait_and_process_once(|_| CallbackProgression::Continue).map_err(|e| iox("wait for frames")(&e))?;
+        let result =
+            waitset.wait_and_process_once(|_| CallbackProgression::Continue).map_err(|e| iox("wait for frames")(&e))?;
         if matches!(result, WaitSetRunResult::TerminationRequest | WaitSetRunResult::Interrupt) {
             tracing::info!("stop requested after {published} keyframes");
             break;
@@ -134,7 +140,11 @@ fn run(args: Args) -> Result<()> {
             let (w, h) = (header.width as usize, header.height as usize);
             // The matcher reads the grey images in place, in shared memory.
             matcher
-                .compute_into(GrayImage { width: w, height: h, data: view.left_gray }, GrayImage { width: w, height: h, data: view.right_gray }, &mut out)
+                .compute_into(
+                    GrayImage { width: w, height: h, data: view.left_gray },
+                    GrayImage { width: w, height: h, data: view.right_gray },
+                    &mut out,
+                )
                 .with_context(|| format!("frame {}", header.frame_seq))?;
             if (header.width, header.height) != (width, height) {
                 bail!(
@@ -164,9 +174,17 @@ fn run(args: Args) -> Result<()> {
             {
                 let payload = loan.payload_mut();
                 let n = w * h;
-                write_floats(&mut payload[dh.disparity_offset as usize..dh.disparity_offset as usize + 4 * n], &out.disparity);
-                write_floats(&mut payload[dh.confidence_offset as usize..dh.confidence_offset as usize + 4 * n], &out.confidence);
-                for (d, &b) in payload[dh.rgb_offset as usize..dh.rgb_offset as usize + 3 * n].iter_mut().zip(view.left_rgb) {
+                write_floats(
+                    &mut payload[dh.disparity_offset as usize..dh.disparity_offset as usize + 4 * n],
+                    &out.disparity,
+                );
+                write_floats(
+                    &mut payload[dh.confidence_offset as usize..dh.confidence_offset as usize + 4 * n],
+                    &out.confidence,
+                );
+                for (d, &b) in
+                    payload[dh.rgb_offset as usize..dh.rgb_offset as usize + 3 * n].iter_mut().zip(view.left_rgb)
+                {
                     d.write(b);
                 }
             }
@@ -181,7 +199,12 @@ fn run(args: Args) -> Result<()> {
             bdis_ipc::notify(&credits, event_id::CONSUMED)?;
             last_kf = Some(header.frame_seq);
             published += 1;
-            tracing::info!("keyframe {}: density {:.1} %, {:.1} ms", header.frame_seq, out.density() * 100.0, (t_publish_ns - t_receive_ns) as f64 / 1e6);
+            tracing::info!(
+                "keyframe {}: density {:.1} %, {:.1} ms",
+                header.frame_seq,
+                out.density() * 100.0,
+                (t_publish_ns - t_receive_ns) as f64 / 1e6
+            );
             telemetry.message(
                 MessageTiming {
                     frame_seq: header.frame_seq,
@@ -198,7 +221,10 @@ fn run(args: Args) -> Result<()> {
     Ok(())
 }
 
-fn send_end_of_stream(publisher: &iceoryx2::port::publisher::Publisher<ipc::Service, [u8], DepthHeader>, frame_seq: u64) -> Result<()> {
+fn send_end_of_stream(
+    publisher: &iceoryx2::port::publisher::Publisher<ipc::Service, [u8], DepthHeader>,
+    frame_seq: u64,
+) -> Result<()> {
     let loan = publisher.loan_slice_uninit(0).map_err(|e| anyhow!("loan the end-of-stream sample: {e:?}"))?;
     // SAFETY: a zero-length payload has nothing to initialise.
     let mut sample = unsafe { loan.assume_init() };

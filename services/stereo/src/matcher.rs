@@ -305,9 +305,19 @@ impl Matcher {
     }
 
     /// Computes disparity and confidence for a rectified pair, into `out` (its buffers are reused).
-    pub fn compute_into(&mut self, left: GrayImage<'_>, right: GrayImage<'_>, out: &mut DisparityMap) -> Result<(), MatchError> {
+    pub fn compute_into(
+        &mut self,
+        left: GrayImage<'_>,
+        right: GrayImage<'_>,
+        out: &mut DisparityMap,
+    ) -> Result<(), MatchError> {
         if (left.width, left.height) != (right.width, right.height) {
-            return Err(MatchError::SizeMismatch { lw: left.width, lh: left.height, rw: right.width, rh: right.height });
+            return Err(MatchError::SizeMismatch {
+                lw: left.width,
+                lh: left.height,
+                rw: right.width,
+                rh: right.height,
+            });
         }
         for img in [&left, &right] {
             let needed = img.width * img.height;
@@ -376,14 +386,19 @@ impl Matcher {
                 let dst = (y + border) * coarser.stride + border;
                 let src = (2 * y + border) * fs + border;
                 let (top, bottom) = (&finer.left[src..src + 2 * cw], &finer.left[src + fs..src + fs + 2 * cw]);
-                for ((out, t), b) in coarser.left[dst..dst + cw].iter_mut().zip(top.chunks_exact(2)).zip(bottom.chunks_exact(2)) {
+                for ((out, t), b) in
+                    coarser.left[dst..dst + cw].iter_mut().zip(top.chunks_exact(2)).zip(bottom.chunks_exact(2))
+                {
                     let (a, b, c, d) = (t[0], t[1], b[0], b[1]);
                     *out = if a == 0.0 || b == 0.0 || c == 0.0 || d == 0.0 { 0.0 } else { 0.25 * (a + b + c + d) };
                 }
                 let (top, bottom) = (&finer.right[src..src + 2 * cw], &finer.right[src + fs..src + fs + 2 * cw]);
-                for ((out, t), b) in coarser.right[dst..dst + cw].iter_mut().zip(top.chunks_exact(2)).zip(bottom.chunks_exact(2)) {
+                for ((out, t), b) in
+                    coarser.right[dst..dst + cw].iter_mut().zip(top.chunks_exact(2)).zip(bottom.chunks_exact(2))
+                {
                     let (a, b, c, d) = (t[0], t[1], b[0], b[1]);
-                    let n = f32::from(u8::from(a != 0.0) + u8::from(b != 0.0) + u8::from(c != 0.0) + u8::from(d != 0.0));
+                    let n =
+                        f32::from(u8::from(a != 0.0) + u8::from(b != 0.0) + u8::from(c != 0.0) + u8::from(d != 0.0));
                     *out = if n == 0.0 { 0.0 } else { (a + b + c + d) / n };
                 }
             }
@@ -405,7 +420,8 @@ impl Matcher {
             let stride = level.stride;
             let (upper, lower) = level.right.split_at(stride);
             let _ = upper;
-            for ((ok, &v), &below) in level.right_ok[..n - stride].iter_mut().zip(&level.right[..n - stride]).zip(lower) {
+            for ((ok, &v), &below) in level.right_ok[..n - stride].iter_mut().zip(&level.right[..n - stride]).zip(lower)
+            {
                 *ok = u8::from(v != 0.0 && below != 0.0);
             }
             let rows = n / stride;
@@ -567,7 +583,12 @@ impl Matcher {
             // as invalid exactly as in the original, which keeps textureless patches from passing the
             // confidence test.
             let e = kernels::exact::<f32x4>(&win, &self.tmpl_pad, &self.grad_pad, &self.colmask, &mut self.samples);
-            return Some(Eval { n: e.valid as usize, sum_gr: e.sum_gr, sum_r2: e.sum_r2, mares: e.sum_abs / (p * p) as f32 });
+            return Some(Eval {
+                n: e.valid as usize,
+                sum_gr: e.sum_gr,
+                sum_r2: e.sum_r2,
+                mares: e.sum_abs / (p * p) as f32,
+            });
         }
         let n = (p * p) as f32;
         if want_r2 {
@@ -629,7 +650,8 @@ impl Matcher {
             if exact {
                 let keep_going = !last
                     && f64::from(mares) > prm.minimgerr
-                    && (t < prm.miniter || f64::from(delta * delta) >= prm.mindprate * prm.mindprate * f64::from(first_step_sq))
+                    && (t < prm.miniter
+                        || f64::from(delta * delta) >= prm.mindprate * prm.mindprate * f64::from(first_step_sq))
                     && (t < prm.miniter || f64::from(mares) <= prm.mindrrate * f64::from(mares_prev));
                 if !keep_going {
                     break;
@@ -671,7 +693,11 @@ impl Matcher {
         }
         log_scores[w as usize] = -0.5;
         let b = centre_score / total;
-        let var = if prm.variance { variance_fit(&log_scores[..(2 * w + 1) as usize], total.ln(), delta, p) } else { f32::NAN };
+        let var = if prm.variance {
+            variance_fit(&log_scores[..(2 * w + 1) as usize], total.ln(), delta, p)
+        } else {
+            f32::NAN
+        };
         PatchResult { u, b, var }
     }
 

@@ -95,7 +95,7 @@ impl Params {
 
     /// Checks every value; the matcher refuses parameters that cannot work.
     pub fn validate(&self) -> Result<(), ParamError> {
-        if self.patch_size < 2 || self.patch_size % 2 != 0 || self.patch_size > 64 {
+        if self.patch_size < 2 || !self.patch_size.is_multiple_of(2) || self.patch_size > 64 {
             return Err(bad("patchsz", format!("must be even and in 2..=64, found {}", self.patch_size)));
         }
         if self.lv_l == 0 {
@@ -178,7 +178,9 @@ impl Params {
             other => {
                 return Err(ParamError {
                     name: "?",
-                    message: format!("unknown parameter `{other}` (known: lv_f lv_l maxiter miniter mindprate mindrrate minimgerr patchsz poverl ratio_patch_valid num_window unit_disturb min_prob bool_var)"),
+                    message: format!(
+                        "unknown parameter `{other}` (known: lv_f lv_l maxiter miniter mindprate mindrrate minimgerr patchsz poverl ratio_patch_valid num_window unit_disturb min_prob bool_var)"
+                    ),
                 });
             }
         };
@@ -220,7 +222,10 @@ mod set_tests {
         p.set("patchsz", "8").unwrap();
         p.set("BDISparam.poverl", "0.4").unwrap();
         assert_eq!((p.patch_size, p.stride()), (8, 4));
-        assert_eq!(p.set("patchsz", "8.5").unwrap_err().to_string(), "BDISparam.patchsz: must be a whole number ≥ 0, found 8.5");
+        assert_eq!(
+            p.set("patchsz", "8.5").unwrap_err().to_string(),
+            "BDISparam.patchsz: must be a whole number ≥ 0, found 8.5"
+        );
         assert!(p.set("nope", "1").unwrap_err().to_string().contains("unknown parameter `nope`"));
     }
 }
@@ -237,7 +242,12 @@ impl Params {
         self.algorithm = match algorithm {
             "bdis" => Algorithm::Bdis,
             "dis" => Algorithm::Dis,
-            other => return Err(ParamError { name: "algorithm", message: format!("`{other}` is not an algorithm (bdis, dis)") }),
+            other => {
+                return Err(ParamError {
+                    name: "algorithm",
+                    message: format!("`{other}` is not an algorithm (bdis, dis)"),
+                });
+            }
         };
         self.validate()
     }

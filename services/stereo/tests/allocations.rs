@@ -32,7 +32,12 @@ fn a_warmed_up_pair_allocates_nothing() {
     let tex = |x: usize, y: usize| -> u8 { (((x * 2_654_435_761) ^ (y * 40_503)) >> 6) as u8 | 1 };
     let left: Vec<u8> = (0..w * h).map(|i| tex(i % w, i / w)).collect();
     let right: Vec<u8> = (0..w * h).map(|i| tex(i % w + 5, i / w)).collect();
-    for params in [Params::default(), Params::colon(), Params { algorithm: Algorithm::Dis, ..Params::default() }, Params { variance: true, ..Params::colon() }] {
+    for params in [
+        Params::default(),
+        Params::colon(),
+        Params { algorithm: Algorithm::Dis, ..Params::default() },
+        Params { variance: true, ..Params::colon() },
+    ] {
         let mut matcher = Matcher::new(params).unwrap();
         let mut out = DisparityMap::default();
         let (l, r) = (GrayImage { width: w, height: h, data: &left }, GrayImage { width: w, height: h, data: &right });

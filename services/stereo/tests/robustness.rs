@@ -16,17 +16,23 @@ fn different_sizes_and_short_buffers_are_errors() {
     let mut m = Matcher::new(Params::default()).unwrap();
     let a = img(64, 48, textured);
     let b = img(60, 48, textured);
-    let e = m.compute(GrayImage { width: 64, height: 48, data: &a }, GrayImage { width: 60, height: 48, data: &b }).unwrap_err();
+    let e = m
+        .compute(GrayImage { width: 64, height: 48, data: &a }, GrayImage { width: 60, height: 48, data: &b })
+        .unwrap_err();
     assert_eq!(e, MatchError::SizeMismatch { lw: 64, lh: 48, rw: 60, rh: 48 });
     assert!(e.to_string().contains("left image is 64×48, right image is 60×48"));
-    let e = m.compute(GrayImage { width: 64, height: 48, data: &a[..100] }, GrayImage { width: 64, height: 48, data: &a }).unwrap_err();
+    let e = m
+        .compute(GrayImage { width: 64, height: 48, data: &a[..100] }, GrayImage { width: 64, height: 48, data: &a })
+        .unwrap_err();
     assert!(matches!(e, MatchError::Buffer { len: 100, .. }), "{e}");
 }
 
 #[test]
 fn empty_images_are_errors() {
     let mut m = Matcher::new(Params::default()).unwrap();
-    let e = m.compute(GrayImage { width: 0, height: 0, data: &[] }, GrayImage { width: 0, height: 0, data: &[] }).unwrap_err();
+    let e = m
+        .compute(GrayImage { width: 0, height: 0, data: &[] }, GrayImage { width: 0, height: 0, data: &[] })
+        .unwrap_err();
     assert!(matches!(e, MatchError::TooSmall { .. }), "{e}");
 }
 
@@ -52,7 +58,12 @@ fn black_and_textureless_pairs_give_all_invalid_maps() {
         let mut m = Matcher::new(Params { algorithm, ..Params::default() }).unwrap();
         for value in [0u8, 128] {
             let a = img(160, 120, |_, _| value);
-            let out = m.compute(GrayImage { width: 160, height: 120, data: &a }, GrayImage { width: 160, height: 120, data: &a }).unwrap();
+            let out = m
+                .compute(
+                    GrayImage { width: 160, height: 120, data: &a },
+                    GrayImage { width: 160, height: 120, data: &a },
+                )
+                .unwrap();
             assert_eq!(out.density(), 0.0, "{algorithm:?}, constant {value}");
             assert!(out.confidence.iter().all(|&c| c == 0.0));
         }
@@ -70,7 +81,9 @@ fn a_shifted_texture_gives_its_disparity() {
     let left = img(w, h, smooth);
     let right = img(w, h, |x, y| smooth(x + 6, y));
     let mut m = Matcher::new(Params::colon()).unwrap();
-    let out = m.compute(GrayImage { width: w, height: h, data: &left }, GrayImage { width: w, height: h, data: &right }).unwrap();
+    let out = m
+        .compute(GrayImage { width: w, height: h, data: &left }, GrayImage { width: w, height: h, data: &right })
+        .unwrap();
     assert!(out.density() > 0.5, "density {}", out.density());
     let errors: Vec<f32> = out.disparity.iter().filter(|d| d.is_finite()).map(|d| (d - 6.0).abs()).collect();
     let mean = errors.iter().sum::<f32>() / errors.len() as f32;

@@ -21,7 +21,11 @@ fn bad_settings_and_arguments_are_one_line_and_exit_1() {
     assert!(err.starts_with("bdis-stereo: error: /nonexistent/s.yaml: cannot read settings"), "{err}");
 
     let no_size = dir.join("s.yaml");
-    std::fs::write(&no_size, "%YAML:1.0\nCamera.fx: 500\nCamera.fy: 500\nCamera.cx: 320\nCamera.cy: 240\nCamera.bf: 2500\n").unwrap();
+    std::fs::write(
+        &no_size,
+        "%YAML:1.0\nCamera.fx: 500\nCamera.fy: 500\nCamera.cx: 320\nCamera.cy: 240\nCamera.bf: 2500\n",
+    )
+    .unwrap();
     let (code, err) = run(&["--settings", no_size.to_str().unwrap()]);
     assert_eq!(code, Some(1));
     assert!(err.contains("needs `Camera.width` and `Camera.height`"), "{err}");

@@ -24,14 +24,13 @@ pub fn pose_from_translation_quaternion(t: [f64; 3], q_xyzw: [f64; 4]) -> Option
     }
     let q = Quaternion::new(q_xyzw[3], q_xyzw[0], q_xyzw[1], q_xyzw[2]);
     let norm = q.norm();
+    // Written so that a NaN norm is rejected too.
+    #[allow(clippy::neg_cmp_op_on_partial_ord)]
     if !(norm > 1e-6) {
         return None;
     }
-    let rotation = if (norm - 1.0).abs() <= 1e-12 {
-        UnitQuaternion::new_unchecked(q)
-    } else {
-        UnitQuaternion::from_quaternion(q)
-    };
+    let rotation =
+        if (norm - 1.0).abs() <= 1e-12 { UnitQuaternion::new_unchecked(q) } else { UnitQuaternion::from_quaternion(q) };
     Some(Isometry3::from_parts(Translation3::new(t[0], t[1], t[2]), rotation))
 }
 
@@ -46,11 +45,7 @@ pub fn pose_to_rows_3x4(pose: &Pose) -> [f64; 12] {
     let r = pose.rotation.to_rotation_matrix();
     let m = r.matrix();
     let t = pose.translation.vector;
-    [
-        m[(0, 0)], m[(0, 1)], m[(0, 2)], t.x,
-        m[(1, 0)], m[(1, 1)], m[(1, 2)], t.y,
-        m[(2, 0)], m[(2, 1)], m[(2, 2)], t.z,
-    ]
+    [m[(0, 0)], m[(0, 1)], m[(0, 2)], t.x, m[(1, 0)], m[(1, 1)], m[(1, 2)], t.y, m[(2, 0)], m[(2, 1)], m[(2, 2)], t.z]
 }
 
 /// A pose from a 3×4 row-major `[R | t]`. The rotation part must be orthonormal to 1e-6 (it is re-orthonormalised
@@ -83,7 +78,8 @@ mod tests {
         for i in 0..50 {
             let a = i as f64 * 0.37;
             let pose = Isometry3::new(Vector3::new(a, -2.0 * a, 0.5), Vector3::new(a.sin(), a.cos() * 0.5, 0.2 * a));
-            let back = pose_from_translation_quaternion(pose.translation.vector.into(), quaternion_xyzw(&pose)).unwrap();
+            let back =
+                pose_from_translation_quaternion(pose.translation.vector.into(), quaternion_xyzw(&pose)).unwrap();
             assert_eq!(back, pose);
             let back = pose_from_rows_3x4(&pose_to_rows_3x4(&pose)).unwrap();
             assert!((back.to_homogeneous() - pose.to_homogeneous()).abs().max() < 1e-12);

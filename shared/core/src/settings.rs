@@ -48,11 +48,7 @@ pub enum SettingsError {
 
 impl SettingsError {
     fn value(path: &Path, line: Option<usize>, key: &str, message: impl Into<String>) -> Self {
-        Self::Value {
-            at: Location { path: path.to_path_buf(), line },
-            key: key.to_string(),
-            message: message.into(),
-        }
+        Self::Value { at: Location { path: path.to_path_buf(), line }, key: key.to_string(), message: message.into() }
     }
 }
 
@@ -119,8 +115,8 @@ fn split_key_value(text: &str) -> Option<(&str, &str)> {
 impl RawSettings {
     /// Reads a settings file, choosing the syntax by its extension (`.yaml`/`.yml` or `.toml`).
     pub fn load(path: &Path) -> Result<Self, SettingsError> {
-        let text = std::fs::read_to_string(path)
-            .map_err(|source| SettingsError::Io { path: path.to_path_buf(), source })?;
+        let text =
+            std::fs::read_to_string(path).map_err(|source| SettingsError::Io { path: path.to_path_buf(), source })?;
         match path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase).as_deref() {
             Some("yaml") | Some("yml") => Self::parse_opencv_yaml(&text, path),
             Some("toml") => Self::parse_toml(&text, path),
@@ -186,10 +182,7 @@ impl RawSettings {
     pub fn parse_toml(text: &str, path: &Path) -> Result<Self, SettingsError> {
         let table: toml::Table = text.parse().map_err(|e: toml::de::Error| {
             let line = e.span().map(|span| text[..span.start.min(text.len())].matches('\n').count() + 1);
-            SettingsError::Syntax {
-                at: Location { path: path.to_path_buf(), line },
-                message: e.message().to_string(),
-            }
+            SettingsError::Syntax { at: Location { path: path.to_path_buf(), line }, message: e.message().to_string() }
         })?;
         let mut entries = BTreeMap::new();
         fn scalar(path: &Path, key: &str, v: &toml::Value) -> Result<RawValue, SettingsError> {
@@ -223,7 +216,12 @@ impl RawSettings {
         let text = match &entry.value {
             RawValue::Scalar(s) => s.as_str(),
             RawValue::Text(s) => {
-                return Err(SettingsError::value(&self.path, entry.line, key, format!("expected a number, found the string \"{s}\"")));
+                return Err(SettingsError::value(
+                    &self.path,
+                    entry.line,
+                    key,
+                    format!("expected a number, found the string \"{s}\""),
+                ));
             }
             RawValue::Matrix { .. } => {
                 return Err(SettingsError::value(&self.path, entry.line, key, "expected a number, found a matrix"));
@@ -235,12 +233,17 @@ impl RawSettings {
             ".nan" | ".NaN" | ".NAN" | "nan" | "NaN" => f64::NAN,
             ".inf" | ".Inf" | "inf" | "+.inf" => f64::INFINITY,
             "-.inf" | "-.Inf" | "-inf" => f64::NEG_INFINITY,
-            _ => text.parse::<f64>().map_err(|_| {
-                SettingsError::value(&self.path, entry.line, key, format!("`{text}` is not a number"))
-            })?,
+            _ => text
+                .parse::<f64>()
+                .map_err(|_| SettingsError::value(&self.path, entry.line, key, format!("`{text}` is not a number")))?,
         };
         if !parsed.is_finite() {
-            return Err(SettingsError::value(&self.path, entry.line, key, format!("must be a finite number, found `{text}`")));
+            return Err(SettingsError::value(
+                &self.path,
+                entry.line,
+                key,
+                format!("must be a finite number, found `{text}`"),
+            ));
         }
         Ok(Some((parsed, entry.line)))
     }
@@ -400,8 +403,24 @@ const CAMERA_KEYS: &[&str] =
     &["fx", "fy", "cx", "cy", "k1", "k2", "k3", "p1", "p2", "width", "height", "fps", "bf", "RGB", "name", "type"];
 const ORB_KEYS: &[&str] = &["nFeatures", "scaleFactor", "nLevels", "iniThFAST", "minThFAST"];
 const BDIS_KEYS: &[&str] = &[
-    "lv_f", "lv_l", "maxiter", "miniter", "mindprate", "mindrrate", "minimgerr", "patchsz", "poverl", "usefbcon",
-    "patnorm", "costfct", "verbosity", "ratio_patch_valid", "num_window", "unit_disturb", "min_prob", "bool_var",
+    "lv_f",
+    "lv_l",
+    "maxiter",
+    "miniter",
+    "mindprate",
+    "mindrrate",
+    "minimgerr",
+    "patchsz",
+    "poverl",
+    "usefbcon",
+    "patnorm",
+    "costfct",
+    "verbosity",
+    "ratio_patch_valid",
+    "num_window",
+    "unit_disturb",
+    "min_prob",
+    "bool_var",
 ];
 const VIEWER3D_KEYS: &[&str] = &["depth_gap"];
 const TOP_LEVEL_KEYS: &[&str] = &["ThDepth", "DepthMapFactor"];
@@ -438,7 +457,12 @@ impl Reader<'_> {
             None => Ok(default),
             Some((v, line)) => {
                 if v.fract() != 0.0 || v < 0.0 || v > f64::from(u32::MAX) {
-                    Err(SettingsError::value(&self.raw.path, line, key, format!("must be a whole number ≥ 0, found {v}")))
+                    Err(SettingsError::value(
+                        &self.raw.path,
+                        line,
+                        key,
+                        format!("must be a whole number ≥ 0, found {v}"),
+                    ))
                 } else {
                     Ok(v as u32)
                 }
@@ -568,7 +592,12 @@ impl Settings {
         };
         let depth_gap_px = r.u32_or("Viewer3D.depth_gap", 5)?;
         if depth_gap_px == 0 {
-            return Err(SettingsError::value(&raw.path, r.at("Viewer3D.depth_gap"), "Viewer3D.depth_gap", "must be ≥ 1"));
+            return Err(SettingsError::value(
+                &raw.path,
+                r.at("Viewer3D.depth_gap"),
+                "Viewer3D.depth_gap",
+                "must be ≥ 1",
+            ));
         }
 
         Ok(Self { source: raw.path.clone(), camera, fps, rgb, th_depth, orb, bdis, depth_gap_px, ignored_keys })
@@ -632,19 +661,23 @@ Viewer.KeyFrameSize: 0.05\nLEFT.K: !!opencv-matrix\n   rows: 3\n   cols: 3\n   d
         assert!(e.contains("%YAML:1.0"), "{e}");
         let e = parse("%YAML:1.0\nCamera.fx 1\n").unwrap_err().to_string();
         assert_eq!(e, "s.yaml:2: expected `key: value`, found `Camera.fx 1`");
-        let e = parse("%YAML:1.0\nM: !!opencv-matrix\n  rows: 2\n  cols: 2\n  data: [1, 2, 3]\n").unwrap_err().to_string();
+        let e =
+            parse("%YAML:1.0\nM: !!opencv-matrix\n  rows: 2\n  cols: 2\n  data: [1, 2, 3]\n").unwrap_err().to_string();
         assert!(e.contains("2×2 matrix with 3 values"), "{e}");
     }
 
     #[test]
     fn toml_uses_the_same_names_and_checks() {
-        let text = "ThDepth = 20\n[Camera]\nfx = 520.0\nfy = 520\ncx = 320\ncy = 240\nbf = 260\n[BDISparam]\npatchsz = 8\n";
+        let text =
+            "ThDepth = 20\n[Camera]\nfx = 520.0\nfy = 520\ncx = 320\ncy = 240\nbf = 260\n[BDISparam]\npatchsz = 8\n";
         let s = Settings::from_raw(&RawSettings::parse_toml(text, Path::new("c.toml")).unwrap()).unwrap();
         assert_eq!(s.camera.fy, 520.0);
         assert_eq!(s.bdis.patchsz, 8);
-        let e = Settings::from_raw(&RawSettings::parse_toml(&text.replace("bf = 260", "bf = -2"), Path::new("c.toml")).unwrap())
-            .unwrap_err()
-            .to_string();
+        let e = Settings::from_raw(
+            &RawSettings::parse_toml(&text.replace("bf = 260", "bf = -2"), Path::new("c.toml")).unwrap(),
+        )
+        .unwrap_err()
+        .to_string();
         assert_eq!(e, "c.toml: `Camera.bf`: must be > 0, found -2");
         let e = RawSettings::parse_toml("[Camera\nfx=1", Path::new("c.toml")).unwrap_err().to_string();
         assert!(e.starts_with("c.toml:1:"), "{e}");

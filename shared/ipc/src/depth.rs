@@ -123,7 +123,7 @@ mod tests {
         h.set_layout(4, 2);
         assert_eq!(DepthHeader::payload_len(4, 2), 88);
         // An 8-aligned buffer, as the service's payload alignment guarantees.
-        let storage = vec![0u64; 11];
+        let storage = [0u64; 11];
         // SAFETY: u64 storage viewed as bytes, for the test.
         let payload = unsafe { std::slice::from_raw_parts(storage.as_ptr().cast::<u8>(), 88) };
         let v = DepthView::new(&h, payload).unwrap();

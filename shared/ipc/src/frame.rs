@@ -143,7 +143,11 @@ impl<'a> FrameView<'a> {
         }
         let needed = layout.payload_len();
         if needed > payload.len() {
-            return Err(FrameLayoutError::PayloadTooShort { frame_seq: header.frame_seq, needed, actual: payload.len() });
+            return Err(FrameLayoutError::PayloadTooShort {
+                frame_seq: header.frame_seq,
+                needed,
+                actual: payload.len(),
+            });
         }
         let h = layout.height as usize;
         let gray = |off: u32| &payload[off as usize..off as usize + layout.gray_stride as usize * h];
@@ -151,7 +155,8 @@ impl<'a> FrameView<'a> {
             header,
             left_gray: gray(layout.left_gray_offset),
             right_gray: gray(layout.right_gray_offset),
-            left_rgb: &payload[layout.left_rgb_offset as usize..layout.left_rgb_offset as usize + layout.rgb_stride as usize * h],
+            left_rgb: &payload
+                [layout.left_rgb_offset as usize..layout.left_rgb_offset as usize + layout.rgb_stride as usize * h],
         })
     }
 }

@@ -248,7 +248,8 @@ impl Ipc {
     /// The event service through which consumers tell acquisition they released a frame (on-demand pacing).
     pub fn frames_consumed(&self) -> Result<Events, IpcError> {
         let name = format!("{}/consumed", Topic::Frames.service_name());
-        let name = ServiceName::new(&name).map_err(|e| IpcError::Name { name: name.clone(), detail: format!("{e:?}") })?;
+        let name =
+            ServiceName::new(&name).map_err(|e| IpcError::Name { name: name.clone(), detail: format!("{e:?}") })?;
         self.event_service(&name, "consumed events")
     }
 
@@ -283,13 +284,21 @@ impl Ipc {
     }
 
     /// A frames subscriber with the service's full buffer (loses nothing at the rate it keeps up with).
-    pub fn frame_subscriber(&self, service: &FramesService) -> Result<Subscriber<ipc::Service, [u8], FrameHeader>, IpcError> {
-        service.subscriber_builder().buffer_size(qos::FRAMES_BUFFER).create().map_err(iox("create the frames subscriber"))
+    pub fn frame_subscriber(
+        &self,
+        service: &FramesService,
+    ) -> Result<Subscriber<ipc::Service, [u8], FrameHeader>, IpcError> {
+        service
+            .subscriber_builder()
+            .buffer_size(qos::FRAMES_BUFFER)
+            .create()
+            .map_err(iox("create the frames subscriber"))
     }
 
     pub fn depth(&self) -> Result<DepthService, IpcError> {
         let name = Self::service_name(Topic::Depth)?;
-        let alignment = Alignment::new(8).ok_or_else(|| IpcError::Contract { topic: "depth", detail: "alignment 8".into() })?;
+        let alignment =
+            Alignment::new(8).ok_or_else(|| IpcError::Contract { topic: "depth", detail: "alignment 8".into() })?;
         Self::with_retry("open the depth service", || {
             self.node
                 .service_builder(&name)
@@ -322,7 +331,10 @@ impl Ipc {
             .map_err(iox("create the depth publisher"))
     }
 
-    pub fn depth_subscriber(&self, service: &DepthService) -> Result<Subscriber<ipc::Service, [u8], DepthHeader>, IpcError> {
+    pub fn depth_subscriber(
+        &self,
+        service: &DepthService,
+    ) -> Result<Subscriber<ipc::Service, [u8], DepthHeader>, IpcError> {
         service.subscriber_builder().buffer_size(qos::DEPTH_BUFFER).create().map_err(iox("create the depth subscriber"))
     }
 
@@ -365,10 +377,10 @@ pub fn cleanup_dead_nodes_of_run(prefix: &str) -> Result<usize, IpcError> {
     let config = config_for_prefix(prefix)?;
     let mut cleaned = 0;
     Node::<ipc::Service>::list(&config, |state| {
-        if let NodeState::Dead(view) = state {
-            if view.try_remove_stale_resources().is_ok() {
-                cleaned += 1;
-            }
+        if let NodeState::Dead(view) = state
+            && view.try_remove_stale_resources().is_ok()
+        {
+            cleaned += 1;
         }
         CallbackProgression::Continue
     })

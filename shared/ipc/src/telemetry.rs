@@ -128,7 +128,11 @@ pub struct TelemetryPublisher {
 impl TelemetryPublisher {
     pub fn new(ipc: &Ipc, process: &str, input: Option<Topic>, output: Option<Topic>) -> Result<Self, IpcError> {
         let service = ipc.telemetry()?;
-        let publisher = service.publisher_builder().max_loaned_samples(1).create().map_err(iox("create the telemetry publisher"))?;
+        let publisher = service
+            .publisher_builder()
+            .max_loaned_samples(1)
+            .create()
+            .map_err(iox("create the telemetry publisher"))?;
         let notifier = ipc.notifier(&ipc.events(Topic::Telemetry)?)?;
         let template = TelemetryRecord {
             pid: std::process::id(),
@@ -153,7 +157,14 @@ impl TelemetryPublisher {
         }
         self.template.record_seq += 1;
         let sent = self.publisher.send_copy(record).map(|_| ());
-        let notified = if wake_launcher { self.notifier.notify_with_custom_event_id(EventId::new(event_id::NEW_SAMPLE)).map(|_| ()).map_err(|e| format!("{e:?}")) } else { Ok(()) };
+        let notified = if wake_launcher {
+            self.notifier
+                .notify_with_custom_event_id(EventId::new(event_id::NEW_SAMPLE))
+                .map(|_| ())
+                .map_err(|e| format!("{e:?}"))
+        } else {
+            Ok(())
+        };
         if let Err(e) = sent.map_err(|e| format!("{e:?}")).and(notified) {
             self.failures += 1;
             if self.failures == 1 {
@@ -176,12 +187,20 @@ impl TelemetryPublisher {
 
     /// The stream ended normally.
     pub fn finished(&mut self) {
-        self.send(TelemetryKind::Finished, MessageTiming { t_done_ns: clock::monotonic_ns(), ..Default::default() }, true);
+        self.send(
+            TelemetryKind::Finished,
+            MessageTiming { t_done_ns: clock::monotonic_ns(), ..Default::default() },
+            true,
+        );
     }
 
     /// The process is stopping on an error.
     pub fn failed(&mut self) {
-        self.send(TelemetryKind::Failed, MessageTiming { t_done_ns: clock::monotonic_ns(), ..Default::default() }, true);
+        self.send(
+            TelemetryKind::Failed,
+            MessageTiming { t_done_ns: clock::monotonic_ns(), ..Default::default() },
+            true,
+        );
     }
 
     pub fn messages(&self) -> u64 {

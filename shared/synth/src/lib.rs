@@ -82,7 +82,14 @@ pub struct PlaneScene {
 
 impl PlaneScene {
     /// Renders the pair seen with the left camera at (`x_mm`, `y_mm`) into `left` and `right` (reused).
-    pub fn render_pair(&self, rig: &StereoRig, x_mm: f64, y_mm: f64, left: &mut image::RgbImage, right: &mut image::RgbImage) {
+    pub fn render_pair(
+        &self,
+        rig: &StereoRig,
+        x_mm: f64,
+        y_mm: f64,
+        left: &mut image::RgbImage,
+        right: &mut image::RgbImage,
+    ) {
         let z = self.depth_mm;
         for (img, offset) in [(left, 0.0), (right, rig.baseline_mm)] {
             if img.dimensions() != (rig.width, rig.height) {
@@ -119,7 +126,8 @@ pub fn write_plane_sweep(
     speed_mm_s: f64,
     mut progress: impl FnMut(usize),
 ) -> Result<PathBuf, SynthError> {
-    let fail = |path: &Path, e: &dyn std::fmt::Display| SynthError::Write { path: path.to_path_buf(), detail: e.to_string() };
+    let fail =
+        |path: &Path, e: &dyn std::fmt::Display| SynthError::Write { path: path.to_path_buf(), detail: e.to_string() };
     for side in ["left", "right"] {
         std::fs::create_dir_all(dir.join(side)).map_err(|e| fail(&dir.join(side), &e))?;
     }

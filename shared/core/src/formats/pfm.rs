@@ -120,7 +120,11 @@ pub fn parse(bytes: &[u8], path: &Path) -> Result<PfmImage, FormatError> {
         return Err(invalid(
             path,
             None,
-            format!("PFM data: {} bytes after the header, expected {} for {width}×{height}×{channels}", bytes.len().saturating_sub(data_start), n * 4),
+            format!(
+                "PFM data: {} bytes after the header, expected {} for {width}×{height}×{channels}",
+                bytes.len().saturating_sub(data_start),
+                n * 4
+            ),
         ));
     }
     let little_endian = scale < 0.0;

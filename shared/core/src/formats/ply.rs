@@ -35,7 +35,11 @@ impl PointCloud {
         }
         for (name, values) in &self.scalars {
             if values.len() != n {
-                return Err(invalid(path, None, format!("PLY: property `{name}` has {} values for {n} points", values.len())));
+                return Err(invalid(
+                    path,
+                    None,
+                    format!("PLY: property `{name}` has {} values for {n} points", values.len()),
+                ));
             }
             if name.is_empty() || !name.chars().all(|c| c.is_ascii_alphanumeric() || c == '_') {
                 return Err(invalid(path, None, format!("PLY: property name `{name}` must be [A-Za-z0-9_]+")));
@@ -195,10 +199,8 @@ pub fn read(path: &Path) -> Result<PointCloud, FormatError> {
 /// Parses PLY bytes; `path` only names the source in errors.
 pub fn parse(bytes: &[u8], path: &Path) -> Result<PointCloud, FormatError> {
     const END: &[u8] = b"end_header";
-    let end = bytes
-        .windows(END.len())
-        .position(|w| w == END)
-        .ok_or_else(|| invalid(path, None, "PLY: no end_header"))?;
+    let end =
+        bytes.windows(END.len()).position(|w| w == END).ok_or_else(|| invalid(path, None, "PLY: no end_header"))?;
     let header = std::str::from_utf8(&bytes[..end]).map_err(|_| invalid(path, None, "PLY: header is not text"))?;
     let mut data_start = end + END.len();
     if bytes.get(data_start) == Some(&b'\r') {
@@ -220,19 +222,23 @@ pub fn parse(bytes: &[u8], path: &Path) -> Result<PointCloud, FormatError> {
             ["format", f, "1.0"] => format = Some(f.to_string()),
             ["element", name, count] => elements.push(Element {
                 name: name.to_string(),
-                count: count.parse().map_err(|_| invalid(path, line_no, format!("PLY: bad element count `{count}`")))?,
+                count: count
+                    .parse()
+                    .map_err(|_| invalid(path, line_no, format!("PLY: bad element count `{count}`")))?,
                 properties: Vec::new(),
             }),
             ["property", "list", count_t, value_t, name] => {
                 let (Some(c), Some(v)) = (Scalar::parse(count_t), Scalar::parse(value_t)) else {
                     return Err(invalid(path, line_no, format!("PLY: unknown list type in `{line}`")));
                 };
-                let element = elements.last_mut().ok_or_else(|| invalid(path, line_no, "PLY: property before element"))?;
+                let element =
+                    elements.last_mut().ok_or_else(|| invalid(path, line_no, "PLY: property before element"))?;
                 element.properties.push(Property { name: name.to_string(), list_count: Some(c), value: v });
             }
             ["property", t, name] => {
                 let v = Scalar::parse(t).ok_or_else(|| invalid(path, line_no, format!("PLY: unknown type `{t}`")))?;
-                let element = elements.last_mut().ok_or_else(|| invalid(path, line_no, "PLY: property before element"))?;
+                let element =
+                    elements.last_mut().ok_or_else(|| invalid(path, line_no, "PLY: property before element"))?;
                 element.properties.push(Property { name: name.to_string(), list_count: None, value: v });
             }
             _ => return Err(invalid(path, line_no, format!("PLY: unsupported header line `{line}`"))),
@@ -314,7 +320,11 @@ pub fn parse(bytes: &[u8], path: &Path) -> Result<PointCloud, FormatError> {
         }
     }
     if ascii.is_none() && binary.pos != data.len() {
-        return Err(invalid(path, None, format!("PLY: {} bytes of data after the last element", data.len() - binary.pos)));
+        return Err(invalid(
+            path,
+            None,
+            format!("PLY: {} bytes of data after the last element", data.len() - binary.pos),
+        ));
     }
     if let Some(f) = cloud.faces.iter().find(|f| f.iter().any(|&i| i as usize >= cloud.positions.len())) {
         return Err(invalid(path, None, format!("PLY: face {f:?} refers to a missing vertex")));

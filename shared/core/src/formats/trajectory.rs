@@ -21,9 +21,8 @@ fn numbers<const N: usize>(line: &str, path: &Path, line_no: usize, what: &str) 
         if count == N {
             return Err(invalid(path, Some(line_no), format!("{what}: more than {N} values")));
         }
-        out[count] = tok
-            .parse()
-            .map_err(|_| invalid(path, Some(line_no), format!("{what}: `{tok}` is not a number")))?;
+        out[count] =
+            tok.parse().map_err(|_| invalid(path, Some(line_no), format!("{what}: `{tok}` is not a number")))?;
         count += 1;
     }
     if count != N {
@@ -33,10 +32,7 @@ fn numbers<const N: usize>(line: &str, path: &Path, line_no: usize, what: &str) 
 }
 
 fn data_lines(text: &str) -> impl Iterator<Item = (usize, &str)> {
-    text.lines()
-        .enumerate()
-        .map(|(i, l)| (i + 1, l.trim()))
-        .filter(|(_, l)| !l.is_empty() && !l.starts_with('#'))
+    text.lines().enumerate().map(|(i, l)| (i + 1, l.trim())).filter(|(_, l)| !l.is_empty() && !l.starts_with('#'))
 }
 
 /// Reads a TUM trajectory.
