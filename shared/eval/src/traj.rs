@@ -1,0 +1,224 @@
+//! Trajectory error: association by timestamp, SE(3) alignment (Umeyama without scale), ATE and RPE.
+
+use bdis_core::geometry::StampedPose;
+use nalgebra::{Isometry3, Matrix3, Point3, Rotation3, Translation3, UnitQuaternion, Vector3};
+use serde::{Deserialize, Serialize};
+
+use crate::Stats;
+
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum TrajError {
+    #[error("only {pairs} pose pairs matched by timestamp (within {max_dt_s} s); need at least 3")]
+    TooFewPairs { pairs: usize, max_dt_s: f64 },
+    #[error("the matched positions are degenerate (all on one point or line): the alignment is undefined")]
+    Degenerate,
+}
+
+/// Pairs (gt index, est index) whose timestamps differ by at most `max_dt_s`, each pose used once, in time order.
+pub fn associate(gt: &[StampedPose], est: &[StampedPose], max_dt_s: f64) -> Vec<(usize, usize)> {
+    let mut pairs = Vec::new();
+    let mut used = vec![false; gt.len()];
+    for (j, e) in est.iter().enumerate() {
+        // Nearest ground-truth time (gt sorted by time, as trajectory files are).
+        let k = gt.partition_point(|g| g.t_s < e.t_s);
+        let best = [k.checked_sub(1), Some(k)]
+            .into_iter()
+            .flatten()
+            .filter(|&i| i < gt.len() && !used[i])
+            .min_by(|&a, &b| (gt[a].t_s - e.t_s).abs().total_cmp(&(gt[b].t_s - e.t_s).abs()));
+        if let Some(i) = best {
+            if (gt[i].t_s - e.t_s).abs() <= max_dt_s {
+                used[i] = true;
+                pairs.push((i, j));
+            }
+        }
+    }
+    pairs
+}
+
+/// The rigid transform `dst_from_src` minimising Σ‖dst − (R·src + t)‖² (Umeyama 1991, no scale).
+pub fn umeyama_se3(src: &[Point3<f64>], dst: &[Point3<f64>]) -> Result<Isometry3<f64>, TrajError> {
+    let n = src.len().min(dst.len());
+    if n < 3 {
+        return Err(TrajError::TooFewPairs { pairs: n, max_dt_s: f64::NAN });
+    }
+    let mean = |p: &[Point3<f64>]| p.iter().fold(Vector3::zeros(), |acc, q| acc + q.coords) / n as f64;
+    let (ms, md) = (mean(&src[..n]), mean(&dst[..n]));
+    let mut cov = Matrix3::zeros();
+    for (s, d) in src.iter().zip(dst) {
+        cov += (d.coords - md) * (s.coords - ms).transpose();
+    }
+    cov /= n as f64;
+    let svd = cov.svd(true, true);
+    let (Some(u), Some(v_t)) = (svd.u, svd.v_t) else { return Err(TrajError::Degenerate) };
+    // Rank < 2 leaves the rotation about the line undetermined.
+    let mut sv = svd.singular_values;
+    sv.as_mut_slice().sort_by(|a, b| b.total_cmp(a));
+    if sv[1] <= 1e-12 * sv[0].max(1e-300) {
+        return Err(TrajError::Degenerate);
+    }
+    let mut s = Matrix3::identity();
+    if (u * v_t).determinant() < 0.0 {
+        s[(2, 2)] = -1.0;
+    }
+    let r = u * s * v_t;
+    let t = md - r * ms;
+    let rotation = UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(r));
+    Ok(Isometry3::from_parts(Translation3::from(t), rotation))
+}
+
+/// Absolute trajectory error after alignment.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Ate {
+    /// Translation error statistics in the trajectory's unit.
+    pub translation: Stats,
+    /// `gt_from_est`: the alignment applied to the estimate.
+    pub alignment_translation: [f64; 3],
+    pub alignment_rotation_deg: f64,
+    pub pairs: usize,
+}
+
+/// Relative pose error over a fixed time step.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Rpe {
+    pub delta_s: f64,
+    /// Translation drift per step, in the trajectory's unit.
+    pub translation: Stats,
+    /// Rotation drift per step, degrees.
+    pub rotation_deg: Stats,
+}
+
+/// ATE of `est` against `gt` after SE(3) alignment (`evo_ape tum gt est -a`).
+pub fn ate(gt: &[StampedPose], est: &[StampedPose], max_dt_s: f64) -> Result<Ate, TrajError> {
+    let pairs = associate(gt, est, max_dt_s);
+    if pairs.len() < 3 {
+        return Err(TrajError::TooFewPairs { pairs: pairs.len(), max_dt_s });
+    }
+    let src: Vec<Point3<f64>> = pairs.iter().map(|&(_, j)| Point3::from(est[j].world_from_camera.translation.vector)).collect();
+    let dst: Vec<Point3<f64>> = pairs.iter().map(|&(i, _)| Point3::from(gt[i].world_from_camera.translation.vector)).collect();
+    let gt_from_est = umeyama_se3(&src, &dst)?;
+    let mut errors: Vec<f64> = src.iter().zip(&dst).map(|(s, d)| (d - gt_from_est * s).norm()).collect();
+    Ok(Ate {
+        translation: Stats::of(&mut errors),
+        alignment_translation: gt_from_est.translation.vector.into(),
+        alignment_rotation_deg: gt_from_est.rotation.angle().to_degrees(),
+        pairs: pairs.len(),
+    })
+}
+
+/// RPE over steps of `delta_s` seconds between matched poses (each pose paired with the first one at least
+/// `delta_s` later).
+pub fn rpe(gt: &[StampedPose], est: &[StampedPose], max_dt_s: f64, delta_s: f64) -> Result<Rpe, TrajError> {
+    let pairs = associate(gt, est, max_dt_s);
+    if pairs.len() < 3 {
+        return Err(TrajError::TooFewPairs { pairs: pairs.len(), max_dt_s });
+    }
+    let (mut trans, mut rot) = (Vec::new(), Vec::new());
+    for (a, &(ga, ea)) in pairs.iter().enumerate() {
+        let t0 = est[ea].t_s;
+        let Some(&(gb, eb)) = pairs[a + 1..].iter().find(|&&(_, e)| est[e].t_s - t0 >= delta_s - 1e-9) else { break };
+        let gt_rel = gt[ga].world_from_camera.inverse() * gt[gb].world_from_camera;
+        let est_rel = est[ea].world_from_camera.inverse() * est[eb].world_from_camera;
+        let err = gt_rel.inverse() * est_rel;
+        trans.push(err.translation.vector.norm());
+        rot.push(err.rotation.angle().to_degrees());
+    }
+    Ok(Rpe { delta_s, translation: Stats::of(&mut trans), rotation_deg: Stats::of(&mut rot) })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A wavy 3-D path, one pose per 0.05 s.
+    fn gt_path(n: usize) -> Vec<StampedPose> {
+        (0..n)
+            .map(|i| {
+                let t = i as f64 * 0.05;
+                StampedPose {
+                    t_s: t,
+                    world_from_camera: Isometry3::new(
+                        Vector3::new(10.0 * t, 3.0 * (t * 1.3).sin(), 2.0 * (t * 0.7).cos()),
+                        Vector3::new(0.1 * t, 0.2 * (t).sin(), 0.05),
+                    ),
+                }
+            })
+            .collect()
+    }
+
+    /// Deterministic Gaussian noise (Box–Muller over a fixed LCG).
+    struct Noise(u64);
+    impl Noise {
+        fn uniform(&mut self) -> f64 {
+            self.0 = self.0.wrapping_mul(6_364_136_223_846_793_005).wrapping_add(1_442_695_040_888_963_407);
+            ((self.0 >> 11) as f64 + 0.5) / (1u64 << 53) as f64
+        }
+        fn gauss(&mut self) -> f64 {
+            (-2.0 * self.uniform().ln()).sqrt() * (std::f64::consts::TAU * self.uniform()).cos()
+        }
+    }
+
+    #[test]
+    fn a_rigidly_moved_copy_has_zero_error_and_the_motion_is_recovered() {
+        let gt = gt_path(200);
+        let moved = Isometry3::new(Vector3::new(5.0, -2.0, 1.0), Vector3::new(0.3, -0.2, 0.9));
+        let est: Vec<StampedPose> =
+            gt.iter().map(|p| StampedPose { t_s: p.t_s, world_from_camera: moved * p.world_from_camera }).collect();
+        let a = ate(&gt, &est, 0.01).unwrap();
+        assert!(a.translation.rmse < 1e-9, "{a:?}");
+        assert!((a.alignment_rotation_deg - moved.rotation.angle().to_degrees()).abs() < 1e-6);
+        let r = rpe(&gt, &est, 0.01, 1.0).unwrap();
+        assert!(r.translation.max < 1e-9 && r.rotation_deg.max < 1e-6);
+    }
+
+    #[test]
+    fn injected_noise_of_known_rms_gives_that_ate() {
+        let gt = gt_path(4000);
+        let sigma = 0.05; // per axis: the expected 3-D RMS is σ·√3
+        let mut noise = Noise(7);
+        let est: Vec<StampedPose> = gt
+            .iter()
+            .map(|p| {
+                let mut q = p.world_from_camera;
+                q.translation.vector += Vector3::new(noise.gauss(), noise.gauss(), noise.gauss()) * sigma;
+                StampedPose { t_s: p.t_s + 0.002, world_from_camera: q }
+            })
+            .collect();
+        let a = ate(&gt, &est, 0.01).unwrap();
+        let expected = sigma * 3f64.sqrt();
+        assert_eq!(a.pairs, 4000);
+        assert!((a.translation.rmse - expected).abs() < 0.03 * expected, "{} vs {expected}", a.translation.rmse);
+    }
+
+    #[test]
+    fn a_scaled_trajectory_cannot_be_aligned_away() {
+        // Scaling about the centroid by s: the best rigid alignment is the identity, and the ATE RMSE is
+        // |s − 1| times the RMS distance of the positions from their centroid.
+        let gt = gt_path(300);
+        let c = gt.iter().fold(Vector3::zeros(), |a, p| a + p.world_from_camera.translation.vector) / gt.len() as f64;
+        let s = 1.1;
+        let est: Vec<StampedPose> = gt
+            .iter()
+            .map(|p| {
+                let mut q = p.world_from_camera;
+                q.translation.vector = c + (q.translation.vector - c) * s;
+                StampedPose { t_s: p.t_s, world_from_camera: q }
+            })
+            .collect();
+        let rms = (gt.iter().map(|p| (p.world_from_camera.translation.vector - c).norm_squared()).sum::<f64>() / gt.len() as f64).sqrt();
+        let a = ate(&gt, &est, 0.01).unwrap();
+        assert!((a.translation.rmse - (s - 1.0) * rms).abs() < 1e-9 * rms, "{} vs {}", a.translation.rmse, (s - 1.0) * rms);
+        assert!(a.alignment_rotation_deg < 1e-6);
+    }
+
+    #[test]
+    fn too_few_or_degenerate_pairs_are_errors() {
+        let gt = gt_path(10);
+        let late: Vec<StampedPose> = gt.iter().map(|p| StampedPose { t_s: p.t_s + 100.0, ..*p }).collect();
+        assert!(matches!(ate(&gt, &late, 0.01), Err(TrajError::TooFewPairs { pairs: 0, .. })));
+        let line: Vec<StampedPose> = (0..10)
+            .map(|i| StampedPose { t_s: i as f64, world_from_camera: Isometry3::translation(i as f64, 0.0, 0.0) })
+            .collect();
+        assert_eq!(ate(&line, &line, 0.01), Err(TrajError::Degenerate));
+    }
+}
