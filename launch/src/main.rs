@@ -7,6 +7,7 @@ use std::process::ExitCode;
 use anyhow::{Context, Result};
 use clap::{Parser, Subcommand};
 
+mod eval_cmd;
 mod probe_cmd;
 mod stereo_cmd;
 
@@ -29,6 +30,9 @@ enum Command {
     Demo(DemoArgs),
     /// Dense stereo (BDIS or plain DIS) on one rectified pair or a whole sequence: disparity, confidence, preview.
     Stereo(stereo_cmd::StereoArgs),
+    /// Score results against ground truth: trajectories, maps, disparity.
+    #[command(subcommand)]
+    Eval(eval_cmd::EvalCommand),
 }
 
 #[derive(Debug, clap::Args)]
@@ -84,6 +88,7 @@ fn main() -> ExitCode {
         Command::Probe(args) => probe_cmd::probe(args).map(|()| ExitCode::SUCCESS),
         Command::Demo(args) => demo(args),
         Command::Stereo(args) => stereo_cmd::stereo(args).map(|()| ExitCode::SUCCESS),
+        Command::Eval(command) => eval_cmd::eval(command).map(|()| ExitCode::SUCCESS),
     };
     match result {
         Ok(code) => code,

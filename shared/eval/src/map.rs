@@ -31,7 +31,11 @@ impl Mesh {
             return Err(MapError::NoTriangles);
         }
         Ok(Self {
-            vertices: cloud.positions.iter().map(|p| Point3::new(f64::from(p[0]), f64::from(p[1]), f64::from(p[2]))).collect(),
+            vertices: cloud
+                .positions
+                .iter()
+                .map(|p| Point3::new(f64::from(p[0]), f64::from(p[1]), f64::from(p[2])))
+                .collect(),
             triangles: cloud.faces.clone(),
         })
     }
@@ -197,7 +201,12 @@ pub struct MapScore {
 }
 
 /// Scores map `points` against the mesh.
-pub fn score_map(points: &[Point3<f64>], index: &MeshIndex, outlier_threshold: f64, coverage_radius: f64) -> Result<MapScore, MapError> {
+pub fn score_map(
+    points: &[Point3<f64>],
+    index: &MeshIndex,
+    outlier_threshold: f64,
+    coverage_radius: f64,
+) -> Result<MapScore, MapError> {
     if points.is_empty() {
         return Err(MapError::NoPoints);
     }
@@ -212,7 +221,13 @@ pub fn score_map(points: &[Point3<f64>], index: &MeshIndex, outlier_threshold: f
         }
     }
     // Coverage: a hash grid of the map points with the radius as cell size.
-    let cell = |v: &Vector3<f64>| ((v.x / coverage_radius).floor() as i64, (v.y / coverage_radius).floor() as i64, (v.z / coverage_radius).floor() as i64);
+    let cell = |v: &Vector3<f64>| {
+        (
+            (v.x / coverage_radius).floor() as i64,
+            (v.y / coverage_radius).floor() as i64,
+            (v.z / coverage_radius).floor() as i64,
+        )
+    };
     let mut grid: HashMap<(i64, i64, i64), Vec<u32>> = HashMap::new();
     for (i, p) in points.iter().enumerate() {
         grid.entry(cell(&p.coords)).or_default().push(i as u32);
@@ -228,8 +243,9 @@ pub fn score_map(points: &[Point3<f64>], index: &MeshIndex, outlier_threshold: f
         let near = (-1..=1).any(|dx| {
             (-1..=1).any(|dy| {
                 (-1..=1).any(|dz| {
-                    grid.get(&(cx + dx, cy + dy, cz + dz))
-                        .is_some_and(|ids| ids.iter().any(|&i| (points[i as usize].coords - centroid).norm() <= coverage_radius))
+                    grid.get(&(cx + dx, cy + dy, cz + dz)).is_some_and(|ids| {
+                        ids.iter().any(|&i| (points[i as usize].coords - centroid).norm() <= coverage_radius)
+                    })
                 })
             })
         });
@@ -311,7 +327,13 @@ mod tests {
         let points: Vec<Point3<f64>> = (0..10_000)
             .map(|i| {
                 let (x, y) = ((i % 100) as f64 + 0.5, (i / 100) as f64 + 0.5);
-                let z = if i % 20 == 0 { 10.0 } else if i % 2 == 0 { sigma } else { -sigma };
+                let z = if i % 20 == 0 {
+                    10.0
+                } else if i % 2 == 0 {
+                    sigma
+                } else {
+                    -sigma
+                };
                 Point3::new(x, y, z)
             })
             .collect();

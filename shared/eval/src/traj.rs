@@ -94,8 +94,10 @@ pub fn ate(gt: &[StampedPose], est: &[StampedPose], max_dt_s: f64) -> Result<Ate
     if pairs.len() < 3 {
         return Err(TrajError::TooFewPairs { pairs: pairs.len(), max_dt_s });
     }
-    let src: Vec<Point3<f64>> = pairs.iter().map(|&(_, j)| Point3::from(est[j].world_from_camera.translation.vector)).collect();
-    let dst: Vec<Point3<f64>> = pairs.iter().map(|&(i, _)| Point3::from(gt[i].world_from_camera.translation.vector)).collect();
+    let src: Vec<Point3<f64>> =
+        pairs.iter().map(|&(_, j)| Point3::from(est[j].world_from_camera.translation.vector)).collect();
+    let dst: Vec<Point3<f64>> =
+        pairs.iter().map(|&(i, _)| Point3::from(gt[i].world_from_camera.translation.vector)).collect();
     let gt_from_est = umeyama_se3(&src, &dst)?;
     let mut errors: Vec<f64> = src.iter().zip(&dst).map(|(s, d)| (d - gt_from_est * s).norm()).collect();
     Ok(Ate {
@@ -205,9 +207,16 @@ mod tests {
                 StampedPose { t_s: p.t_s, world_from_camera: q }
             })
             .collect();
-        let rms = (gt.iter().map(|p| (p.world_from_camera.translation.vector - c).norm_squared()).sum::<f64>() / gt.len() as f64).sqrt();
+        let rms = (gt.iter().map(|p| (p.world_from_camera.translation.vector - c).norm_squared()).sum::<f64>()
+            / gt.len() as f64)
+            .sqrt();
         let a = ate(&gt, &est, 0.01).unwrap();
-        assert!((a.translation.rmse - (s - 1.0) * rms).abs() < 1e-9 * rms, "{} vs {}", a.translation.rmse, (s - 1.0) * rms);
+        assert!(
+            (a.translation.rmse - (s - 1.0) * rms).abs() < 1e-9 * rms,
+            "{} vs {}",
+            a.translation.rmse,
+            (s - 1.0) * rms
+        );
         assert!(a.alignment_rotation_deg < 1e-6);
     }
 

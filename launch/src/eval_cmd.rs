@@ -1,0 +1,217 @@
+//! `bdis-slam eval traj|map|stereo`: scores against ground truth, for people (a short report) and programs
+//! (`--json`).
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result, bail};
+use bdis_core::formats::{pfm, ply, trajectory};
+use bdis_core::geometry::StampedPose;
+use nalgebra::Point3;
+
+#[derive(Debug, clap::Subcommand)]
+pub enum EvalCommand {
+    /// Trajectory error: ATE after SE(3) alignment without scale (as `evo_ape tum gt est -a`), and RPE.
+    Traj(TrajArgs),
+    /// Map error: distance of each map point to the ground-truth mesh (the paper's metric), and coverage.
+    Map(MapArgs),
+    /// Dense stereo error: density, depth MAE / median, bad-1 / bad-2 px, against GT depth or disparity.
+    Stereo(StereoEvalArgs),
+}
+
+#[derive(Debug, clap::Args)]
+pub struct TrajArgs {
+    /// Ground-truth trajectory.
+    #[arg(long)]
+    gt: PathBuf,
+    /// Estimated trajectory.
+    #[arg(long)]
+    est: PathBuf,
+    /// `tum` (t tx ty tz qx qy qz qw) or `kitti` (3×4 per line; poses are matched by line).
+    #[arg(long, default_value = "tum")]
+    format: String,
+    /// Largest timestamp difference for two poses to be matched, seconds.
+    #[arg(long, default_value_t = 0.01)]
+    max_dt: f64,
+    /// Time step of the relative pose error, seconds (for KITTI: lines).
+    #[arg(long, default_value_t = 1.0)]
+    delta: f64,
+    /// Print JSON instead of the report.
+    #[arg(long)]
+    json: bool,
+}
+
+#[derive(Debug, clap::Args)]
+pub struct MapArgs {
+    /// Ground-truth mesh (PLY with faces).
+    #[arg(long)]
+    mesh: PathBuf,
+    /// The map's points (PLY).
+    #[arg(long)]
+    map: PathBuf,
+    /// Points farther than this from the mesh are outliers (the paper: 5 mm).
+    #[arg(long, default_value_t = 5.0)]
+    outlier_mm: f64,
+    /// A mesh triangle counts as covered when a map point lies within this of its centroid.
+    #[arg(long, default_value_t = 1.0)]
+    coverage_mm: f64,
+    #[arg(long)]
+    json: bool,
+}
+
+#[derive(Debug, clap::Args)]
+pub struct StereoEvalArgs {
+    /// Estimated disparity (PFM; non-finite = no answer).
+    #[arg(long)]
+    disparity: PathBuf,
+    /// Ground-truth depth (PFM; non-finite or ≤ 0 = no ground truth). Needs --bf.
+    #[arg(long, conflicts_with = "gt_disparity", required_unless_present = "gt_disparity")]
+    gt_depth: Option<PathBuf>,
+    /// Ground-truth disparity (PFM), instead of depth.
+    #[arg(long)]
+    gt_disparity: Option<PathBuf>,
+    /// fx · baseline: depth = bf / disparity.
+    #[arg(long)]
+    bf: f64,
+    /// Left image: pixels whose red channel is 0 are outside the evaluation region.
+    #[arg(long)]
+    region_from: Option<PathBuf>,
+    #[arg(long)]
+    json: bool,
+}
+
+fn load_traj(path: &Path, format: &str) -> Result<Vec<StampedPose>> {
+    Ok(match format {
+        "tum" => trajectory::read_tum(path)?,
+        // KITTI has no times: the line number is the time, so poses pair up by line.
+        "kitti" => trajectory::read_kitti(path)?
+            .into_iter()
+            .enumerate()
+            .map(|(i, world_from_camera)| StampedPose { t_s: i as f64, world_from_camera })
+            .collect(),
+        other => bail!("--format: `{other}` is not a trajectory format (tum, kitti)"),
+    })
+}
+
+pub fn eval(command: EvalCommand) -> Result<()> {
+    match command {
+        EvalCommand::Traj(a) => {
+            let gt = load_traj(&a.gt, &a.format)?;
+            let est = load_traj(&a.est, &a.format)?;
+            let ate = bdis_eval::traj::ate(&gt, &est, a.max_dt)
+                .with_context(|| format!("{} vs {}", a.est.display(), a.gt.display()))?;
+            let rpe = bdis_eval::traj::rpe(&gt, &est, a.max_dt, a.delta)?;
+            if a.json {
+                println!("{}", serde_json::to_string_pretty(&serde_json::json!({ "ate": ate, "rpe": rpe }))?);
+            } else {
+                let t = &ate.translation;
+                println!(
+                    "ATE (SE(3)-aligned, {} pose pairs): RMSE {:.6}  mean {:.6}  median {:.6}  max {:.6}",
+                    ate.pairs, t.rmse, t.mean, t.median, t.max
+                );
+                println!(
+                    "RPE per {} {}: translation RMSE {:.6}, rotation RMSE {:.4}°",
+                    a.delta,
+                    if a.format == "kitti" { "poses" } else { "s" },
+                    rpe.translation.rmse,
+                    rpe.rotation_deg.rmse
+                );
+                println!(
+                    "alignment: rotation {:.3}°, translation {:?}",
+                    ate.alignment_rotation_deg, ate.alignment_translation
+                );
+            }
+        }
+        EvalCommand::Map(a) => {
+            let mesh =
+                bdis_eval::map::Mesh::from_cloud(&ply::read(&a.mesh)?).with_context(|| a.mesh.display().to_string())?;
+            let map = ply::read(&a.map)?;
+            let points: Vec<Point3<f64>> =
+                map.positions.iter().map(|p| Point3::new(f64::from(p[0]), f64::from(p[1]), f64::from(p[2]))).collect();
+            let index = bdis_eval::map::MeshIndex::new(mesh)?;
+            let score = bdis_eval::map::score_map(&points, &index, a.outlier_mm, a.coverage_mm)
+                .with_context(|| a.map.display().to_string())?;
+            if a.json {
+                println!("{}", serde_json::to_string_pretty(&score)?);
+            } else {
+                println!(
+                    "map: {} points, {} outliers (> {} mm, {:.1} %); inliers: mean {:.4} mm, median {:.4} mm, RMSE {:.4} mm; coverage {:.1} % (within {} mm)",
+                    score.points,
+                    score.outliers,
+                    score.outlier_threshold,
+                    100.0 * score.outlier_fraction,
+                    score.inliers.mean,
+                    score.inliers.median,
+                    score.inliers.rmse,
+                    100.0 * score.coverage,
+                    score.coverage_radius
+                );
+            }
+        }
+        EvalCommand::Stereo(a) => {
+            if !(a.bf.is_finite() && a.bf > 0.0) {
+                bail!("--bf: must be > 0, found {}", a.bf);
+            }
+            let est = pfm::read_disparity(&a.disparity)?;
+            let gt_depth: Vec<f32> = match (&a.gt_depth, &a.gt_disparity) {
+                (Some(p), _) => check_size(pfm::read_disparity(p)?, &est, p)?.data,
+                (None, Some(p)) => check_size(pfm::read_disparity(p)?, &est, p)?
+                    .data
+                    .iter()
+                    .map(|&d| if d.is_finite() && d > 0.0 { a.bf as f32 / d } else { f32::NAN })
+                    .collect(),
+                (None, None) => bail!("give --gt-depth or --gt-disparity"),
+            };
+            let region: Vec<bool> = match &a.region_from {
+                Some(p) => {
+                    let img = image::open(p)
+                        .with_context(|| format!("{}: cannot read the region image", p.display()))?
+                        .to_rgb8();
+                    if (img.width() as usize, img.height() as usize) != (est.width, est.height) {
+                        bail!(
+                            "{}: {}×{} but the disparity is {}×{}",
+                            p.display(),
+                            img.width(),
+                            img.height(),
+                            est.width,
+                            est.height
+                        );
+                    }
+                    img.pixels().map(|px| px[0] != 0).collect()
+                }
+                None => vec![true; est.data.len()],
+            };
+            let mut score = bdis_stereo::eval::StereoScore::new();
+            score.add(&est.data, &gt_depth, &region, a.bf as f32);
+            let s = score.summary();
+            if a.json {
+                println!(
+                    "{}",
+                    serde_json::to_string_pretty(&serde_json::json!({
+                        "density": s.density, "depth_mae": s.depth_mae, "depth_median": s.depth_median,
+                        "disparity_mae_px": s.disparity_mae, "bad1": s.bad1, "bad2": s.bad2,
+                        "region_pixels": s.region_pixels, "scored_pixels": s.scored_pixels,
+                    }))?
+                );
+            } else {
+                println!(
+                    "stereo: density {:.1} %, depth MAE {:.4}, median {:.4}, disparity MAE {:.3} px, bad-1 {:.1} %, bad-2 {:.1} % ({} pixels scored)",
+                    100.0 * s.density,
+                    s.depth_mae,
+                    s.depth_median,
+                    s.disparity_mae,
+                    100.0 * s.bad1,
+                    100.0 * s.bad2,
+                    s.scored_pixels
+                );
+            }
+        }
+    }
+    Ok(())
+}
+
+fn check_size(gt: pfm::PfmImage, est: &pfm::PfmImage, path: &Path) -> Result<pfm::PfmImage> {
+    if (gt.width, gt.height) != (est.width, est.height) {
+        bail!("{}: {}×{} but the disparity is {}×{}", path.display(), gt.width, gt.height, est.width, est.height);
+    }
+    Ok(gt)
+}

@@ -1,0 +1,139 @@
+#![allow(clippy::unwrap_used, clippy::expect_used)] // test code: a panic is the failure report
+//! `bdis-slam eval` on files with known answers, and ATE cross-checked by an independent numpy implementation.
+
+mod common;
+
+use std::process::Command;
+use std::time::Duration;
+
+use bdis_core::formats::{pfm, ply, trajectory};
+use bdis_core::geometry::StampedPose;
+use common::*;
+use nalgebra::{Isometry3, Vector3};
+
+fn eval_json(args: &[&str]) -> serde_json::Value {
+    let out = run_with_timeout(Command::new(bdis_slam()).arg("eval").args(args).arg("--json"), Duration::from_secs(60));
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    serde_json::from_str(&text(&out.stdout)).unwrap()
+}
+
+#[test]
+fn trajectory_error_matches_an_independent_implementation() {
+    let tmp = TempDir::new("eval-traj");
+    let (gt_path, est_path) = (tmp.path().join("gt.txt"), tmp.path().join("est.txt"));
+    let moved = Isometry3::new(Vector3::new(4.0, 1.0, -2.0), Vector3::new(0.1, 0.4, -0.2));
+    let mut gt = Vec::new();
+    let mut est = Vec::new();
+    for i in 0..500 {
+        let t = i as f64 / 30.0;
+        let p = Isometry3::new(
+            Vector3::new(20.0 * t, 5.0 * (t * 0.9).sin(), 3.0 * t.cos()),
+            Vector3::new(0.0, 0.1 * t, 0.0),
+        );
+        gt.push(StampedPose { t_s: 1000.0 + t, world_from_camera: p });
+        // A wobble of known shape: ±0.1 along x, alternating, plus the rigid motion.
+        let mut q = p;
+        q.translation.vector.x += if i % 2 == 0 { 0.1 } else { -0.1 };
+        est.push(StampedPose { t_s: 1000.0 + t + 0.003, world_from_camera: moved * q });
+    }
+    trajectory::write_tum(&gt_path, &gt).unwrap();
+    trajectory::write_tum(&est_path, &est).unwrap();
+    let v = eval_json(&["traj", "--gt", gt_path.to_str().unwrap(), "--est", est_path.to_str().unwrap()]);
+    let rmse = v["ate"]["translation"]["rmse"].as_f64().unwrap();
+    assert_eq!(v["ate"]["pairs"].as_u64(), Some(500));
+    assert!((rmse - 0.1).abs() < 2e-3, "ATE RMSE {rmse}, expected ≈ 0.1");
+
+    // The same number from numpy, the way evo computes it.
+    let python = Command::new("python3").args(["-c", "import numpy"]).output().is_ok_and(|o| o.status.success());
+    if !python {
+        assert!(std::env::var_os("CI").is_none(), "CI must have python3 with numpy");
+        return;
+    }
+    let script = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/interop/ate.py");
+    let out = Command::new("python3").arg(script).arg(&gt_path).arg(&est_path).output().unwrap();
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let numpy: f64 = text(&out.stdout).trim().parse().unwrap();
+    assert!((rmse - numpy).abs() < 1e-9, "bdis-slam {rmse} vs numpy {numpy}");
+
+    // KITTI: the same poses matched by line.
+    let (gk, ek) = (tmp.path().join("gt.kitti"), tmp.path().join("est.kitti"));
+    trajectory::write_kitti(&gk, &gt.iter().map(|p| p.world_from_camera).collect::<Vec<_>>()).unwrap();
+    trajectory::write_kitti(&ek, &est.iter().map(|p| p.world_from_camera).collect::<Vec<_>>()).unwrap();
+    let v = eval_json(&["traj", "--gt", gk.to_str().unwrap(), "--est", ek.to_str().unwrap(), "--format", "kitti"]);
+    assert!((v["ate"]["translation"]["rmse"].as_f64().unwrap() - rmse).abs() < 1e-9);
+}
+
+#[test]
+fn map_and_stereo_errors_have_their_known_answers() {
+    let tmp = TempDir::new("eval-map");
+    // A 10 × 10 mm plane of two triangles; points at ±0.2 mm, and one in ten lifted 8 mm.
+    let mesh = ply::PointCloud {
+        positions: vec![[0.0, 0.0, 0.0], [10.0, 0.0, 0.0], [10.0, 10.0, 0.0], [0.0, 10.0, 0.0]],
+        faces: vec![[0, 1, 2], [0, 2, 3]],
+        ..Default::default()
+    };
+    let points: Vec<[f32; 3]> = (0..100)
+        .map(|i| {
+            let z = if i % 10 == 0 {
+                8.0
+            } else if i % 2 == 0 {
+                0.2
+            } else {
+                -0.2
+            };
+            [(i % 10) as f32 + 0.5, (i / 10) as f32 + 0.5, z]
+        })
+        .collect();
+    let map = ply::PointCloud { positions: points, ..Default::default() };
+    let (mesh_path, map_path) = (tmp.path().join("mesh.ply"), tmp.path().join("map.ply"));
+    ply::write(&mesh_path, &mesh).unwrap();
+    ply::write(&map_path, &map).unwrap();
+    let v = eval_json(&["map", "--mesh", mesh_path.to_str().unwrap(), "--map", map_path.to_str().unwrap()]);
+    assert_eq!(v["outliers"].as_u64(), Some(10));
+    assert!((v["inliers"]["mean"].as_f64().unwrap() - 0.2).abs() < 1e-6, "{v}");
+    assert!((v["inliers"]["median"].as_f64().unwrap() - 0.2).abs() < 1e-6);
+
+    // Stereo: GT disparity 10 px everywhere (bf 100 → depth 10); estimate 10 on half, 12.5 on a quarter,
+    // nothing on a quarter.
+    let (w, h) = (8usize, 8usize);
+    let gt = vec![10.0f32; w * h];
+    let est: Vec<f32> = (0..w * h)
+        .map(|i| {
+            if i < 32 {
+                10.0
+            } else if i < 48 {
+                12.5
+            } else {
+                f32::NAN
+            }
+        })
+        .collect();
+    let (gt_path, est_path) = (tmp.path().join("gt.pfm"), tmp.path().join("est.pfm"));
+    pfm::write(&gt_path, w, h, 1, &gt).unwrap();
+    pfm::write_disparity(&est_path, w, h, &est).unwrap();
+    let v = eval_json(&[
+        "stereo",
+        "--disparity",
+        est_path.to_str().unwrap(),
+        "--gt-disparity",
+        gt_path.to_str().unwrap(),
+        "--bf",
+        "100",
+    ]);
+    assert_eq!(v["density"].as_f64(), Some(0.75));
+    assert!((v["bad2"].as_f64().unwrap() - 1.0 / 3.0).abs() < 1e-9);
+    // |z − 10| is 0 for the exact half and 2 (z = 8) for the 12.5 px quarter: mean 2/3, median 0.
+    assert!((v["depth_mae"].as_f64().unwrap() - 2.0 / 3.0).abs() < 1e-6, "{v}");
+}
+
+#[test]
+fn bad_eval_input_is_one_line() {
+    let out = run_with_timeout(
+        Command::new(bdis_slam()).args(["eval", "traj", "--gt", "/nonexistent/gt.txt", "--est", "/nonexistent/e.txt"]),
+        Duration::from_secs(30),
+    );
+    assert_eq!(out.status.code(), Some(1));
+    let stderr = text(&out.stderr);
+    assert!(stderr.starts_with("bdis-slam: error: /nonexistent/gt.txt: No such file"), "{stderr}");
+    assert_eq!(stderr.lines().count(), 1);
+}
