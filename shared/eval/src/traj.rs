@@ -26,11 +26,11 @@ pub fn associate(gt: &[StampedPose], est: &[StampedPose], max_dt_s: f64) -> Vec<
             .flatten()
             .filter(|&i| i < gt.len() && !used[i])
             .min_by(|&a, &b| (gt[a].t_s - e.t_s).abs().total_cmp(&(gt[b].t_s - e.t_s).abs()));
-        if let Some(i) = best {
-            if (gt[i].t_s - e.t_s).abs() <= max_dt_s {
-                used[i] = true;
-                pairs.push((i, j));
-            }
+        if let Some(i) = best
+            && (gt[i].t_s - e.t_s).abs() <= max_dt_s
+        {
+            used[i] = true;
+            pairs.push((i, j));
         }
     }
     pairs
