@@ -4,6 +4,8 @@
 //! sideways. Every pixel is the procedural texture evaluated exactly where its ray meets the plane, so the
 //! ground-truth disparity is `bf / depth` everywhere. The colon and abdomen scenes of issue #4 grow from here.
 
+pub mod colon;
+
 use std::path::{Path, PathBuf};
 
 /// A rectified stereo rig: left camera intrinsics and the baseline (mm).
