@@ -165,7 +165,7 @@ fn the_demo_renders_a_sequence_and_runs_the_pipeline_over_it() {
         serde_json::from_str(&std::fs::read_to_string(tmp.path().join("probe.json")).unwrap()).unwrap();
     assert_eq!(depth.keyframe_ids, vec![0, 5, 10]);
     assert!(depth.end_of_stream && depth.payload_in_shared_memory);
-    assert!(depth.mean_density > 0.8, "a textured plane is matched almost everywhere: {}", depth.mean_density);
+    assert!(depth.mean_density > 0.5, "most of the colon wall is matched: {}", depth.mean_density);
 }
 
 #[test]

@@ -10,6 +10,7 @@ use clap::{Parser, Subcommand};
 mod eval_cmd;
 mod probe_cmd;
 mod stereo_cmd;
+mod synth_cmd;
 
 /// bdis-slam: lightweight CPU-only dense stereo SLAM for minimally invasive surgery, as separate processes
 /// over zero-copy shared memory.
@@ -30,6 +31,8 @@ enum Command {
     Demo(DemoArgs),
     /// Dense stereo (BDIS or plain DIS) on one rectified pair or a whole sequence: disparity, confidence, preview.
     Stereo(stereo_cmd::StereoArgs),
+    /// Write a synthetic stereo endoscopy sequence with exact ground truth (poses, depth, disparity, mesh).
+    Synth(synth_cmd::SynthArgs),
     /// Score results against ground truth: trajectories, maps, disparity.
     #[command(subcommand)]
     Eval(eval_cmd::EvalCommand),
@@ -89,6 +92,7 @@ fn main() -> ExitCode {
         Command::Demo(args) => demo(args),
         Command::Stereo(args) => stereo_cmd::stereo(args).map(|()| ExitCode::SUCCESS),
         Command::Eval(command) => eval_cmd::eval(command).map(|()| ExitCode::SUCCESS),
+        Command::Synth(args) => synth_cmd::synth(args).map(|()| ExitCode::SUCCESS),
     };
     match result {
         Ok(code) => code,
@@ -243,26 +247,19 @@ fn execute_and_report(
 }
 
 fn demo(args: DemoArgs) -> Result<ExitCode> {
-    use bdis_synth::{PlaneScene, StereoRig, TissueTexture};
     anyhow::ensure!(args.frames >= 2 && args.frames <= 100_000, "--frames: give 2 to 100000 frames");
     let run_dir = make_run_dir(args.out.as_deref(), "demo")?;
     let sequence = run_dir.join("sequence");
-    let rig = StereoRig::default();
-    let scene = PlaneScene { depth_mm: 60.0, texture: TissueTexture { seed: 2026 } };
+    let rig = bdis_synth::StereoRig::default();
+    let colon = bdis_synth::colon::Colon::default();
     let fps = 30.0;
     eprintln!(
-        "bdis-slam demo: rendering {} stereo frames of a tissue plane at {} mm into {}",
+        "bdis-slam demo: rendering {} stereo frames of a flight through a synthetic colon into {}",
         args.frames,
-        scene.depth_mm,
         sequence.display()
     );
-    let bar = indicatif::ProgressBar::new(args.frames as u64);
-    bar.set_style(
-        indicatif::ProgressStyle::with_template("rendering {bar:40} {pos}/{len} frames ({eta} left)")
-            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
-    );
-    let settings = bdis_synth::write_plane_sweep(&sequence, &rig, &scene, args.frames, fps, 6.0, |_| bar.inc(1))?;
-    bar.finish_and_clear();
+    let written = synth_cmd::render_with_progress(&sequence, &rig, &colon, args.frames, fps, 20.0)?;
+    let settings = written.settings;
     let preview = run_dir.join("preview.png");
     write_side_by_side(&sequence.join("left/1.png"), &sequence.join("right/1.png"), &preview)?;
 

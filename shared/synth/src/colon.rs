@@ -24,7 +24,14 @@ pub struct Colon {
 
 impl Default for Colon {
     fn default() -> Self {
-        Self { radius_mm: 16.0, fold_spacing_mm: 28.0, fold_depth: 0.22, bump_mm: 0.9, texture: TissueTexture { seed: 2026 }, seed: 2026 }
+        Self {
+            radius_mm: 16.0,
+            fold_spacing_mm: 28.0,
+            fold_depth: 0.22,
+            bump_mm: 0.9,
+            texture: TissueTexture { seed: 2026 },
+            seed: 2026,
+        }
     }
 }
 
@@ -94,12 +101,16 @@ impl Colon {
                     if fm > 0.0 {
                         lo = mid;
                         f_lo = fm;
-                        if side == -1 { f_hi *= 0.5 }
+                        if side == -1 {
+                            f_hi *= 0.5
+                        }
                         side = -1;
                     } else {
                         hi = mid;
                         f_hi = fm;
-                        if side == 1 { f_lo *= 0.5 }
+                        if side == 1 {
+                            f_lo *= 0.5
+                        }
                         side = 1;
                     }
                     if (hi - lo).abs() < 1e-6 {
@@ -192,7 +203,15 @@ pub struct Shading {
 
 impl Default for Shading {
     fn default() -> Self {
-        Self { lighting: true, exposure_distance_mm: 40.0, ambient: 0.06, specular: 0.35, shininess: 40.0, vignetting: 0.3, noise: 2.0 }
+        Self {
+            lighting: true,
+            exposure_distance_mm: 40.0,
+            ambient: 0.06,
+            specular: 0.35,
+            shininess: 40.0,
+            vignetting: 0.3,
+            noise: 2.0,
+        }
     }
 }
 
@@ -215,7 +234,13 @@ fn hash_noise(seed: u64, frame: u64, k: u64) -> f64 {
 
 /// Renders the pair seen from `left_from_world⁻¹ = world_from_left`. The light sits at the scope tip, midway
 /// between the two cameras, so both views share the shading but not the specular highlights.
-pub fn render_colon(colon: &Colon, rig: &StereoRig, shading: &Shading, world_from_left: &Isometry3<f64>, frame: u64) -> RenderedPair {
+pub fn render_colon(
+    colon: &Colon,
+    rig: &StereoRig,
+    shading: &Shading,
+    world_from_left: &Isometry3<f64>,
+    frame: u64,
+) -> RenderedPair {
     let (w, h) = (rig.width, rig.height);
     let mut left = image::RgbImage::new(w, h);
     let mut right = image::RgbImage::new(w, h);
@@ -226,13 +251,18 @@ pub fn render_colon(colon: &Colon, rig: &StereoRig, shading: &Shading, world_fro
     let max_t = 150.0;
     let exposure = 0.8 * shading.exposure_distance_mm.powi(2);
     // Rows are split between two threads: the machine this runs on has two cores.
-    let render_rows = |pose: &Isometry3<f64>, img_rows: &mut [u8], depth_rows: Option<&mut [f32]>, y0: u32, view: u64| {
+    let render_rows = |pose: &Isometry3<f64>,
+                       img_rows: &mut [u8],
+                       depth_rows: Option<&mut [f32]>,
+                       y0: u32,
+                       view: u64| {
         let mut depth_rows = depth_rows;
         let origin = pose * Point3::origin();
         for (row_i, row) in img_rows.chunks_mut(3 * w as usize).enumerate() {
             let y = y0 + row_i as u32;
             for x in 0..w {
-                let dir_cam = Vector3::new((f64::from(x) + 0.5 - rig.cx) / rig.fx, (f64::from(y) + 0.5 - rig.cy) / rig.fy, 1.0);
+                let dir_cam =
+                    Vector3::new((f64::from(x) + 0.5 - rig.cx) / rig.fx, (f64::from(y) + 0.5 - rig.cy) / rig.fy, 1.0);
                 let dir = (pose.rotation * dir_cam).normalize();
                 let px = &mut row[3 * x as usize..3 * x as usize + 3];
                 let Some(hit) = colon.hit(&origin, &dir, max_t) else {
@@ -251,15 +281,26 @@ pub fn render_colon(colon: &Colon, rig: &StereoRig, shading: &Shading, world_fro
                     let v = -dir;
                     let half = (l + v).normalize();
                     let n_l = hit.normal.dot(&l).max(0.0);
-                    let spec = if n_l > 0.0 { shading.specular * hit.normal.dot(&half).max(0.0).powf(shading.shininess) } else { 0.0 };
-                    let r2 = ((f64::from(x) + 0.5 - rig.cx).powi(2) + (f64::from(y) + 0.5 - rig.cy).powi(2)) / half_diag2;
+                    let spec = if n_l > 0.0 {
+                        shading.specular * hit.normal.dot(&half).max(0.0).powf(shading.shininess)
+                    } else {
+                        0.0
+                    };
+                    let r2 =
+                        ((f64::from(x) + 0.5 - rig.cx).powi(2) + (f64::from(y) + 0.5 - rig.cy).powi(2)) / half_diag2;
                     let vignette = 1.0 - shading.vignetting * r2;
                     ((shading.ambient + exposure * n_l / d2) * vignette, exposure * spec / d2 * vignette)
                 } else {
                     (1.0, 0.0)
                 };
                 for c in 0..3 {
-                    let noise = if shading.lighting { (hash_noise(colon.seed ^ view, frame, u64::from(y * w + x) * 3 + c as u64) - 0.5) * 2.0 * shading.noise } else { 0.0 };
+                    let noise = if shading.lighting {
+                        (hash_noise(colon.seed ^ view, frame, u64::from(y * w + x) * 3 + c as u64) - 0.5)
+                            * 2.0
+                            * shading.noise
+                    } else {
+                        0.0
+                    };
                     let v = 255.0 * (albedo[c] * diffuse + spec) + noise;
                     px[c] = v.round().clamp(0.0, 255.0) as u8;
                 }
@@ -308,7 +349,10 @@ pub fn write_colon_sequence(
     mut progress: impl FnMut(usize),
 ) -> Result<WrittenSequence, crate::SynthError> {
     use bdis_core::formats::{pfm, ply, trajectory};
-    let fail = |path: &std::path::Path, e: &dyn std::fmt::Display| crate::SynthError::Write { path: path.to_path_buf(), detail: e.to_string() };
+    let fail = |path: &std::path::Path, e: &dyn std::fmt::Display| crate::SynthError::Write {
+        path: path.to_path_buf(),
+        detail: e.to_string(),
+    };
     for sub in ["left", "right", "gt/depth", "gt/disparity"] {
         std::fs::create_dir_all(dir.join(sub)).map_err(|e| fail(&dir.join(sub), &e))?;
     }
@@ -327,7 +371,8 @@ pub fn write_colon_sequence(
         let (w, h) = (rig.width as usize, rig.height as usize);
         let depth_path = dir.join(format!("gt/depth/{}.pfm", i + 1));
         pfm::write(&depth_path, w, h, 1, &pair.depth).map_err(|e| fail(&depth_path, &e))?;
-        let disparity: Vec<f32> = pair.depth.iter().map(|&z| if z.is_finite() { (bf / f64::from(z)) as f32 } else { f32::NAN }).collect();
+        let disparity: Vec<f32> =
+            pair.depth.iter().map(|&z| if z.is_finite() { (bf / f64::from(z)) as f32 } else { f32::NAN }).collect();
         let disp_path = dir.join(format!("gt/disparity/{}.pfm", i + 1));
         pfm::write_disparity(&disp_path, w, h, &disparity).map_err(|e| fail(&disp_path, &e))?;
         for &z in pair.depth.iter().filter(|z| z.is_finite()) {
@@ -346,7 +391,8 @@ pub fn write_colon_sequence(
     let z_last = speed_mm_s * (frames.max(1) - 1) as f64 / fps;
     let (vertices, triangles) = colon.mesh(-20.0, z_last + 150.0, 0.5, 180);
     let path = dir.join("gt/mesh.ply");
-    ply::write(&path, &ply::PointCloud { positions: vertices, faces: triangles, ..Default::default() }).map_err(|e| fail(&path, &e))?;
+    ply::write(&path, &ply::PointCloud { positions: vertices, faces: triangles, ..Default::default() })
+        .map_err(|e| fail(&path, &e))?;
     let settings = dir.join("settings.yaml");
     let text = format!(
         "%YAML:1.0\n# Synthetic colon flight written by bdis-slam synth. Units: millimetres.\n\
@@ -354,5 +400,9 @@ Camera.fx: {}\nCamera.fy: {}\nCamera.cx: {}\nCamera.cy: {}\nCamera.width: {}\nCa
         rig.fx, rig.fy, rig.cx, rig.cy, rig.width, rig.height, fps, bf
     );
     std::fs::write(&settings, text).map_err(|e| fail(&settings, &e))?;
-    Ok(WrittenSequence { settings, frames, mean_depth_mm: if depth_n > 0 { depth_sum / depth_n as f64 } else { f64::NAN } })
+    Ok(WrittenSequence {
+        settings,
+        frames,
+        mean_depth_mm: if depth_n > 0 { depth_sum / depth_n as f64 } else { f64::NAN },
+    })
 }

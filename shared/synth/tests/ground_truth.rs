@@ -65,7 +65,12 @@ fn warping_the_right_image_with_gt_disparity_reproduces_the_left() {
         assert!(errors.len() > 20_000, "{} pixels compared", errors.len());
         let m = median(errors.clone());
         let outliers = errors.iter().filter(|&&e| e > 12.0).count() as f64 / errors.len() as f64;
-        eprintln!("lighting {}: median {:.2}, > 12: {:.3}", shading.lighting, median(errors.clone()), errors.iter().filter(|&&e| e > 12.0).count() as f64 / errors.len() as f64);
+        eprintln!(
+            "lighting {}: median {:.2}, > 12: {:.3}",
+            shading.lighting,
+            median(errors.clone()),
+            errors.iter().filter(|&&e| e > 12.0).count() as f64 / errors.len() as f64
+        );
         assert!(m < median_max, "lighting {}: median {m}", shading.lighting);
         assert!(outliers < outlier_max, "lighting {}: {outliers} of pixels off by > 12", shading.lighting);
     }
@@ -75,7 +80,8 @@ fn warping_the_right_image_with_gt_disparity_reproduces_the_left() {
 fn warping_frame_t_into_t_plus_1_with_gt_depth_and_poses_matches() {
     let (colon, rig) = (Colon::default(), rig());
     let (p0, p1) = (colon.forward_pose(0.5, 20.0), colon.forward_pose(0.5 + 1.0 / 30.0, 20.0));
-    let (f0, f1) = (render_colon(&colon, &rig, &albedo_only(), &p0, 0), render_colon(&colon, &rig, &albedo_only(), &p1, 1));
+    let (f0, f1) =
+        (render_colon(&colon, &rig, &albedo_only(), &p0, 0), render_colon(&colon, &rig, &albedo_only(), &p1, 1));
     let w = rig.width;
     let cam1_from_cam0 = p1.inverse() * p0;
     let errors = warp_errors(&f0.left, &f1.left, |x, y| {
@@ -83,7 +89,8 @@ fn warping_frame_t_into_t_plus_1_with_gt_depth_and_poses_matches() {
         if !z.is_finite() {
             return None;
         }
-        let pc0 = Point3::new((f64::from(x) + 0.5 - rig.cx) * z / rig.fx, (f64::from(y) + 0.5 - rig.cy) * z / rig.fy, z);
+        let pc0 =
+            Point3::new((f64::from(x) + 0.5 - rig.cx) * z / rig.fx, (f64::from(y) + 0.5 - rig.cy) * z / rig.fy, z);
         let pc1 = cam1_from_cam0 * pc0;
         (pc1.z > 0.0).then(|| (rig.fx * pc1.x / pc1.z + rig.cx - 0.5, rig.fy * pc1.y / pc1.z + rig.cy - 0.5))
     });
@@ -135,7 +142,10 @@ fn the_mesh_reprojects_onto_the_gt_depth() {
         }
     }
     assert!(agree > 2_000, "{agree} visible vertices agree");
-    assert!((in_front as f64) < 0.01 * agree as f64, "{in_front} vertices float in front of the rendered wall ({agree} agree)");
+    assert!(
+        (in_front as f64) < 0.01 * agree as f64,
+        "{in_front} vertices float in front of the rendered wall ({agree} agree)"
+    );
 }
 
 #[test]
@@ -146,7 +156,10 @@ fn same_seed_same_bytes() {
     let b = render_colon(&colon, &rig, &Shading::default(), &pose, 3);
     assert_eq!(a.left.as_raw(), b.left.as_raw());
     assert_eq!(a.right.as_raw(), b.right.as_raw());
-    assert_eq!(a.depth.iter().map(|z| z.to_bits()).collect::<Vec<_>>(), b.depth.iter().map(|z| z.to_bits()).collect::<Vec<_>>());
+    assert_eq!(
+        a.depth.iter().map(|z| z.to_bits()).collect::<Vec<_>>(),
+        b.depth.iter().map(|z| z.to_bits()).collect::<Vec<_>>()
+    );
     let other = Colon { seed: 7, texture: bdis_synth::TissueTexture { seed: 7 }, ..Colon::default() };
     assert_ne!(render_colon(&other, &rig, &Shading::default(), &pose, 3).left.as_raw(), a.left.as_raw());
     let _ = Vector3::<f64>::zeros();
