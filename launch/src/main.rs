@@ -258,7 +258,11 @@ fn demo(args: DemoArgs) -> Result<ExitCode> {
         args.frames,
         sequence.display()
     );
-    let written = synth_cmd::render_with_progress(&sequence, &rig, &colon, args.frames, fps, 20.0)?;
+    let total_s = (args.frames - 1) as f64 / fps;
+    let path = |t: f64| colon.forward_pose(t, 20.0);
+    let mesh = colon.mesh(-20.0, 20.0 * total_s + 150.0, 0.5, 180);
+    let shading = bdis_synth::render::Shading::default();
+    let written = synth_cmd::render_with_progress(&sequence, &rig, &colon, &path, mesh, &shading, args.frames, fps)?;
     let settings = written.settings;
     let preview = run_dir.join("preview.png");
     write_side_by_side(&sequence.join("left/1.png"), &sequence.join("right/1.png"), &preview)?;

@@ -8,7 +8,8 @@
 
 use nalgebra::{Isometry3, Point3, Rotation3, Translation3, UnitQuaternion, Vector3};
 
-use crate::{StereoRig, TissueTexture, value_noise};
+use crate::render::{Hit, Surface};
+use crate::{TissueTexture, value_noise};
 
 /// The tube's shape.
 #[derive(Debug, Clone, Copy)]
@@ -33,17 +34,6 @@ impl Default for Colon {
             seed: 2026,
         }
     }
-}
-
-/// Where a ray met the wall.
-#[derive(Debug, Clone, Copy)]
-pub struct Hit {
-    pub t: f64,
-    pub point: Point3<f64>,
-    /// Unit normal pointing into the tube (towards the viewer).
-    pub normal: Vector3<f64>,
-    /// Surface coordinates in mm: around, along.
-    pub uv: (f64, f64),
 }
 
 impl Colon {
@@ -157,6 +147,18 @@ impl Colon {
         Isometry3::from_parts(Translation3::from(position.coords), UnitQuaternion::from_rotation_matrix(&r))
     }
 
+    /// Forward for half the time, then back over the same wall: `world_from_camera` at `t_s` of `total_s`.
+    /// On the way back the scope keeps looking forward (it is pulled out, as in a withdrawal).
+    pub fn revisit_pose(&self, t_s: f64, total_s: f64, speed_mm_s: f64) -> Isometry3<f64> {
+        let along = if t_s <= 0.5 * total_s { t_s } else { total_s - t_s };
+        let mut pose = self.forward_pose(along, speed_mm_s);
+        // A little different wobble on the way back, so views are similar but not identical.
+        if t_s > 0.5 * total_s {
+            pose.translation.vector += Vector3::new(0.8 * (t_s * 2.3).sin(), -0.6 * (t_s * 1.9).cos(), 0.0);
+        }
+        pose
+    }
+
     /// A triangle mesh of the wall between heights `z0` and `z1`: rings every `dz` mm, `segments` around. Its
     /// vertices lie exactly on the wall.
     pub fn mesh(&self, z0: f64, z1: f64, dz: f64, segments: usize) -> (Vec<[f32; 3]>, Vec<[u32; 3]>) {
@@ -184,225 +186,14 @@ impl Colon {
     }
 }
 
-/// How images are lit and degraded.
-#[derive(Debug, Clone, Copy)]
-pub struct Shading {
-    /// Off: images show the texture's albedo only (for tests of the geometry).
-    pub lighting: bool,
-    /// Radiance scale: a wall at this distance, facing the light, is exposed to about 80 %.
-    pub exposure_distance_mm: f64,
-    /// Light scattered inside the lumen, as a fraction of full exposure.
-    pub ambient: f64,
-    pub specular: f64,
-    pub shininess: f64,
-    /// Darkening towards the image corners.
-    pub vignetting: f64,
-    /// Uniform sensor noise amplitude, grey levels.
-    pub noise: f64,
-}
-
-impl Default for Shading {
-    fn default() -> Self {
-        Self {
-            lighting: true,
-            exposure_distance_mm: 40.0,
-            ambient: 0.06,
-            specular: 0.35,
-            shininess: 40.0,
-            vignetting: 0.3,
-            noise: 2.0,
-        }
+impl Surface for Colon {
+    fn hit(&self, origin: &Point3<f64>, dir: &Vector3<f64>, max_t: f64) -> Option<Hit> {
+        Colon::hit(self, origin, dir, max_t)
     }
-}
-
-/// One rendered stereo frame with its ground truth.
-#[derive(Debug, Clone)]
-pub struct RenderedPair {
-    pub left: image::RgbImage,
-    pub right: image::RgbImage,
-    /// z-depth of the left camera per pixel (mm); +inf where no wall is within range.
-    pub depth: Vec<f32>,
-}
-
-fn hash_noise(seed: u64, frame: u64, k: u64) -> f64 {
-    let mut h = seed ^ frame.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ k.wrapping_mul(0xC2B2_AE3D_27D4_EB4F);
-    h ^= h >> 31;
-    h = h.wrapping_mul(0xBF58_476D_1CE4_E5B9);
-    h ^= h >> 29;
-    (h >> 11) as f64 / (1u64 << 53) as f64
-}
-
-/// Renders the pair seen from `left_from_world⁻¹ = world_from_left`. The light sits at the scope tip, midway
-/// between the two cameras, so both views share the shading but not the specular highlights.
-pub fn render_colon(
-    colon: &Colon,
-    rig: &StereoRig,
-    shading: &Shading,
-    world_from_left: &Isometry3<f64>,
-    frame: u64,
-) -> RenderedPair {
-    let (w, h) = (rig.width, rig.height);
-    let mut left = image::RgbImage::new(w, h);
-    let mut right = image::RgbImage::new(w, h);
-    let mut depth = vec![f32::INFINITY; (w * h) as usize];
-    let world_from_right = world_from_left * Translation3::new(rig.baseline_mm, 0.0, 0.0);
-    let light = world_from_left * Point3::new(0.5 * rig.baseline_mm, 0.0, 0.0);
-    let half_diag2 = (rig.cx * rig.cx + rig.cy * rig.cy).max(1.0);
-    let max_t = 150.0;
-    let exposure = 0.8 * shading.exposure_distance_mm.powi(2);
-    // Rows are split between two threads: the machine this runs on has two cores.
-    let render_rows = |pose: &Isometry3<f64>,
-                       img_rows: &mut [u8],
-                       depth_rows: Option<&mut [f32]>,
-                       y0: u32,
-                       view: u64| {
-        let mut depth_rows = depth_rows;
-        let origin = pose * Point3::origin();
-        for (row_i, row) in img_rows.chunks_mut(3 * w as usize).enumerate() {
-            let y = y0 + row_i as u32;
-            for x in 0..w {
-                let dir_cam =
-                    Vector3::new((f64::from(x) + 0.5 - rig.cx) / rig.fx, (f64::from(y) + 0.5 - rig.cy) / rig.fy, 1.0);
-                let dir = (pose.rotation * dir_cam).normalize();
-                let px = &mut row[3 * x as usize..3 * x as usize + 3];
-                let Some(hit) = colon.hit(&origin, &dir, max_t) else {
-                    px.copy_from_slice(&[0, 0, 0]);
-                    continue;
-                };
-                if let Some(d) = depth_rows.as_deref_mut() {
-                    // z-depth = t · (ray direction's camera-z component); dir_cam has z = 1 before normalising.
-                    d[row_i * w as usize + x as usize] = (hit.t / dir_cam.norm()) as f32;
-                }
-                let albedo = colon.texture.rgb(hit.uv.0, hit.uv.1).map(|c| f64::from(c) / 255.0);
-                let (diffuse, spec) = if shading.lighting {
-                    let to_light = light - hit.point;
-                    let d2 = to_light.norm_squared();
-                    let l = to_light / d2.sqrt();
-                    let v = -dir;
-                    let half = (l + v).normalize();
-                    let n_l = hit.normal.dot(&l).max(0.0);
-                    let spec = if n_l > 0.0 {
-                        shading.specular * hit.normal.dot(&half).max(0.0).powf(shading.shininess)
-                    } else {
-                        0.0
-                    };
-                    let r2 =
-                        ((f64::from(x) + 0.5 - rig.cx).powi(2) + (f64::from(y) + 0.5 - rig.cy).powi(2)) / half_diag2;
-                    let vignette = 1.0 - shading.vignetting * r2;
-                    ((shading.ambient + exposure * n_l / d2) * vignette, exposure * spec / d2 * vignette)
-                } else {
-                    (1.0, 0.0)
-                };
-                for c in 0..3 {
-                    let noise = if shading.lighting {
-                        (hash_noise(colon.seed ^ view, frame, u64::from(y * w + x) * 3 + c as u64) - 0.5)
-                            * 2.0
-                            * shading.noise
-                    } else {
-                        0.0
-                    };
-                    let v = 255.0 * (albedo[c] * diffuse + spec) + noise;
-                    px[c] = v.round().clamp(0.0, 255.0) as u8;
-                }
-            }
-        }
-    };
-    let split = (h / 2) as usize * 3 * w as usize;
-    let dsplit = (h / 2) as usize * w as usize;
-    let world_from_right = &world_from_right;
-    std::thread::scope(|s| {
-        let (l_top, l_bottom) = left.split_at_mut(split);
-        let (d_top, d_bottom) = depth.split_at_mut(dsplit);
-        let (r_top, r_bottom) = right.split_at_mut(split);
-        let render = &render_rows;
-        s.spawn(move || {
-            render(world_from_left, l_top, Some(d_top), 0, 1);
-            render(world_from_right, r_top, None, 0, 2);
-        });
-        render(world_from_left, l_bottom, Some(d_bottom), h / 2, 1);
-        render(world_from_right, r_bottom, None, h / 2, 2);
-    });
-    RenderedPair { left, right, depth }
-}
-
-/// What a written sequence holds, for the caller's summary.
-#[derive(Debug, Clone)]
-pub struct WrittenSequence {
-    pub settings: std::path::PathBuf,
-    pub frames: usize,
-    pub mean_depth_mm: f64,
-}
-
-/// Writes a flight through the colon as a plain sequence (`left/`, `right/`, `times.txt`, `settings.yaml`) with
-/// its ground truth in `gt/`: `poses.tum` (world_from_camera of the left camera), `depth/<n>.pfm` (z, mm, +inf
-/// where no wall), `disparity/<n>.pfm` (px), `mesh.ply` (the wall along the flight). `progress(i)` after each
-/// frame.
-#[allow(clippy::too_many_arguments)]
-pub fn write_colon_sequence(
-    dir: &std::path::Path,
-    rig: &StereoRig,
-    colon: &Colon,
-    shading: &Shading,
-    frames: usize,
-    fps: f64,
-    speed_mm_s: f64,
-    mut progress: impl FnMut(usize),
-) -> Result<WrittenSequence, crate::SynthError> {
-    use bdis_core::formats::{pfm, ply, trajectory};
-    let fail = |path: &std::path::Path, e: &dyn std::fmt::Display| crate::SynthError::Write {
-        path: path.to_path_buf(),
-        detail: e.to_string(),
-    };
-    for sub in ["left", "right", "gt/depth", "gt/disparity"] {
-        std::fs::create_dir_all(dir.join(sub)).map_err(|e| fail(&dir.join(sub), &e))?;
+    fn albedo(&self, uv: (f64, f64)) -> [u8; 3] {
+        self.texture.rgb(uv.0, uv.1)
     }
-    let bf = rig.fx * rig.baseline_mm;
-    let mut poses = Vec::with_capacity(frames);
-    let mut times = String::new();
-    let (mut depth_sum, mut depth_n) = (0.0, 0usize);
-    for i in 0..frames {
-        let t = i as f64 / fps;
-        let pose = colon.forward_pose(t, speed_mm_s);
-        let pair = render_colon(colon, rig, shading, &pose, i as u64);
-        for (side, img) in [("left", &pair.left), ("right", &pair.right)] {
-            let path = dir.join(format!("{side}/{}.png", i + 1));
-            img.save(&path).map_err(|e| fail(&path, &e))?;
-        }
-        let (w, h) = (rig.width as usize, rig.height as usize);
-        let depth_path = dir.join(format!("gt/depth/{}.pfm", i + 1));
-        pfm::write(&depth_path, w, h, 1, &pair.depth).map_err(|e| fail(&depth_path, &e))?;
-        let disparity: Vec<f32> =
-            pair.depth.iter().map(|&z| if z.is_finite() { (bf / f64::from(z)) as f32 } else { f32::NAN }).collect();
-        let disp_path = dir.join(format!("gt/disparity/{}.pfm", i + 1));
-        pfm::write_disparity(&disp_path, w, h, &disparity).map_err(|e| fail(&disp_path, &e))?;
-        for &z in pair.depth.iter().filter(|z| z.is_finite()) {
-            depth_sum += f64::from(z);
-            depth_n += 1;
-        }
-        poses.push(bdis_core::geometry::StampedPose { t_s: t, world_from_camera: pose });
-        times += &format!("{t:.6}\n");
-        progress(i);
+    fn seed(&self) -> u64 {
+        self.seed
     }
-    let path = dir.join("times.txt");
-    std::fs::write(&path, times).map_err(|e| fail(&path, &e))?;
-    let path = dir.join("gt/poses.tum");
-    trajectory::write_tum(&path, &poses).map_err(|e| fail(&path, &e))?;
-    // The wall from a little behind the first pose to well beyond the last one's view.
-    let z_last = speed_mm_s * (frames.max(1) - 1) as f64 / fps;
-    let (vertices, triangles) = colon.mesh(-20.0, z_last + 150.0, 0.5, 180);
-    let path = dir.join("gt/mesh.ply");
-    ply::write(&path, &ply::PointCloud { positions: vertices, faces: triangles, ..Default::default() })
-        .map_err(|e| fail(&path, &e))?;
-    let settings = dir.join("settings.yaml");
-    let text = format!(
-        "%YAML:1.0\n# Synthetic colon flight written by bdis-slam synth. Units: millimetres.\n\
-Camera.fx: {}\nCamera.fy: {}\nCamera.cx: {}\nCamera.cy: {}\nCamera.width: {}\nCamera.height: {}\nCamera.fps: {}\nCamera.bf: {}\nCamera.RGB: 1\nThDepth: 20\n",
-        rig.fx, rig.fy, rig.cx, rig.cy, rig.width, rig.height, fps, bf
-    );
-    std::fs::write(&settings, text).map_err(|e| fail(&settings, &e))?;
-    Ok(WrittenSequence {
-        settings,
-        frames,
-        mean_depth_mm: if depth_n > 0 { depth_sum / depth_n as f64 } else { f64::NAN },
-    })
 }

@@ -4,7 +4,9 @@
 //! sideways. Every pixel is the procedural texture evaluated exactly where its ray meets the plane, so the
 //! ground-truth disparity is `bf / depth` everywhere. The colon and abdomen scenes of issue #4 grow from here.
 
+pub mod abdomen;
 pub mod colon;
+pub mod render;
 
 use std::path::{Path, PathBuf};
 

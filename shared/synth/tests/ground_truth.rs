@@ -3,8 +3,21 @@
 //! a small photometric error, the mesh re-projects onto the GT depth, and rendering is deterministic.
 
 use bdis_synth::StereoRig;
-use bdis_synth::colon::{Colon, Shading, render_colon};
-use nalgebra::{Point3, Vector3};
+use bdis_synth::abdomen::Abdomen;
+use bdis_synth::colon::Colon;
+use bdis_synth::render::{Shading, Surface, render};
+use nalgebra::{Isometry3, Point3};
+
+/// Both scenes, each with a camera path.
+fn scenes() -> Vec<(&'static str, Box<dyn Surface>, Box<dyn Fn(f64) -> Isometry3<f64>>)> {
+    let colon = Colon::default();
+    let abdomen = Abdomen::default();
+    let (c2, a2) = (colon, abdomen.clone());
+    vec![
+        ("colon", Box::new(colon), Box::new(move |t| c2.forward_pose(t, 20.0))),
+        ("abdomen", Box::new(abdomen), Box::new(move |t| a2.sweep_pose(t, 15.0))),
+    ]
+}
 
 /// A small rig so each frame renders in a few tens of milliseconds.
 fn rig() -> StereoRig {
@@ -47,120 +60,126 @@ fn warp_errors(a: &image::RgbImage, b: &image::RgbImage, map: impl Fn(u32, u32) 
 
 #[test]
 fn warping_the_right_image_with_gt_disparity_reproduces_the_left() {
-    let (colon, rig) = (Colon::default(), rig());
-    let pose = colon.forward_pose(0.7, 20.0);
+    let rig = rig();
     let bf = rig.fx * rig.baseline_mm;
-    // Thresholds: with albedo only, what remains is bilinear resampling of the texture (≪ 1 grey level); the
-    // outliers (> 12) are pixels the right camera cannot see (behind folds) and silhouette edges. With lighting,
-    // the views also differ by design: sensor noise (±2 per image), specular highlights that depend on the view,
-    // and vignetting that depends on where a point falls in each image (a point 40 px apart in the two images
-    // gets a few % different exposure): a median of a few grey levels, and more pixels above 12.
-    for (shading, median_max, outlier_max) in [(albedo_only(), 1.0, 0.06), (Shading::default(), 5.0, 0.25)] {
-        let pair = render_colon(&colon, &rig, &shading, &pose, 0);
-        let w = rig.width;
-        let errors = warp_errors(&pair.left, &pair.right, |x, y| {
-            let z = f64::from(pair.depth[(y * w + x) as usize]);
-            z.is_finite().then(|| (f64::from(x) - bf / z, f64::from(y)))
-        });
-        assert!(errors.len() > 20_000, "{} pixels compared", errors.len());
-        let m = median(errors.clone());
-        let outliers = errors.iter().filter(|&&e| e > 12.0).count() as f64 / errors.len() as f64;
-        eprintln!(
-            "lighting {}: median {:.2}, > 12: {:.3}",
-            shading.lighting,
-            median(errors.clone()),
-            errors.iter().filter(|&&e| e > 12.0).count() as f64 / errors.len() as f64
-        );
-        assert!(m < median_max, "lighting {}: median {m}", shading.lighting);
-        assert!(outliers < outlier_max, "lighting {}: {outliers} of pixels off by > 12", shading.lighting);
+    for (name, surface, path) in scenes() {
+        let pose = path(0.7);
+        // Thresholds: with albedo only, what remains is bilinear resampling of the texture (≪ 1 grey level); the
+        // outliers (> 12) are pixels the right camera cannot see (behind folds) and silhouette edges. With
+        // lighting, the views also differ by design: sensor noise (±2 per image), specular highlights that depend
+        // on the view, and vignetting that depends on where a point falls in each image (a point 40 px apart in
+        // the two images gets a few % different exposure): a median of a few grey levels, and more pixels above 12.
+        for (shading, median_max, outlier_max) in [(albedo_only(), 1.0, 0.06), (Shading::default(), 5.0, 0.25)] {
+            let pair = render(surface.as_ref(), &rig, &shading, &pose, 0);
+            let w = rig.width;
+            let errors = warp_errors(&pair.left, &pair.right, |x, y| {
+                let z = f64::from(pair.depth[(y * w + x) as usize]);
+                z.is_finite().then(|| (f64::from(x) - bf / z, f64::from(y)))
+            });
+            let m = median(errors.clone());
+            let outliers = errors.iter().filter(|&&e| e > 12.0).count() as f64 / errors.len() as f64;
+            eprintln!("{name}, lighting {}: median {m:.2}, > 12: {outliers:.3}", shading.lighting);
+            assert!(errors.len() > 20_000, "{name}: {} pixels compared", errors.len());
+            assert!(m < median_max, "{name}, lighting {}: median {m}", shading.lighting);
+            assert!(outliers < outlier_max, "{name}, lighting {}: {outliers} of pixels off by > 12", shading.lighting);
+        }
     }
 }
 
 #[test]
 fn warping_frame_t_into_t_plus_1_with_gt_depth_and_poses_matches() {
-    let (colon, rig) = (Colon::default(), rig());
-    let (p0, p1) = (colon.forward_pose(0.5, 20.0), colon.forward_pose(0.5 + 1.0 / 30.0, 20.0));
-    let (f0, f1) =
-        (render_colon(&colon, &rig, &albedo_only(), &p0, 0), render_colon(&colon, &rig, &albedo_only(), &p1, 1));
-    let w = rig.width;
-    let cam1_from_cam0 = p1.inverse() * p0;
-    let errors = warp_errors(&f0.left, &f1.left, |x, y| {
-        let z = f64::from(f0.depth[(y * w + x) as usize]);
-        if !z.is_finite() {
-            return None;
-        }
-        let pc0 =
-            Point3::new((f64::from(x) + 0.5 - rig.cx) * z / rig.fx, (f64::from(y) + 0.5 - rig.cy) * z / rig.fy, z);
-        let pc1 = cam1_from_cam0 * pc0;
-        (pc1.z > 0.0).then(|| (rig.fx * pc1.x / pc1.z + rig.cx - 0.5, rig.fy * pc1.y / pc1.z + rig.cy - 0.5))
-    });
-    assert!(errors.len() > 20_000);
-    // Same threshold reasoning as the stereo warp (albedo only: resampling error; outliers: disocclusions).
-    assert!(median(errors.clone()) < 1.0);
-    assert!(errors.iter().filter(|&&e| e > 12.0).count() as f64 / (errors.len() as f64) < 0.06);
+    let rig = rig();
+    for (name, surface, path) in scenes() {
+        let (p0, p1) = (path(0.5), path(0.5 + 1.0 / 30.0));
+        let f0 = render(surface.as_ref(), &rig, &albedo_only(), &p0, 0);
+        let f1 = render(surface.as_ref(), &rig, &albedo_only(), &p1, 1);
+        let w = rig.width;
+        let cam1_from_cam0 = p1.inverse() * p0;
+        let errors = warp_errors(&f0.left, &f1.left, |x, y| {
+            let z = f64::from(f0.depth[(y * w + x) as usize]);
+            if !z.is_finite() {
+                return None;
+            }
+            let pc0 =
+                Point3::new((f64::from(x) + 0.5 - rig.cx) * z / rig.fx, (f64::from(y) + 0.5 - rig.cy) * z / rig.fy, z);
+            let pc1 = cam1_from_cam0 * pc0;
+            (pc1.z > 0.0).then(|| (rig.fx * pc1.x / pc1.z + rig.cx - 0.5, rig.fy * pc1.y / pc1.z + rig.cy - 0.5))
+        });
+        assert!(errors.len() > 20_000, "{name}");
+        // Same threshold reasoning as the stereo warp (albedo only: resampling error; outliers: disocclusions).
+        assert!(median(errors.clone()) < 1.0, "{name}");
+        assert!(errors.iter().filter(|&&e| e > 12.0).count() as f64 / (errors.len() as f64) < 0.06, "{name}");
+    }
 }
 
 #[test]
 fn the_mesh_reprojects_onto_the_gt_depth() {
-    let (colon, rig) = (Colon::default(), rig());
-    let pose = colon.forward_pose(1.0, 20.0);
-    let pair = render_colon(&colon, &rig, &albedo_only(), &pose, 0);
-    let (vertices, _) = colon.mesh(0.0, 150.0, 0.5, 180);
-    let cam_from_world = pose.inverse();
-    let (mut agree, mut in_front) = (0usize, 0usize);
-    for v in &vertices {
-        let p = cam_from_world * Point3::new(f64::from(v[0]), f64::from(v[1]), f64::from(v[2]));
-        if p.z <= 1.0 {
-            continue;
-        }
-        let (u, w) = (rig.fx * p.x / p.z + rig.cx, rig.fy * p.y / p.z + rig.cy);
-        if u < 0.0 || w < 0.0 || u >= f64::from(rig.width) || w >= f64::from(rig.height) {
-            continue;
-        }
-        let (px, py) = (u as i64, w as i64);
-        let z = f64::from(pair.depth[(py as u32 * rig.width + px as u32) as usize]);
-        if !z.is_finite() {
-            continue;
-        }
-        // The nearest wall around the vertex's pixel: at a fold's silhouette the pixel centre may see the wall
-        // behind while the vertex sits on the fold's rim.
-        let mut z_near = z;
-        for dy in -1..=1 {
-            for dx in -1..=1 {
-                let (qx, qy) = (px + dx, py + dy);
-                if qx >= 0 && qy >= 0 && qx < i64::from(rig.width) && qy < i64::from(rig.height) {
-                    z_near = z_near.min(f64::from(pair.depth[(qy as u32 * rig.width + qx as u32) as usize]));
+    let rig = rig();
+    let colon = Colon::default();
+    let abdomen = Abdomen::default();
+    let cases: [(&str, &dyn Surface, Isometry3<f64>, Vec<[f32; 3]>); 2] = [
+        ("colon", &colon, colon.forward_pose(1.0, 20.0), colon.mesh(0.0, 150.0, 0.5, 180).0),
+        ("abdomen", &abdomen, abdomen.sweep_pose(1.0, 15.0), abdomen.mesh(90.0, 0.5).0),
+    ];
+    for (name, surface, pose, vertices) in cases {
+        let pair = render(surface, &rig, &albedo_only(), &pose, 0);
+        let cam_from_world = pose.inverse();
+        let (mut agree, mut in_front) = (0usize, 0usize);
+        for v in &vertices {
+            let p = cam_from_world * Point3::new(f64::from(v[0]), f64::from(v[1]), f64::from(v[2]));
+            if p.z <= 1.0 {
+                continue;
+            }
+            let (u, w) = (rig.fx * p.x / p.z + rig.cx, rig.fy * p.y / p.z + rig.cy);
+            if u < 0.0 || w < 0.0 || u >= f64::from(rig.width) || w >= f64::from(rig.height) {
+                continue;
+            }
+            let (px, py) = (u as i64, w as i64);
+            let z = f64::from(pair.depth[(py as u32 * rig.width + px as u32) as usize]);
+            if !z.is_finite() {
+                continue;
+            }
+            // The nearest wall around the vertex's pixel: at a fold's silhouette the pixel centre may see the wall
+            // behind while the vertex sits on the fold's rim.
+            let mut z_near = z;
+            for dy in -1..=1 {
+                for dx in -1..=1 {
+                    let (qx, qy) = (px + dx, py + dy);
+                    if qx >= 0 && qy >= 0 && qx < i64::from(rig.width) && qy < i64::from(rig.height) {
+                        z_near = z_near.min(f64::from(pair.depth[(qy as u32 * rig.width + qx as u32) as usize]));
+                    }
                 }
             }
+            // Vertices behind the visible wall are hidden, not wrong; a vertex in front of it would be.
+            let tolerance = 0.02 * p.z + 0.2; // the depth varies across one pixel at grazing views
+            if (p.z - z).abs() <= tolerance {
+                agree += 1;
+            } else if p.z < z_near - tolerance {
+                in_front += 1;
+            }
         }
-        // Vertices behind the visible wall are hidden, not wrong; a vertex in front of it would be.
-        let tolerance = 0.02 * p.z + 0.2; // the depth varies across one pixel at grazing views
-        if (p.z - z).abs() <= tolerance {
-            agree += 1;
-        } else if p.z < z_near - tolerance {
-            in_front += 1;
-        }
+        assert!(agree > 2_000, "{name}: {agree} visible vertices agree");
+        assert!(
+            (in_front as f64) < 0.01 * agree as f64,
+            "{name}: {in_front} vertices in front of the rendered wall ({agree} agree)"
+        );
     }
-    assert!(agree > 2_000, "{agree} visible vertices agree");
-    assert!(
-        (in_front as f64) < 0.01 * agree as f64,
-        "{in_front} vertices float in front of the rendered wall ({agree} agree)"
-    );
 }
 
 #[test]
 fn same_seed_same_bytes() {
-    let (colon, rig) = (Colon::default(), rig());
-    let pose = colon.forward_pose(0.3, 20.0);
-    let a = render_colon(&colon, &rig, &Shading::default(), &pose, 3);
-    let b = render_colon(&colon, &rig, &Shading::default(), &pose, 3);
-    assert_eq!(a.left.as_raw(), b.left.as_raw());
-    assert_eq!(a.right.as_raw(), b.right.as_raw());
-    assert_eq!(
-        a.depth.iter().map(|z| z.to_bits()).collect::<Vec<_>>(),
-        b.depth.iter().map(|z| z.to_bits()).collect::<Vec<_>>()
-    );
+    let rig = rig();
+    for (name, surface, path) in scenes() {
+        let pose = path(0.3);
+        let a = render(surface.as_ref(), &rig, &Shading::default(), &pose, 3);
+        let b = render(surface.as_ref(), &rig, &Shading::default(), &pose, 3);
+        assert_eq!(a.left.as_raw(), b.left.as_raw(), "{name}");
+        assert_eq!(a.right.as_raw(), b.right.as_raw(), "{name}");
+        let bits = |d: &[f32]| d.iter().map(|z| z.to_bits()).collect::<Vec<_>>();
+        assert_eq!(bits(&a.depth), bits(&b.depth), "{name}");
+    }
+    let pose = Colon::default().forward_pose(0.3, 20.0);
+    let a = render(&Colon::default(), &rig, &Shading::default(), &pose, 3);
     let other = Colon { seed: 7, texture: bdis_synth::TissueTexture { seed: 7 }, ..Colon::default() };
-    assert_ne!(render_colon(&other, &rig, &Shading::default(), &pose, 3).left.as_raw(), a.left.as_raw());
-    let _ = Vector3::<f64>::zeros();
+    assert_ne!(render(&other, &rig, &Shading::default(), &pose, 3).left.as_raw(), a.left.as_raw());
 }

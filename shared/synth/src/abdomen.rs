@@ -1,0 +1,151 @@
+//! A laparoscopic view: an uneven abdominal wall with organ-like blobs, seen from above. The surface is the
+//! height field `z = d(x, y)` (world z points away from the scope, as the camera looks down the z axis at rest):
+//! a gently curved wall at `distance_mm`, organ blobs rising towards the scope, and millimetre-scale bumps.
+
+use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
+
+use crate::render::{Hit, Surface};
+use crate::{TissueTexture, value_noise};
+
+#[derive(Debug, Clone)]
+pub struct Abdomen {
+    pub distance_mm: f64,
+    /// Organ blobs: centre (x, y), radius, height towards the scope (mm).
+    pub blobs: Vec<(f64, f64, f64, f64)>,
+    pub bump_mm: f64,
+    pub texture: TissueTexture,
+    pub seed: u64,
+}
+
+impl Default for Abdomen {
+    fn default() -> Self {
+        Self {
+            distance_mm: 70.0,
+            blobs: vec![
+                (-25.0, -10.0, 22.0, 14.0),
+                (18.0, 12.0, 18.0, 10.0),
+                (5.0, -30.0, 14.0, 7.0),
+                (40.0, -20.0, 20.0, 12.0),
+                (-45.0, 25.0, 25.0, 9.0),
+            ],
+            bump_mm: 1.2,
+            texture: TissueTexture { seed: 4242 },
+            seed: 4242,
+        }
+    }
+}
+
+impl Abdomen {
+    /// Depth of the wall below the point (x, y).
+    pub fn height(&self, x: f64, y: f64) -> f64 {
+        // A shallow bowl, organ blobs (smooth bumps towards the scope) and small irregularities.
+        let bowl = 0.004 * (x * x + y * y);
+        let blobs: f64 = self
+            .blobs
+            .iter()
+            .map(|&(bx, by, r, h)| h * (-((x - bx).powi(2) + (y - by).powi(2)) / (2.0 * r * r / 4.0)).exp())
+            .sum();
+        let bumps = self.bump_mm * (value_noise(self.seed ^ 3, x / 7.0, y / 7.0) - 0.5) * 2.0;
+        self.distance_mm + bowl - blobs + bumps
+    }
+
+    /// Positive in front of the wall (on the scope's side).
+    fn front(&self, p: &Point3<f64>) -> f64 {
+        self.height(p.x, p.y) - p.z
+    }
+
+    fn normal(&self, p: &Point3<f64>) -> Vector3<f64> {
+        let e = 1e-3;
+        let dx = (self.height(p.x + e, p.y) - self.height(p.x - e, p.y)) / (2.0 * e);
+        let dy = (self.height(p.x, p.y + e) - self.height(p.x, p.y - e)) / (2.0 * e);
+        // The wall faces −z (towards the scope).
+        Vector3::new(dx, dy, -1.0).normalize()
+    }
+
+    /// A camera above the wall looking down +z, at (x, y) and `height_mm` above the wall's mean level, tilted a
+    /// little: `world_from_camera`.
+    fn looking_down(&self, x: f64, y: f64, standoff_mm: f64, tilt_x: f64, tilt_y: f64) -> Isometry3<f64> {
+        let rotation = UnitQuaternion::from_euler_angles(tilt_x, tilt_y, 0.0);
+        Isometry3::from_parts(Translation3::new(x, y, self.distance_mm - standoff_mm), rotation)
+    }
+
+    /// Hovering: slow drift around a point with small tilts.
+    pub fn hover_pose(&self, t_s: f64) -> Isometry3<f64> {
+        self.looking_down(
+            4.0 * (t_s * 0.6).sin(),
+            3.0 * (t_s * 0.45).cos(),
+            55.0 + 3.0 * (t_s * 0.3).sin(),
+            0.05 * (t_s * 0.7).sin(),
+            0.04 * (t_s * 0.5).cos(),
+        )
+    }
+
+    /// Sweeping sideways across the wall at `speed_mm_s`.
+    pub fn sweep_pose(&self, t_s: f64, speed_mm_s: f64) -> Isometry3<f64> {
+        self.looking_down(-40.0 + speed_mm_s * t_s, 5.0 * (t_s * 0.8).sin(), 55.0, 0.03 * (t_s * 1.1).sin(), 0.05)
+    }
+
+    /// Sweeping out and back over the same tissue.
+    pub fn revisit_pose(&self, t_s: f64, total_s: f64, speed_mm_s: f64) -> Isometry3<f64> {
+        let along = if t_s <= 0.5 * total_s { t_s } else { total_s - t_s };
+        let mut pose = self.sweep_pose(along, speed_mm_s);
+        if t_s > 0.5 * total_s {
+            pose.translation.vector += Vector3::new(0.0, 1.5 * (t_s * 1.7).sin(), 0.7);
+        }
+        pose
+    }
+
+    /// The wall as a grid mesh over [−extent, extent]² every `step` mm; vertices lie exactly on the surface.
+    pub fn mesh(&self, extent: f64, step: f64) -> (Vec<[f32; 3]>, Vec<[u32; 3]>) {
+        let n = (2.0 * extent / step).ceil() as usize + 1;
+        let mut vertices = Vec::with_capacity(n * n);
+        for j in 0..n {
+            for i in 0..n {
+                let (x, y) = (-extent + i as f64 * step, -extent + j as f64 * step);
+                vertices.push([x as f32, y as f32, self.height(x, y) as f32]);
+            }
+        }
+        let mut triangles = Vec::with_capacity(2 * (n - 1) * (n - 1));
+        for j in 0..n - 1 {
+            for i in 0..n - 1 {
+                let a = (j * n + i) as u32;
+                let (b, c, d) = (a + 1, a + n as u32, a + n as u32 + 1);
+                triangles.push([a, b, d]);
+                triangles.push([a, d, c]);
+            }
+        }
+        (vertices, triangles)
+    }
+}
+
+impl Surface for Abdomen {
+    fn hit(&self, origin: &Point3<f64>, dir: &Vector3<f64>, max_t: f64) -> Option<Hit> {
+        if self.front(origin) <= 0.0 {
+            return None;
+        }
+        let (mut t, mut prev) = (0.0, 0.0);
+        while t < max_t {
+            let f = self.front(&(origin + dir * t));
+            if f <= 0.0 {
+                // Bracketed: bisection to 1e-6 mm (the height field is smooth but steep at blob flanks).
+                let (mut lo, mut hi) = (prev, t);
+                while hi - lo > 1e-6 {
+                    let mid = 0.5 * (lo + hi);
+                    if self.front(&(origin + dir * mid)) > 0.0 { lo = mid } else { hi = mid }
+                }
+                let point = origin + dir * hi;
+                return Some(Hit { t: hi, point, normal: self.normal(&point), uv: (point.x, point.y) });
+            }
+            prev = t;
+            // The vertical gap over-estimates the distance where the wall is steep: step part of it.
+            t += (0.5 * f).max(0.02);
+        }
+        None
+    }
+    fn albedo(&self, uv: (f64, f64)) -> [u8; 3] {
+        self.texture.rgb(uv.0, uv.1)
+    }
+    fn seed(&self) -> u64 {
+        self.seed
+    }
+}
