@@ -59,7 +59,8 @@ struct RunArgs {
     /// Launch file (`launch/*.toml`). Without it, give --sequence (and --settings).
     #[arg(conflicts_with_all = ["sequence"])]
     launch_file: Option<PathBuf>,
-    /// Sequence folder to stream (BDIS-SLAM/Hamlyn, plain left/right, or KITTI layout).
+    /// Sequence folder to stream (BDIS-SLAM/Hamlyn, plain left/right, or KITTI layout), or
+    /// `synthetic:<scene>[:<trajectory>][:<frames>]` (rendered first, e.g. `synthetic:abdomen:sweep:90`).
     #[arg(long, required_unless_present = "launch_file")]
     sequence: Option<PathBuf>,
     /// Settings file for --sequence (ORB-SLAM2 YAML or bdis-slam TOML).
@@ -73,7 +74,7 @@ struct RunArgs {
     checksums: bool,
     /// Also run the stereo service, taking every N-th frame as a keyframe (needs --settings with the image
     /// size); the probe then checks the depth keyframes.
-    #[arg(long, requires = "settings", value_name = "N")]
+    #[arg(long, requires = "sequence", value_name = "N")]
     stereo_every: Option<u64>,
     /// Run folder to write (default: runs/<UTC time>-<name>).
     #[arg(long)]
@@ -168,16 +169,39 @@ fn plan_for_sequence(
 
 fn run(args: RunArgs) -> Result<ExitCode> {
     use bdis_slam::launch_file::LaunchFile;
-    let (launch, launch_path) = match (&args.launch_file, &args.sequence) {
-        (Some(path), _) => (LaunchFile::load(path)?, path.clone()),
-        (None, Some(sequence)) => (
+    // A synthetic source is rendered here first (with a progress bar), then streamed like any sequence.
+    let mut rendered: Option<(PathBuf, PathBuf)> = None;
+    if let Some(request) = args.sequence.as_ref().and_then(|s| s.to_str()).and_then(bdis_acquisition::parse_synthetic) {
+        let request = request.map_err(anyhow::Error::msg)?;
+        let run_dir = make_run_dir(args.out.as_deref(), &format!("synthetic-{}", request.scene))?;
+        let sequence = run_dir.join("sequence");
+        let written = synth_cmd::render_with_progress(&sequence, &bdis_synth::StereoRig::default(), &request)?;
+        let settings = args.settings.clone().unwrap_or(written.settings);
+        rendered = Some((run_dir, settings));
+    }
+    let (launch, launch_path) = match (&args.launch_file, &args.sequence, &rendered) {
+        (Some(path), _, _) => (LaunchFile::load(path)?, path.clone()),
+        (None, Some(_), Some((run_dir, settings))) => (
+            plan_for_sequence(
+                &run_dir.join("sequence"),
+                Some(settings),
+                args.pacing,
+                args.checksums,
+                args.stereo_every,
+            )?,
+            PathBuf::from("launch.toml"),
+        ),
+        (None, Some(sequence), None) => (
             plan_for_sequence(sequence, args.settings.as_deref(), args.pacing, args.checksums, args.stereo_every)?,
             PathBuf::from("launch.toml"),
         ),
-        (None, None) => anyhow::bail!("give a launch file or --sequence"),
+        (None, None, _) => anyhow::bail!("give a launch file or --sequence"),
     };
     let name = launch.run.name.clone().unwrap_or_else(|| "run".into());
-    let run_dir = make_run_dir(args.out.as_deref(), &name)?;
+    let run_dir = match rendered {
+        Some((run_dir, _)) => run_dir,
+        None => make_run_dir(args.out.as_deref(), &name)?,
+    };
     let (code, _) = execute_and_report(&launch, &launch_path, &run_dir, args.ipc_prefix.clone())?;
     Ok(code)
 }
@@ -251,18 +275,14 @@ fn demo(args: DemoArgs) -> Result<ExitCode> {
     let run_dir = make_run_dir(args.out.as_deref(), "demo")?;
     let sequence = run_dir.join("sequence");
     let rig = bdis_synth::StereoRig::default();
-    let colon = bdis_synth::colon::Colon::default();
     let fps = 30.0;
     eprintln!(
         "bdis-slam demo: rendering {} stereo frames of a flight through a synthetic colon into {}",
         args.frames,
         sequence.display()
     );
-    let total_s = (args.frames - 1) as f64 / fps;
-    let path = |t: f64| colon.forward_pose(t, 20.0);
-    let mesh = colon.mesh(-20.0, 20.0 * total_s + 150.0, 0.5, 180);
-    let shading = bdis_synth::render::Shading::default();
-    let written = synth_cmd::render_with_progress(&sequence, &rig, &colon, &path, mesh, &shading, args.frames, fps)?;
+    let request = bdis_synth::SceneRequest { frames: args.frames, fps, ..Default::default() };
+    let written = synth_cmd::render_with_progress(&sequence, &rig, &request)?;
     let settings = written.settings;
     let preview = run_dir.join("preview.png");
     write_side_by_side(&sequence.join("left/1.png"), &sequence.join("right/1.png"), &preview)?;

@@ -4,10 +4,7 @@ use std::path::PathBuf;
 
 use anyhow::{Result, bail};
 use bdis_synth::StereoRig;
-use bdis_synth::abdomen::Abdomen;
-use bdis_synth::colon::Colon;
-use bdis_synth::render::{Shading, Surface, WrittenSequence};
-use nalgebra::Isometry3;
+use bdis_synth::render::WrittenSequence;
 
 #[derive(Debug, clap::Args)]
 pub struct SynthArgs {
@@ -62,47 +59,15 @@ pub fn synth(args: SynthArgs) -> Result<()> {
         cy: f64::from(args.height) / 2.0,
         baseline_mm: args.baseline_mm,
     };
-    let total_s = (args.frames.max(1) - 1) as f64 / args.fps;
-    let (speed, seed) = (args.speed, args.seed);
-    let written = match (args.scene.as_str(), args.trajectory.as_deref()) {
-        ("colon", trajectory @ (None | Some("forward") | Some("revisit"))) => {
-            let colon = Colon { seed, texture: bdis_synth::TissueTexture { seed }, ..Colon::default() };
-            let revisit = trajectory == Some("revisit");
-            let path = move |t: f64| {
-                if revisit { colon.revisit_pose(t, total_s, speed) } else { colon.forward_pose(t, speed) }
-            };
-            let far = speed * if revisit { 0.5 * total_s } else { total_s };
-            let mesh = colon.mesh(-20.0, far + 150.0, 0.5, 180);
-            render_with_progress(&args.out, &rig, &colon, &path, mesh, &Shading::default(), args.frames, args.fps)?
-        }
-        ("abdomen", trajectory @ (None | Some("hover") | Some("sweep") | Some("revisit"))) => {
-            let abdomen = Abdomen { seed, texture: bdis_synth::TissueTexture { seed }, ..Abdomen::default() };
-            let a = abdomen.clone();
-            let path = move |t: f64| match trajectory {
-                Some("hover") => a.hover_pose(t),
-                Some("revisit") => a.revisit_pose(t, total_s, speed),
-                _ => a.sweep_pose(t, speed),
-            };
-            let extent = 60.0 + speed * total_s;
-            // A laparoscope's light is stronger and the wall farther away than in a colon.
-            let shading = Shading { exposure_distance_mm: 65.0, ..Shading::default() };
-            render_with_progress(
-                &args.out,
-                &rig,
-                &abdomen,
-                &path,
-                abdomen.mesh(extent, 0.5),
-                &shading,
-                args.frames,
-                args.fps,
-            )?
-        }
-        ("colon" | "abdomen", Some(other)) => bail!(
-            "--trajectory: `{other}` does not fit scene `{}` (colon: forward, revisit; abdomen: hover, sweep, revisit)",
-            args.scene
-        ),
-        (other, _) => bail!("--scene: `{other}` is not a scene (colon, abdomen)"),
+    let request = bdis_synth::SceneRequest {
+        scene: args.scene.clone(),
+        trajectory: args.trajectory.clone(),
+        frames: args.frames,
+        fps: args.fps,
+        speed_mm_s: args.speed,
+        seed: args.seed,
     };
+    let written = render_with_progress(&args.out, &rig, &request)?;
     println!(
         "{}: {} stereo frames of {}×{} with ground truth (gt/poses.tum, gt/depth, gt/disparity, gt/mesh.ply), mean depth {:.1} mm",
         args.out.display(),
@@ -114,25 +79,18 @@ pub fn synth(args: SynthArgs) -> Result<()> {
     Ok(())
 }
 
-/// Renders a camera path over a scene into `out`, with a progress bar on a terminal.
-#[allow(clippy::too_many_arguments)]
+/// Renders a named scene and path into `out`, with a progress bar on a terminal.
 pub fn render_with_progress(
     out: &std::path::Path,
     rig: &StereoRig,
-    surface: &dyn Surface,
-    path: &dyn Fn(f64) -> Isometry3<f64>,
-    mesh: (Vec<[f32; 3]>, Vec<[u32; 3]>),
-    shading: &Shading,
-    frames: usize,
-    fps: f64,
+    request: &bdis_synth::SceneRequest,
 ) -> Result<WrittenSequence> {
-    let bar = indicatif::ProgressBar::new(frames as u64);
+    let bar = indicatif::ProgressBar::new(request.frames as u64);
     bar.set_style(
         indicatif::ProgressStyle::with_template("rendering {bar:40} {pos}/{len} frames ({eta} left)")
             .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
     );
-    let written =
-        bdis_synth::render::write_sequence(out, rig, surface, path, mesh, shading, frames, fps, |_| bar.inc(1))?;
+    let written = bdis_synth::write_scene(out, rig, request, |_| bar.inc(1))?;
     bar.finish_and_clear();
     Ok(written)
 }

@@ -31,6 +31,33 @@ pub enum InputError {
     Settings(#[from] bdis_core::SettingsError),
 }
 
+/// A `synthetic:<scene>[:<trajectory>][:<frames>]` source, e.g. `synthetic:colon`, `synthetic:abdomen:hover:90`.
+pub fn parse_synthetic(source: &str) -> Option<Result<bdis_synth::SceneRequest, String>> {
+    let spec = source.strip_prefix("synthetic:")?;
+    let mut request = bdis_synth::SceneRequest::default();
+    let mut parts = spec.split(':');
+    request.scene = parts.next().unwrap_or_default().to_string();
+    for part in parts {
+        match part.parse::<usize>() {
+            Ok(frames) => request.frames = frames,
+            Err(_) => request.trajectory = Some(part.to_string()),
+        }
+    }
+    Some(request.validate().map(|()| request).map_err(|e| e.to_string()))
+}
+
+/// Renders a synthetic source into `dir` (once: the pipeline then streams the files) and returns the sequence
+/// folder and its settings file. Rendering is slower than streaming at VGA, so frames are rendered before the
+/// first is published; `progress(i)` reports each.
+pub fn render_synthetic(
+    request: &bdis_synth::SceneRequest,
+    dir: &Path,
+    progress: impl FnMut(usize),
+) -> Result<(PathBuf, PathBuf), bdis_synth::SynthError> {
+    let written = bdis_synth::write_scene(dir, &bdis_synth::StereoRig::default(), request, progress)?;
+    Ok((dir.to_path_buf(), written.settings))
+}
+
 /// Opens and checks a sequence, and the settings file when one is given.
 pub fn check_input(sequence: &Path, settings: Option<&Path>) -> Result<CheckedInput, InputError> {
     let settings = settings.map(Settings::load).transpose()?;

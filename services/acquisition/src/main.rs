@@ -21,7 +21,8 @@ use iceoryx2::waitset::WaitSetRunResult;
 #[command(name = "bdis-acquisition", version)]
 struct Args {
     /// Sequence folder: BDIS-SLAM/Hamlyn (`images_rectified/{left,right}`), plain (`left/`, `right/`) or KITTI
-    /// (`image_0/`, `image_1/`).
+    /// (`image_0/`, `image_1/`); or `synthetic:<scene>[:<trajectory>][:<frames>]` (e.g. `synthetic:colon`,
+    /// `synthetic:abdomen:hover:90`), rendered before streaming into the run folder (or a temporary folder).
     #[arg(long)]
     sequence: PathBuf,
     /// Settings file (ORB-SLAM2 YAML or bdis-slam TOML); checked against the images.
@@ -58,7 +59,23 @@ fn main() -> ExitCode {
 }
 
 fn run(args: Args) -> Result<()> {
-    let input = check_input(&args.sequence, args.settings.as_deref())?;
+    let (sequence_dir, settings) = match args.sequence.to_str().and_then(bdis_acquisition::parse_synthetic) {
+        Some(request) => {
+            let request = request.map_err(anyhow::Error::msg)?;
+            let base = std::env::var_os("BDIS_RUN_DIR").map(PathBuf::from).unwrap_or_else(std::env::temp_dir);
+            let dir = base.join(format!("synthetic-{}-{}", request.scene, std::process::id()));
+            tracing::info!("rendering {} frames of `{}` into {}", request.frames, request.scene, dir.display());
+            let frames = request.frames;
+            let (dir, rendered_settings) = bdis_acquisition::render_synthetic(&request, &dir, |i| {
+                if (i + 1) % 10 == 0 || i + 1 == frames {
+                    tracing::info!("rendered {}/{frames}", i + 1);
+                }
+            })?;
+            (dir, Some(args.settings.clone().unwrap_or(rendered_settings)))
+        }
+        None => (args.sequence.clone(), args.settings.clone()),
+    };
+    let input = check_input(&sequence_dir, settings.as_deref())?;
     let sequence = &input.sequence;
     let layout = FrameLayout::packed(sequence.width, sequence.height).with_context(|| {
         format!("{}: {}×{} images are too large", sequence.root.display(), sequence.width, sequence.height)

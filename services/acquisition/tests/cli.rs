@@ -39,3 +39,20 @@ fn bad_pacing_is_rejected_by_the_argument_parser() {
     assert_eq!(out.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&out.stderr).contains("expected on-demand, recorded, or a rate such as 30hz"));
 }
+
+#[test]
+fn a_synthetic_source_is_rendered_then_checked() {
+    let dir = std::env::temp_dir().join(format!("bdis-acq-synth-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let out =
+        bin().args(["--sequence", "synthetic:abdomen:hover:2", "--check"]).env("BDIS_RUN_DIR", &dir).output().unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(String::from_utf8_lossy(&out.stdout).contains("2 stereo pairs of 640×480, timestamps: yes"));
+    let out = bin().args(["--sequence", "synthetic:volcano"]).env("BDIS_RUN_DIR", &dir).output().unwrap();
+    assert_eq!(out.status.code(), Some(1));
+    assert_eq!(
+        String::from_utf8_lossy(&out.stderr).trim(),
+        "bdis-acquisition: error: `volcano` is not a scene (colon, abdomen)"
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}

@@ -117,6 +117,8 @@ impl PlaneScene {
 pub enum SynthError {
     #[error("{path}: {detail}")]
     Write { path: PathBuf, detail: String },
+    #[error("{detail}")]
+    Request { detail: String },
 }
 
 /// Writes a sideways sweep over the plane as a plain sequence (`left/`, `right/`, `times.txt`) and a settings
@@ -201,5 +203,97 @@ mod tests {
         let reds: Vec<u8> = (0..400).map(|i| t.rgb(i as f64 * 0.1, 0.0)[0]).collect();
         let (min, max) = (reds.iter().min().unwrap(), reds.iter().max().unwrap());
         assert!(max - min > 40, "texture needs contrast for matching ({min}..{max})");
+    }
+}
+
+/// A scene and camera path chosen by name, as `bdis-slam synth` and the `synthetic:` acquisition source do.
+#[derive(Debug, Clone)]
+pub struct SceneRequest {
+    /// `colon` or `abdomen`.
+    pub scene: String,
+    /// Colon: `forward`, `revisit`; abdomen: `hover`, `sweep`, `revisit`. `None`: forward / sweep.
+    pub trajectory: Option<String>,
+    pub frames: usize,
+    pub fps: f64,
+    /// Speed along the path, mm/s.
+    pub speed_mm_s: f64,
+    pub seed: u64,
+}
+
+impl Default for SceneRequest {
+    fn default() -> Self {
+        Self { scene: "colon".into(), trajectory: None, frames: 60, fps: 30.0, speed_mm_s: 20.0, seed: 2026 }
+    }
+}
+
+impl SceneRequest {
+    /// Checks the scene and path names and the numbers before anything is rendered.
+    pub fn validate(&self) -> Result<(), SynthError> {
+        let invalid = |detail: String| Err(SynthError::Request { detail });
+        if self.frames == 0 || !(self.fps.is_finite() && self.fps > 0.0) || !self.speed_mm_s.is_finite() {
+            return invalid("give frames ≥ 1, fps > 0 and a finite speed".into());
+        }
+        let paths: &[&str] = match self.scene.as_str() {
+            "colon" => &["forward", "revisit"],
+            "abdomen" => &["hover", "sweep", "revisit"],
+            other => return invalid(format!("`{other}` is not a scene (colon, abdomen)")),
+        };
+        match &self.trajectory {
+            Some(t) if !paths.contains(&t.as_str()) => {
+                invalid(format!("trajectory `{t}` does not fit scene `{}` ({})", self.scene, paths.join(", ")))
+            }
+            _ => Ok(()),
+        }
+    }
+}
+
+/// Renders the requested scene and path into `dir` with its ground truth (see [`render::write_sequence`]).
+pub fn write_scene(
+    dir: &Path,
+    rig: &StereoRig,
+    request: &SceneRequest,
+    progress: impl FnMut(usize),
+) -> Result<render::WrittenSequence, SynthError> {
+    request.validate()?;
+    let total_s = (request.frames - 1) as f64 / request.fps;
+    let (speed, seed) = (request.speed_mm_s, request.seed);
+    let trajectory = request.trajectory.as_deref();
+    match (request.scene.as_str(), trajectory) {
+        ("colon", None | Some("forward") | Some("revisit")) => {
+            let colon = colon::Colon { seed, texture: TissueTexture { seed }, ..colon::Colon::default() };
+            let revisit = trajectory == Some("revisit");
+            let path = move |t: f64| {
+                if revisit { colon.revisit_pose(t, total_s, speed) } else { colon.forward_pose(t, speed) }
+            };
+            let far = speed.abs() * if revisit { 0.5 * total_s } else { total_s };
+            let mesh = colon.mesh(-20.0, far + 150.0, 0.5, 180);
+            render::write_sequence(
+                dir,
+                rig,
+                &colon,
+                &path,
+                mesh,
+                &render::Shading::default(),
+                request.frames,
+                request.fps,
+                progress,
+            )
+        }
+        ("abdomen", None | Some("hover") | Some("sweep") | Some("revisit")) => {
+            let abdomen = abdomen::Abdomen { seed, texture: TissueTexture { seed }, ..abdomen::Abdomen::default() };
+            let a = abdomen.clone();
+            let path = move |t: f64| match trajectory {
+                Some("hover") => a.hover_pose(t),
+                Some("revisit") => a.revisit_pose(t, total_s, speed),
+                _ => a.sweep_pose(t, speed),
+            };
+            let mesh = abdomen.mesh(60.0 + speed.abs() * total_s, 0.5);
+            // A laparoscope's light is stronger and the wall farther away than in a colon.
+            let shading = render::Shading { exposure_distance_mm: 65.0, ..render::Shading::default() };
+            render::write_sequence(dir, rig, &abdomen, &path, mesh, &shading, request.frames, request.fps, progress)
+        }
+        _ => Err(SynthError::Request {
+            detail: format!("`{}` with {:?} cannot be rendered", request.scene, request.trajectory),
+        }),
     }
 }

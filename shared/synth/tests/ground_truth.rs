@@ -8,8 +8,10 @@ use bdis_synth::colon::Colon;
 use bdis_synth::render::{Shading, Surface, render};
 use nalgebra::{Isometry3, Point3};
 
+type CameraPath = Box<dyn Fn(f64) -> Isometry3<f64>>;
+
 /// Both scenes, each with a camera path.
-fn scenes() -> Vec<(&'static str, Box<dyn Surface>, Box<dyn Fn(f64) -> Isometry3<f64>>)> {
+fn scenes() -> Vec<(&'static str, Box<dyn Surface>, CameraPath)> {
     let colon = Colon::default();
     let abdomen = Abdomen::default();
     let (c2, a2) = (colon, abdomen.clone());
@@ -117,7 +119,8 @@ fn the_mesh_reprojects_onto_the_gt_depth() {
     let rig = rig();
     let colon = Colon::default();
     let abdomen = Abdomen::default();
-    let cases: [(&str, &dyn Surface, Isometry3<f64>, Vec<[f32; 3]>); 2] = [
+    type Case<'a> = (&'a str, &'a dyn Surface, Isometry3<f64>, Vec<[f32; 3]>);
+    let cases: [Case; 2] = [
         ("colon", &colon, colon.forward_pose(1.0, 20.0), colon.mesh(0.0, 150.0, 0.5, 180).0),
         ("abdomen", &abdomen, abdomen.sweep_pose(1.0, 15.0), abdomen.mesh(90.0, 0.5).0),
     ];
