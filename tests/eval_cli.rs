@@ -93,6 +93,52 @@ fn map_and_stereo_errors_have_their_known_answers() {
     assert!((v["inliers"]["mean"].as_f64().unwrap() - 0.2).abs() < 1e-6, "{v}");
     assert!((v["inliers"]["median"].as_f64().unwrap() - 0.2).abs() < 1e-6);
 
+    // The same map in another frame, brought back by the trajectories' alignment: the same answer.
+    let moved = Isometry3::new(Vector3::new(30.0, -5.0, 12.0), Vector3::new(0.2, -0.1, 0.6));
+    let est_from_gt = moved.inverse();
+    let moved_map = ply::PointCloud {
+        positions: map
+            .positions
+            .iter()
+            .map(|p| {
+                let q = est_from_gt * nalgebra::Point3::new(f64::from(p[0]), f64::from(p[1]), f64::from(p[2]));
+                [q.x as f32, q.y as f32, q.z as f32]
+            })
+            .collect(),
+        ..Default::default()
+    };
+    let gt_poses: Vec<StampedPose> = (0..20)
+        .map(|i| StampedPose {
+            t_s: i as f64 * 0.1,
+            world_from_camera: Isometry3::new(
+                Vector3::new(i as f64, (i * i) as f64 * 0.1, (i as f64).sin()),
+                Vector3::zeros(),
+            ),
+        })
+        .collect();
+    let est_poses: Vec<StampedPose> = gt_poses
+        .iter()
+        .map(|p| StampedPose { t_s: p.t_s, world_from_camera: est_from_gt * p.world_from_camera })
+        .collect();
+    let (moved_path, gt_tum, est_tum) =
+        (tmp.path().join("moved.ply"), tmp.path().join("gt.tum"), tmp.path().join("est.tum"));
+    ply::write(&moved_path, &moved_map).unwrap();
+    trajectory::write_tum(&gt_tum, &gt_poses).unwrap();
+    trajectory::write_tum(&est_tum, &est_poses).unwrap();
+    let v = eval_json(&[
+        "map",
+        "--mesh",
+        mesh_path.to_str().unwrap(),
+        "--map",
+        moved_path.to_str().unwrap(),
+        "--align-est",
+        est_tum.to_str().unwrap(),
+        "--align-gt",
+        gt_tum.to_str().unwrap(),
+    ]);
+    assert_eq!(v["outliers"].as_u64(), Some(10));
+    assert!((v["inliers"]["mean"].as_f64().unwrap() - 0.2).abs() < 1e-4, "{v}");
+
     // Stereo: GT disparity 10 px everywhere (bf 100 → depth 10); estimate 10 on half, 12.5 on a quarter,
     // nothing on a quarter.
     let (w, h) = (8usize, 8usize);

@@ -54,6 +54,13 @@ pub struct MapArgs {
     /// A mesh triangle counts as covered when a map point lies within this of its centroid.
     #[arg(long, default_value_t = 1.0)]
     coverage_mm: f64,
+    /// Bring the map into the ground truth's frame first: the SE(3) alignment of this estimated trajectory
+    /// (TUM) onto --align-gt, as the ATE computes it.
+    #[arg(long, requires = "align_gt")]
+    align_est: Option<PathBuf>,
+    /// Ground-truth trajectory (TUM) for --align-est.
+    #[arg(long, requires = "align_est")]
+    align_gt: Option<PathBuf>,
     #[arg(long)]
     json: bool,
 }
@@ -125,8 +132,20 @@ pub fn eval(command: EvalCommand) -> Result<()> {
             let mesh =
                 bdis_eval::map::Mesh::from_cloud(&ply::read(&a.mesh)?).with_context(|| a.mesh.display().to_string())?;
             let map = ply::read(&a.map)?;
-            let points: Vec<Point3<f64>> =
+            let mut points: Vec<Point3<f64>> =
                 map.positions.iter().map(|p| Point3::new(f64::from(p[0]), f64::from(p[1]), f64::from(p[2]))).collect();
+            if let (Some(est), Some(gt)) = (&a.align_est, &a.align_gt) {
+                let (est, gt) = (trajectory::read_tum(est)?, trajectory::read_tum(gt)?);
+                let pairs = bdis_eval::traj::associate(&gt, &est, 0.01);
+                let src: Vec<Point3<f64>> =
+                    pairs.iter().map(|&(_, j)| Point3::from(est[j].world_from_camera.translation.vector)).collect();
+                let dst: Vec<Point3<f64>> =
+                    pairs.iter().map(|&(i, _)| Point3::from(gt[i].world_from_camera.translation.vector)).collect();
+                let gt_from_est = bdis_eval::traj::umeyama_se3(&src, &dst).context("--align-est / --align-gt")?;
+                for p in &mut points {
+                    *p = gt_from_est * *p;
+                }
+            }
             let index = bdis_eval::map::MeshIndex::new(mesh)?;
             let score = bdis_eval::map::score_map(&points, &index, a.outlier_mm, a.coverage_mm)
                 .with_context(|| a.map.display().to_string())?;
