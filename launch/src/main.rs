@@ -41,7 +41,7 @@ enum Command {
 #[derive(Debug, clap::Args)]
 struct DemoArgs {
     /// Frames to render.
-    #[arg(long, default_value_t = 60)]
+    #[arg(long, default_value_t = 45)]
     frames: usize,
     /// Run folder to write (default: runs/<UTC time>-demo).
     #[arg(long)]
