@@ -1,0 +1,9 @@
+//! The ORB front end of the tracker, as pure compute: extraction (ORB-SLAM2-STEREO.md §1) and stereo matching
+//! of features (§2), written from the specification. Buffers are owned by the extractor and matcher and reused.
+
+pub mod extract;
+pub mod pattern;
+pub mod stereo;
+
+pub use extract::{Features, KeyPoint, OrbError, OrbExtractor, OrbParams, hamming};
+pub use stereo::{StereoFeatures, StereoMatcher};

@@ -1,0 +1,167 @@
+//! Stereo matching of left and right features on rectified images (§2): row bands by scale, best Hamming
+//! distance, SAD refinement with a parabola fit, rejection by distance to the median SAD.
+
+use crate::extract::{Features, Level, hamming};
+
+/// Best Hamming distance accepted for a stereo match: (TH_HIGH + TH_LOW) / 2 with BDIS-SLAM's thresholds.
+pub const MAX_STEREO_DISTANCE: u32 = 72;
+/// SAD window half-size and search half-range (level pixels).
+const WIN: isize = 5;
+const RANGE: isize = 5;
+
+/// Per left keypoint: the right image's u (level-0 px) and the depth; `None` where unmatched.
+#[derive(Debug, Clone, Default)]
+pub struct StereoFeatures {
+    pub u_right: Vec<Option<f32>>,
+    pub depth: Vec<Option<f32>>,
+}
+
+impl StereoFeatures {
+    pub fn matched(&self) -> usize {
+        self.depth.iter().filter(|d| d.is_some()).count()
+    }
+}
+
+/// Reusable state of the stereo matcher.
+#[derive(Debug, Default)]
+pub struct StereoMatcher {
+    rows: Vec<Vec<u32>>,
+    sads: Vec<(u32, usize)>,
+}
+
+impl StereoMatcher {
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// Matches `left` to `right` features. `scales[o]` = s^o; `bf` = fx·baseline; the disparity search covers
+    /// [0, fx) (depth ≥ one baseline).
+    #[allow(clippy::too_many_arguments)]
+    pub fn match_features(
+        &mut self,
+        left: &Features,
+        right: &Features,
+        left_levels: &[Level],
+        right_levels: &[Level],
+        scales: &[f64],
+        fx: f32,
+        bf: f32,
+        out: &mut StereoFeatures,
+    ) {
+        let n = left.keypoints.len();
+        out.u_right.clear();
+        out.u_right.resize(n, None);
+        out.depth.clear();
+        out.depth.resize(n, None);
+        let height = left_levels.first().map_or(0, |l| l.h);
+        if self.rows.len() != height {
+            self.rows.resize_with(height, Vec::new);
+        }
+        for r in &mut self.rows {
+            r.clear();
+        }
+        // Each right keypoint goes to every row within 2·s^octave of its y.
+        for (j, kp) in right.keypoints.iter().enumerate() {
+            let r = 2.0 * scales[kp.octave as usize] as f32;
+            let (lo, hi) =
+                ((kp.y - r).floor().max(0.0) as usize, ((kp.y + r).ceil() as usize).min(height.saturating_sub(1)));
+            for row in &mut self.rows[lo..=hi] {
+                row.push(j as u32);
+            }
+        }
+        let max_d = fx;
+        self.sads.clear();
+        for (i, kp) in left.keypoints.iter().enumerate() {
+            let (u_l, v_l) = (kp.x, kp.y);
+            let Some(candidates) = self.rows.get(v_l as usize) else { continue };
+            let o_l = i32::from(kp.octave);
+            let min_u = u_l - max_d;
+            let mut best = (100u32, usize::MAX);
+            for &j in candidates {
+                let r = &right.keypoints[j as usize];
+                if (i32::from(r.octave) - o_l).abs() > 1 || r.x < min_u || r.x > u_l {
+                    continue;
+                }
+                let d = hamming(&left.descriptors[i], &right.descriptors[j as usize]);
+                if d < best.0 {
+                    best = (d, j as usize);
+                }
+            }
+            if best.0 >= MAX_STEREO_DISTANCE {
+                continue;
+            }
+            // SAD refinement on the left keypoint's level, both images.
+            let s = scales[kp.octave as usize] as f32;
+            let (ll, rl) = (&left_levels[kp.octave as usize], &right_levels[kp.octave as usize]);
+            let ul = (u_l / s).round() as isize;
+            let vl = (v_l / s).round() as isize;
+            let ur = (right.keypoints[best.1].x / s).round() as isize;
+            let (w, h) = (ll.w as isize, ll.h as isize);
+            if ur - RANGE - WIN < 0
+                || ur + RANGE + WIN + 1 > w
+                || ul - WIN < 0
+                || ul + WIN >= w
+                || vl - WIN < 0
+                || vl + WIN >= h
+            {
+                continue;
+            }
+            let lc = i32::from(ll.at(ul as usize, vl as usize));
+            let mut costs = [0u32; (2 * RANGE + 1) as usize];
+            for (k, delta) in (-RANGE..=RANGE).enumerate() {
+                let rc = i32::from(rl.at((ur + delta) as usize, vl as usize));
+                let mut sad = 0u32;
+                for dy in -WIN..=WIN {
+                    let y = (vl + dy) as usize;
+                    for dx in -WIN..=WIN {
+                        let a = i32::from(ll.at((ul + dx) as usize, y)) - lc;
+                        let b = i32::from(rl.at((ur + delta + dx) as usize, y)) - rc;
+                        sad += (a - b).unsigned_abs();
+                    }
+                }
+                costs[k] = sad;
+            }
+            let (k_best, &c0) = costs.iter().enumerate().min_by_key(|&(_, c)| *c).unwrap_or((0, &0));
+            if k_best == 0 || k_best == costs.len() - 1 {
+                continue;
+            }
+            let (cm, cp) = (costs[k_best - 1] as f32, costs[k_best + 1] as f32);
+            let denom = 2.0 * (cm + cp - 2.0 * c0 as f32);
+            if denom == 0.0 {
+                continue;
+            }
+            let delta = (cm - cp) / denom;
+            if delta.abs() > 1.0 {
+                continue;
+            }
+            let u_r = s * (ur as f32 + (k_best as isize - RANGE) as f32 + delta);
+            let mut disparity = u_l - u_r;
+            if !(0.0..max_d).contains(&disparity) {
+                continue;
+            }
+            let u_r = if disparity <= 0.0 {
+                disparity = 0.01;
+                u_l - 0.01
+            } else {
+                u_r
+            };
+            out.u_right[i] = Some(u_r);
+            out.depth[i] = Some(bf / disparity);
+            self.sads.push((c0, i));
+        }
+        // Matches far worse than the typical one (SAD ≥ 1.5 · 1.4 · median) are dropped.
+        if self.sads.is_empty() {
+            return;
+        }
+        self.sads.sort_unstable_by_key(|&(sad, _)| sad);
+        let median = self.sads[self.sads.len() / 2].0 as f32;
+        let limit = 1.5 * 1.4 * median;
+        for &(sad, i) in self.sads.iter().rev() {
+            if (sad as f32) < limit {
+                break;
+            }
+            out.u_right[i] = None;
+            out.depth[i] = None;
+        }
+    }
+}
