@@ -116,7 +116,9 @@ pub struct OrbExtractor {
     scales: Vec<f64>,
     pub levels: Vec<Level>,
     blurred: Vec<Level>,
-    blur_tmp: Vec<f32>,
+    blur_tmp: Vec<u16>,
+    /// Per level: bilinear taps (index, index, weight of the second in 1/256) for columns and rows.
+    taps: Vec<(Vec<(u16, u16, u8)>, Vec<(u16, u16, u8)>)>,
     pattern: Vec<[(i8, i8); 2]>,
     scores: Vec<u8>,
     candidates: Vec<u8>,
@@ -240,13 +242,34 @@ impl OrbExtractor {
         let used: usize = per_level.iter().sum();
         per_level.push((params.n_features as usize).saturating_sub(used));
         let levels: Vec<Level> = sizes.iter().map(|&(w, h)| Level { w, h, data: vec![0; w * h] }).collect();
+        let axis = |src: usize, dst: usize| -> Vec<(u16, u16, u8)> {
+            let f = src as f64 / dst as f64;
+            (0..dst)
+                .map(|x| {
+                    let sx = ((x as f64 + 0.5) * f - 0.5).max(0.0);
+                    let x0 = (sx as usize).min(src - 1);
+                    let x1 = (x0 + 1).min(src - 1);
+                    (x0 as u16, x1 as u16, ((sx - x0 as f64) * 256.0).round().min(255.0) as u8)
+                })
+                .collect()
+        };
+        let taps = (0..levels.len())
+            .map(|l| {
+                if l == 0 {
+                    (Vec::new(), Vec::new())
+                } else {
+                    (axis(sizes[l - 1].0, sizes[l].0), axis(sizes[l - 1].1, sizes[l].1))
+                }
+            })
+            .collect();
         Ok(Self {
             params,
             per_level,
             scales,
             blurred: levels.clone(),
             levels,
-            blur_tmp: vec![0.0; width * height],
+            blur_tmp: vec![0; width * height],
+            taps,
             pattern: pattern::generate(),
             scores: vec![0; width * height],
             candidates: vec![0; width],
@@ -300,30 +323,26 @@ impl OrbExtractor {
         Ok(())
     }
 
-    /// Level 0 is the image; level l is level l−1 resized bilinearly (OpenCV INTER_LINEAR, §1.1).
+    /// Level 0 is the image; level l is level l−1 resized bilinearly (OpenCV INTER_LINEAR, §1.1), in 8-bit
+    /// fixed point with taps computed once per size.
     fn build_pyramid(&mut self, image: &[u8]) {
         self.levels[0].data.copy_from_slice(image);
         for l in 1..self.levels.len() {
             let (prev, rest) = self.levels.split_at_mut(l);
             let (src, dst) = (&prev[l - 1], &mut rest[0]);
-            let (fx, fy) = (src.w as f32 / dst.w as f32, src.h as f32 / dst.h as f32);
-            for y in 0..dst.h {
-                let sy = ((y as f32 + 0.5) * fy - 0.5).max(0.0);
-                let y0 = (sy as usize).min(src.h - 1);
-                let y1 = (y0 + 1).min(src.h - 1);
-                let wy = sy - y0 as f32;
-                let (r0, r1) = (&src.data[y0 * src.w..(y0 + 1) * src.w], &src.data[y1 * src.w..(y1 + 1) * src.w]);
+            let (x_taps, y_taps) = (&self.taps[l].0, &self.taps[l].1);
+            for (y, &(y0, y1, wy)) in y_taps.iter().enumerate() {
+                let (r0, r1) = (&src.data[y0 as usize * src.w..][..src.w], &src.data[y1 as usize * src.w..][..src.w]);
                 let out = &mut dst.data[y * dst.w..(y + 1) * dst.w];
-                for (x, o) in out.iter_mut().enumerate() {
-                    let sx = ((x as f32 + 0.5) * fx - 0.5).max(0.0);
-                    let x0 = (sx as usize).min(src.w - 1);
-                    let x1 = (x0 + 1).min(src.w - 1);
-                    let wx = sx - x0 as f32;
-                    let top = f32::from(r0[x0]) * (1.0 - wx) + f32::from(r0[x1]) * wx;
-                    let bottom = f32::from(r1[x0]) * (1.0 - wx) + f32::from(r1[x1]) * wx;
+                let wy = u32::from(wy);
+                for (o, &(x0, x1, wx)) in out.iter_mut().zip(x_taps) {
+                    let (a, b, c, d) = (r0[x0 as usize], r0[x1 as usize], r1[x0 as usize], r1[x1 as usize]);
+                    let wx = u32::from(wx);
+                    let top = u32::from(a) * (256 - wx) + u32::from(b) * wx;
+                    let bottom = u32::from(c) * (256 - wx) + u32::from(d) * wx;
+                    let v = ((top * (256 - wy) + bottom * wy + 32768) >> 16) as u8;
                     // A pixel whose footprint touches black stays black (the view's edge must not become texture).
-                    let any_black = r0[x0] == 0 || r0[x1] == 0 || r1[x0] == 0 || r1[x1] == 0;
-                    *o = if any_black { 0 } else { (top * (1.0 - wy) + bottom * wy).round().clamp(1.0, 255.0) as u8 };
+                    *o = if a == 0 || b == 0 || c == 0 || d == 0 { 0 } else { v.max(1) };
                 }
             }
         }
@@ -533,8 +552,9 @@ pub fn orientation(level: &Level, x: usize, y: usize) -> f32 {
 }
 
 /// 7×7 Gaussian (σ = 2) with reflect-101 borders (§1.6), separable, in 8.8 fixed point; `tmp` holds the
-/// horizontal pass. Only the 3-pixel frame needs the reflection; the interior runs without branches.
-fn blur_level(src: &Level, dst: &mut Level, tmp: &mut [f32]) {
+/// horizontal pass. The interior runs over shifted whole-row slices (vector code); only the 3-pixel frame needs
+/// the reflection.
+fn blur_level(src: &Level, dst: &mut Level, tmp: &mut [u16]) {
     // Weights ×256, summing to exactly 256: exp(−d²/8) for d = −3..3, normalised and rounded (the centre takes
     // the rounding remainder).
     const K: [u32; 7] = [18, 34, 49, 54, 49, 34, 18];
@@ -550,29 +570,37 @@ fn blur_level(src: &Level, dst: &mut Level, tmp: &mut [f32]) {
         };
         r.clamp(0, n - 1) as usize
     };
-    // The horizontal pass keeps 8 fractional bits (values up to 255·256 fit an f32 exactly).
     let tmp = &mut tmp[..w * h];
     for y in 0..h {
         let row = &src.data[y * w..(y + 1) * w];
         let out = &mut tmp[y * w..(y + 1) * w];
-        for x in 0..w {
-            let acc: u32 = if x >= 3 && x + 3 < w {
-                (0..7).map(|k| K[k] * u32::from(row[x + k - 3])).sum()
-            } else {
-                (0..7).map(|k| K[k] * u32::from(row[reflect(x as isize + k as isize - 3, w)])).sum()
-            };
-            out[x] = acc as f32;
+        // Interior: out[x] = Σ K[k]·row[x + k − 3] for x in 3..w−3 (≤ 255·256, fits u16).
+        let n = w - 6;
+        let taps: [&[u8]; 7] = std::array::from_fn(|k| &row[k..k + n]);
+        for (i, o) in out[3..w - 3].iter_mut().enumerate() {
+            let mut acc = 0u32;
+            for k in 0..7 {
+                acc += K[k] * u32::from(taps[k][i]);
+            }
+            *o = acc as u16;
+        }
+        for x in (0..3).chain(w - 3..w) {
+            let acc: u32 = (0..7).map(|k| K[k] * u32::from(row[reflect(x as isize + k as isize - 3, w)])).sum();
+            out[x] = acc as u16;
         }
     }
     for y in 0..h {
-        let rows: [usize; 7] = std::array::from_fn(|k| reflect(y as isize + k as isize - 3, h) * w);
+        let rows: [&[u16]; 7] = std::array::from_fn(|k| {
+            let r = reflect(y as isize + k as isize - 3, h);
+            &tmp[r * w..(r + 1) * w]
+        });
         let out = &mut dst.data[y * w..(y + 1) * w];
         for (x, o) in out.iter_mut().enumerate() {
-            let mut acc = 0.0f32;
+            let mut acc = 32768u32;
             for k in 0..7 {
-                acc += K[k] as f32 * tmp[rows[k] + x];
+                acc += K[k] * u32::from(rows[k][x]);
             }
-            *o = ((acc + 32768.0) / 65536.0) as u8;
+            *o = (acc >> 16) as u8;
         }
     }
 }
