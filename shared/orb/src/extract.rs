@@ -117,11 +117,13 @@ pub struct OrbExtractor {
     pub levels: Vec<Level>,
     blurred: Vec<Level>,
     blur_tmp: Vec<u16>,
+    blur_acc: Vec<u32>,
     /// Per level: bilinear taps (index, index, weight of the second in 1/256) for columns and rows.
     taps: Vec<(Vec<(u16, u16, u8)>, Vec<(u16, u16, u8)>)>,
     pattern: Vec<[(i8, i8); 2]>,
     scores: Vec<u8>,
     candidates: Vec<u8>,
+    hits: Vec<u32>,
     corners: Vec<Corner>,
     nodes: Vec<Node>,
     next_nodes: Vec<Node>,
@@ -269,10 +271,12 @@ impl OrbExtractor {
             blurred: levels.clone(),
             levels,
             blur_tmp: vec![0; width * height],
+            blur_acc: vec![0; width],
             taps,
             pattern: pattern::generate(),
             scores: vec![0; width * height],
             candidates: vec![0; width],
+            hits: Vec::with_capacity(4096),
             corners: Vec::with_capacity(8192),
             nodes: Vec::with_capacity(4096),
             next_nodes: Vec::with_capacity(4096),
@@ -304,7 +308,7 @@ impl OrbExtractor {
         for l in 0..self.levels.len() {
             self.detect_level(l);
             self.distribute(l);
-            blur_level(&self.levels[l], &mut self.blurred[l], &mut self.blur_tmp);
+            blur_level(&self.levels[l], &mut self.blurred[l], &mut self.blur_tmp, &mut self.blur_acc);
             let scale = self.scales[l] as f32;
             for &c in &self.kept {
                 let (x, y) = (usize::from(c.x), usize::from(c.y));
@@ -378,7 +382,7 @@ impl OrbExtractor {
                     continue;
                 }
                 for threshold in [self.params.ini_th_fast, self.params.min_th_fast] {
-                    let mut any = false;
+                    self.hits.clear();
                     for y in ya..yb {
                         // Candidates first, on whole rows (compiles to vector code): at least two of the four
                         // compass points of the ring are brighter, or two darker, than the centre by the threshold.
@@ -403,39 +407,38 @@ impl OrbExtractor {
                                 + u8::from(west[i] < lo);
                             cand[i] = u8::from(b >= 2 || d >= 2);
                         }
-                        for x in xa..xb {
-                            let s =
-                                if cand[x - xa] != 0 { fast_score(&level.data, w, x, y, &ring, threshold) } else { 0 };
-                            scores[y * w + x] = s;
-                            any |= s > 0;
+                        for (i, _) in cand.iter().enumerate().filter(|(_, c)| **c != 0) {
+                            let x = xa + i;
+                            let s = fast_score(&level.data, w, x, y, &ring, threshold);
+                            if s > 0 {
+                                scores[y * w + x] = s;
+                                self.hits.push((y * w + x) as u32);
+                            }
                         }
                     }
-                    if any {
-                        for y in ya..yb {
-                            for x in xa..xb {
-                                let s = scores[y * w + x];
-                                if s == 0 {
-                                    continue;
-                                }
-                                let mut is_max = true;
-                                'nms: for ny in y.saturating_sub(1).max(ya)..(y + 2).min(yb) {
-                                    for nx in x.saturating_sub(1).max(xa)..(x + 2).min(xb) {
-                                        let o = scores[ny * w + nx];
-                                        // Ties go to the first in raster order.
-                                        if o > s || (o == s && (ny, nx) < (y, x)) {
-                                            is_max = false;
-                                            break 'nms;
-                                        }
-                                    }
-                                }
-                                if is_max {
-                                    self.corners.push(Corner { x: x as u16, y: y as u16, response: s });
+                    // 3×3 non-maximum suppression inside the cell, over the corners only; ties go to the first in
+                    // raster order. The score map is cleared again where it was written.
+                    for &k in &self.hits {
+                        let (x, y) = (k as usize % w, k as usize / w);
+                        let s = scores[k as usize];
+                        let mut is_max = true;
+                        'nms: for ny in y.saturating_sub(1).max(ya)..(y + 2).min(yb) {
+                            for nx in x.saturating_sub(1).max(xa)..(x + 2).min(xb) {
+                                let o = scores[ny * w + nx];
+                                if o > s || (o == s && (ny, nx) < (y, x)) {
+                                    is_max = false;
+                                    break 'nms;
                                 }
                             }
                         }
-                        break;
+                        if is_max {
+                            self.corners.push(Corner { x: x as u16, y: y as u16, response: s });
+                        }
                     }
-                    if threshold == self.params.min_th_fast {
+                    for &k in &self.hits {
+                        scores[k as usize] = 0;
+                    }
+                    if !self.hits.is_empty() || threshold == self.params.min_th_fast {
                         break;
                     }
                 }
@@ -554,7 +557,7 @@ pub fn orientation(level: &Level, x: usize, y: usize) -> f32 {
 /// 7×7 Gaussian (σ = 2) with reflect-101 borders (§1.6), separable, in 8.8 fixed point; `tmp` holds the
 /// horizontal pass. The interior runs over shifted whole-row slices (vector code); only the 3-pixel frame needs
 /// the reflection.
-fn blur_level(src: &Level, dst: &mut Level, tmp: &mut [u16]) {
+fn blur_level(src: &Level, dst: &mut Level, tmp: &mut [u16], acc: &mut [u32]) {
     // Weights ×256, summing to exactly 256: exp(−d²/8) for d = −3..3, normalised and rounded (the centre takes
     // the rounding remainder).
     const K: [u32; 7] = [18, 34, 49, 54, 49, 34, 18];
@@ -589,18 +592,18 @@ fn blur_level(src: &Level, dst: &mut Level, tmp: &mut [u16]) {
             out[x] = acc as u16;
         }
     }
+    let acc = &mut acc[..w];
     for y in 0..h {
-        let rows: [&[u16]; 7] = std::array::from_fn(|k| {
+        // Row by row into an accumulator: each pass is a plain zip over two slices (vector code).
+        acc.fill(32768);
+        for (k, kv) in K.iter().enumerate() {
             let r = reflect(y as isize + k as isize - 3, h);
-            &tmp[r * w..(r + 1) * w]
-        });
-        let out = &mut dst.data[y * w..(y + 1) * w];
-        for (x, o) in out.iter_mut().enumerate() {
-            let mut acc = 32768u32;
-            for k in 0..7 {
-                acc += K[k] * u32::from(rows[k][x]);
+            for (a, &t) in acc.iter_mut().zip(&tmp[r * w..(r + 1) * w]) {
+                *a += kv * u32::from(t);
             }
-            *o = (acc >> 16) as u8;
+        }
+        for (o, &a) in dst.data[y * w..(y + 1) * w].iter_mut().zip(acc.iter()) {
+            *o = (a >> 16) as u8;
         }
     }
 }
