@@ -100,6 +100,9 @@ const CIRCLE: [(i32, i32); 16] = [
     (-1, -3),
 ];
 
+/// A bilinear tap: source index, next source index, weight of the next one in 1/256.
+type Tap = (u16, u16, u8);
+
 #[derive(Debug, Clone, Copy)]
 struct Corner {
     x: u16,
@@ -119,7 +122,7 @@ pub struct OrbExtractor {
     blur_tmp: Vec<u16>,
     blur_acc: Vec<u32>,
     /// Per level: bilinear taps (index, index, weight of the second in 1/256) for columns and rows.
-    taps: Vec<(Vec<(u16, u16, u8)>, Vec<(u16, u16, u8)>)>,
+    taps: Vec<(Vec<Tap>, Vec<Tap>)>,
     pattern: Vec<[(i8, i8); 2]>,
     scores: Vec<u8>,
     candidates: Vec<u8>,
@@ -244,7 +247,7 @@ impl OrbExtractor {
         let used: usize = per_level.iter().sum();
         per_level.push((params.n_features as usize).saturating_sub(used));
         let levels: Vec<Level> = sizes.iter().map(|&(w, h)| Level { w, h, data: vec![0; w * h] }).collect();
-        let axis = |src: usize, dst: usize| -> Vec<(u16, u16, u8)> {
+        let axis = |src: usize, dst: usize| -> Vec<Tap> {
             let f = src as f64 / dst as f64;
             (0..dst)
                 .map(|x| {
