@@ -123,7 +123,8 @@ pub struct OrbExtractor {
     blur_acc: Vec<u32>,
     /// Per level: bilinear taps (index, index, weight of the second in 1/256) for columns and rows.
     taps: Vec<(Vec<Tap>, Vec<Tap>)>,
-    pattern: Vec<[(i8, i8); 2]>,
+    /// The pattern rotated to each whole degree: 360 × 256 pairs of (dx, dy) offsets.
+    rotated: Vec<[(i8, i8); 2]>,
     scores: Vec<u8>,
     candidates: Vec<u8>,
     hits: Vec<u32>,
@@ -276,7 +277,7 @@ impl OrbExtractor {
             blur_tmp: vec![0; width * height],
             blur_acc: vec![0; width],
             taps,
-            pattern: pattern::generate(),
+            rotated: rotate_pattern(&pattern::generate()),
             scores: vec![0; width * height],
             candidates: vec![0; width],
             hits: Vec::with_capacity(4096),
@@ -316,7 +317,14 @@ impl OrbExtractor {
             for &c in &self.kept {
                 let (x, y) = (usize::from(c.x), usize::from(c.y));
                 let angle = orientation(&self.levels[l], x, y);
-                out.descriptors.push(describe(&self.blurred[l], x, y, angle, &self.pattern));
+                // The pattern turned to the nearest whole degree (a table, instead of 512 rotations per keypoint).
+                let bin = (angle.to_degrees().rem_euclid(360.0).round() as usize) % 360;
+                out.descriptors.push(describe_rotated(
+                    &self.blurred[l],
+                    x,
+                    y,
+                    &self.rotated[bin * 256..(bin + 1) * 256],
+                ));
                 out.keypoints.push(KeyPoint {
                     x: c.x as f32 * scale,
                     y: c.y as f32 * scale,
@@ -623,6 +631,34 @@ pub fn describe(blurred: &Level, x: usize, y: usize, angle: f32, pattern: &[[(i8
     let mut d = [0u8; 32];
     for (k, [p, q]) in pattern.iter().enumerate() {
         if sample(*p) < sample(*q) {
+            d[k / 8] |= 1 << (k % 8);
+        }
+    }
+    d
+}
+
+/// The pattern rotated to 0°, 1°, …, 359° (x' = round(x cos θ − y sin θ), y' = round(x sin θ + y cos θ)).
+fn rotate_pattern(pattern: &[[(i8, i8); 2]]) -> Vec<[(i8, i8); 2]> {
+    let mut out = Vec::with_capacity(360 * pattern.len());
+    for deg in 0..360 {
+        let (s, c) = (deg as f32).to_radians().sin_cos();
+        let turn = |(x, y): (i8, i8)| {
+            let (fx, fy) = (f32::from(x), f32::from(y));
+            ((fx * c - fy * s).round() as i8, (fx * s + fy * c).round() as i8)
+        };
+        out.extend(pattern.iter().map(|[p, q]| [turn(*p), turn(*q)]));
+    }
+    out
+}
+
+/// The descriptor at (x, y) of the blurred level with an already rotated pattern.
+pub fn describe_rotated(blurred: &Level, x: usize, y: usize, rotated: &[[(i8, i8); 2]]) -> [u8; 32] {
+    let at = |(dx, dy): (i8, i8)| {
+        blurred.data[(y as isize + dy as isize) as usize * blurred.w + (x as isize + dx as isize) as usize]
+    };
+    let mut d = [0u8; 32];
+    for (k, [p, q]) in rotated.iter().enumerate() {
+        if at(*p) < at(*q) {
             d[k / 8] |= 1 << (k % 8);
         }
     }
