@@ -496,7 +496,7 @@ impl OrbExtractor {
             // Final phase: split the most populated first, stop as soon as there are enough.
             let final_phase = before + 3 * expandable > want;
             if final_phase {
-                self.nodes.sort_by_key(|n| std::cmp::Reverse(n.count));
+                self.nodes.sort_unstable_by_key(|n| std::cmp::Reverse(n.count));
             }
             self.next_nodes.clear();
             self.next_members.clear();

@@ -1,0 +1,60 @@
+#![allow(clippy::unwrap_used, clippy::expect_used)] // test code: a panic is the failure report
+//! A warmed-up extraction and stereo match allocate nothing.
+
+use std::alloc::{GlobalAlloc, Layout, System};
+use std::sync::atomic::{AtomicUsize, Ordering};
+
+use bdis_orb::{Features, OrbExtractor, OrbParams, StereoFeatures, StereoMatcher};
+
+struct Counting;
+static ALLOCATIONS: AtomicUsize = AtomicUsize::new(0);
+
+unsafe impl GlobalAlloc for Counting {
+    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
+        ALLOCATIONS.fetch_add(1, Ordering::Relaxed);
+        unsafe { System.alloc(layout) }
+    }
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
+        unsafe { System.dealloc(ptr, layout) }
+    }
+    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
+        ALLOCATIONS.fetch_add(1, Ordering::Relaxed);
+        unsafe { System.realloc(ptr, layout, new_size) }
+    }
+}
+
+#[global_allocator]
+static GLOBAL: Counting = Counting;
+
+#[test]
+fn a_warmed_up_stereo_frame_allocates_nothing() {
+    let (w, h) = (640usize, 480usize);
+    // Smooth texture with corners: sums of sines, never black.
+    let tex = |x: f32, y: f32| {
+        (128.0 + 60.0 * (x * 0.11).sin() * (y * 0.09).cos() + 50.0 * ((x - y) * 0.05).sin().signum()) as u8
+    };
+    let left: Vec<u8> = (0..w * h).map(|i| tex((i % w) as f32, (i / w) as f32).max(1)).collect();
+    let right: Vec<u8> = (0..w * h).map(|i| tex((i % w) as f32 + 7.0, (i / w) as f32).max(1)).collect();
+    let params = OrbParams { n_features: 1000, ..OrbParams::default() };
+    let (mut el, mut er) = (OrbExtractor::new(params, w, h).unwrap(), OrbExtractor::new(params, w, h).unwrap());
+    let scales = el.scales().to_vec();
+    let mut m = StereoMatcher::new();
+    let (mut fl, mut fr, mut st) = (Features::default(), Features::default(), StereoFeatures::default());
+    let mut frame = |el: &mut OrbExtractor, er: &mut OrbExtractor| {
+        el.extract(&left, &mut fl).unwrap();
+        er.extract(&right, &mut fr).unwrap();
+        m.match_features(&fl, &fr, &el.levels, &er.levels, &scales, 500.0, 2500.0, &mut st);
+    };
+    frame(&mut el, &mut er);
+    frame(&mut el, &mut er);
+    let before = ALLOCATIONS.load(Ordering::Relaxed);
+    frame(&mut el, &mut er);
+    let after = ALLOCATIONS.load(Ordering::Relaxed);
+    assert_eq!(after - before, 0, "{} allocations in a warmed-up frame", after - before);
+    assert!(
+        fl.keypoints.len() > 100 && st.matched() > 20,
+        "{} keypoints, {} matched",
+        fl.keypoints.len(),
+        st.matched()
+    );
+}
