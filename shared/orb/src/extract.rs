@@ -126,7 +126,8 @@ pub struct OrbExtractor {
     /// The pattern rotated to each whole degree: 360 × 256 pairs of (dx, dy) offsets.
     rotated: Vec<[(i8, i8); 2]>,
     scores: Vec<u8>,
-    candidates: Vec<u8>,
+    cand_ini: Vec<u8>,
+    cand_min: Vec<u8>,
     hits: Vec<u32>,
     corners: Vec<Corner>,
     nodes: Vec<Node>,
@@ -279,7 +280,8 @@ impl OrbExtractor {
             taps,
             rotated: rotate_pattern(&pattern::generate()),
             scores: vec![0; width * height],
-            candidates: vec![0; width],
+            cand_ini: vec![0; width * height],
+            cand_min: vec![0; width * height],
             hits: Vec::with_capacity(4096),
             corners: Vec::with_capacity(8192),
             nodes: Vec::with_capacity(4096),
@@ -374,6 +376,33 @@ impl OrbExtractor {
         let n_rows = (hr / 30).max(1);
         let (w_cell, h_cell) = (wr.div_ceil(n_cols), hr.div_ceil(n_rows));
         self.corners.clear();
+        // Candidates for both thresholds, once per level, on whole rows (vector code): at least two of the four
+        // compass points of the ring are brighter, or two darker, than the centre by the threshold. Cells then
+        // only visit candidates.
+        let (ini, min) = (self.params.ini_th_fast, self.params.min_th_fast);
+        let (x_lo, x_hi) = (min_x + 3, max_x - 3);
+        for y in (min_y + 3)..(max_y - 3) {
+            let at = |dy: isize, dx: isize| {
+                let start = ((y as isize + dy) as usize) * w;
+                &level.data
+                    [(start as isize + x_lo as isize + dx) as usize..(start as isize + x_hi as isize + dx) as usize]
+            };
+            let (centre, north, south, east, west) = (at(0, 0), at(-3, 0), at(3, 0), at(0, 3), at(0, -3));
+            let (mask_ini, mask_min) =
+                (&mut self.cand_ini[y * w + x_lo..y * w + x_hi], &mut self.cand_min[y * w + x_lo..y * w + x_hi]);
+            for i in 0..centre.len() {
+                let c = centre[i];
+                let (n, s, e, wv) = (north[i], south[i], east[i], west[i]);
+                let test = |t: u8| {
+                    let (hi, lo) = (c.saturating_add(t), c.saturating_sub(t));
+                    let b = u8::from(n > hi) + u8::from(s > hi) + u8::from(e > hi) + u8::from(wv > hi);
+                    let d = u8::from(n < lo) + u8::from(s < lo) + u8::from(e < lo) + u8::from(wv < lo);
+                    u8::from(b >= 2 || d >= 2)
+                };
+                mask_ini[i] = test(ini);
+                mask_min[i] = test(min);
+            }
+        }
         let scores = &mut self.scores[..w * h];
         for i in 0..n_rows {
             let y_start = min_y + i * h_cell;
@@ -394,36 +423,21 @@ impl OrbExtractor {
                 }
                 for threshold in [self.params.ini_th_fast, self.params.min_th_fast] {
                     self.hits.clear();
+                    let mask = if threshold == ini { &self.cand_ini } else { &self.cand_min };
                     for y in ya..yb {
-                        // Candidates first, on whole rows (compiles to vector code): at least two of the four
-                        // compass points of the ring are brighter, or two darker, than the centre by the threshold.
-                        let row = |dy: isize| {
-                            &level.data[(y as isize + dy) as usize * w + xa..(y as isize + dy) as usize * w + xb]
-                        };
-                        let (centre, north, south) = (row(0), row(-3), row(3));
-                        let east = &level.data[y * w + xa + 3..y * w + xb + 3];
-                        let west = &level.data[y * w + xa - 3..y * w + xb - 3];
-                        let cand = &mut self.candidates[..xb - xa];
-                        for i in 0..cand.len() {
-                            let c = centre[i];
-                            let hi = c.saturating_add(threshold);
-                            let lo = c.saturating_sub(threshold);
-                            let b = u8::from(north[i] > hi)
-                                + u8::from(south[i] > hi)
-                                + u8::from(east[i] > hi)
-                                + u8::from(west[i] > hi);
-                            let d = u8::from(north[i] < lo)
-                                + u8::from(south[i] < lo)
-                                + u8::from(east[i] < lo)
-                                + u8::from(west[i] < lo);
-                            cand[i] = u8::from(b >= 2 || d >= 2);
-                        }
-                        for (i, _) in cand.iter().enumerate().filter(|(_, c)| **c != 0) {
-                            let x = xa + i;
-                            let s = fast_score(&level.data, w, x, y, &ring, threshold);
-                            if s > 0 {
-                                scores[y * w + x] = s;
-                                self.hits.push((y * w + x) as u32);
+                        let row = &mask[y * w + xa..y * w + xb];
+                        // Skip eight non-candidates at a time.
+                        for (ci, chunk) in row.chunks(8).enumerate() {
+                            if chunk.iter().all(|&m| m == 0) {
+                                continue;
+                            }
+                            for (k, _) in chunk.iter().enumerate().filter(|(_, m)| **m != 0) {
+                                let x = xa + ci * 8 + k;
+                                let s = fast_score(&level.data, w, x, y, &ring, threshold);
+                                if s > 0 {
+                                    scores[y * w + x] = s;
+                                    self.hits.push((y * w + x) as u32);
+                                }
                             }
                         }
                     }
