@@ -3,6 +3,7 @@
 
 pub mod latency;
 pub mod launch_file;
+pub mod preview;
 pub mod probe;
 pub mod run;
 pub mod run_dir;

@@ -319,18 +319,9 @@ fn probe_depth(args: &ProbeArgs) -> Result<()> {
     }
     let summary = checker.summary();
     if let (Some(path), true) = (&args.preview, last.0 > 0) {
-        let (w, h) = (last.0, last.1);
-        let mut colours = Vec::new();
-        bdis_stereo::preview::colorize(&last.2, &mut colours);
-        let mut both = image::RgbImage::new(2 * w, h);
-        for y in 0..h {
-            for x in 0..w {
-                let k = (y * w + x) as usize;
-                both.put_pixel(x, y, image::Rgb([last.3[3 * k], last.3[3 * k + 1], last.3[3 * k + 2]]));
-                both.put_pixel(w + x, y, image::Rgb([colours[3 * k], colours[3 * k + 1], colours[3 * k + 2]]));
-            }
-        }
-        both.save(path).with_context(|| format!("{}: cannot write the preview", path.display()))?;
+        bdis_slam::preview::disparity_beside_image(&last.3, &last.2, last.0, last.1)
+            .save(path)
+            .with_context(|| format!("{}: cannot write the preview", path.display()))?;
     }
     if let Some(path) = summary_path(args) {
         let text = serde_json::to_string_pretty(&summary).context("serialise the probe summary")?;

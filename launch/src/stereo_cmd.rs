@@ -90,16 +90,9 @@ fn match_pair(
         bdis_core::formats::pfm::write(path, out.width, out.height, 1, &out.confidence)?;
     }
     if let Some(path) = &outputs.preview {
-        let mut colours = Vec::new();
-        bdis_stereo::preview::colorize(&out.disparity, &mut colours);
-        let (w, h) = (out.width as u32, out.height as u32);
-        let mut both = image::RgbImage::new(2 * w, h);
-        for (x, y, p) in lrgb.enumerate_pixels() {
-            both.put_pixel(x, y, *p);
-            let k = 3 * (y as usize * out.width + x as usize);
-            both.put_pixel(w + x, y, image::Rgb([colours[k], colours[k + 1], colours[k + 2]]));
-        }
-        both.save(path).with_context(|| format!("{}: cannot write the preview", path.display()))?;
+        bdis_slam::preview::disparity_beside_image(lrgb.as_raw(), &out.disparity, out.width as u32, out.height as u32)
+            .save(path)
+            .with_context(|| format!("{}: cannot write the preview", path.display()))?;
     }
     Ok(())
 }

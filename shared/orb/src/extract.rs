@@ -633,24 +633,6 @@ fn blur_level(src: &Level, dst: &mut Level, tmp: &mut [u16], acc: &mut [u32]) {
     }
 }
 
-/// The 256-bit rotated BRIEF descriptor at (x, y) of the blurred level (§1.6).
-pub fn describe(blurred: &Level, x: usize, y: usize, angle: f32, pattern: &[[(i8, i8); 2]]) -> [u8; 32] {
-    let (s, c) = angle.sin_cos();
-    let sample = |(px, py): (i8, i8)| -> u8 {
-        let (fx, fy) = (f32::from(px), f32::from(py));
-        let xr = (fx * c - fy * s).round() as isize;
-        let yr = (fx * s + fy * c).round() as isize;
-        blurred.data[((y as isize + yr) as usize) * blurred.w + (x as isize + xr) as usize]
-    };
-    let mut d = [0u8; 32];
-    for (k, [p, q]) in pattern.iter().enumerate() {
-        if sample(*p) < sample(*q) {
-            d[k / 8] |= 1 << (k % 8);
-        }
-    }
-    d
-}
-
 /// The pattern rotated to 0°, 1°, …, 359° (x' = round(x cos θ − y sin θ), y' = round(x sin θ + y cos θ)).
 fn rotate_pattern(pattern: &[[(i8, i8); 2]]) -> Vec<[(i8, i8); 2]> {
     let mut out = Vec::with_capacity(360 * pattern.len());
