@@ -9,7 +9,9 @@ fn main() {
     let (mut el, mut er) = (OrbExtractor::new(params, 640, 480).unwrap(), OrbExtractor::new(params, 640, 480).unwrap());
     let mut m = StereoMatcher::new();
     let (mut fl, mut fr, mut st) = (Features::default(), Features::default(), StereoFeatures::default());
-    for _ in 0..2 {
+    // Optional third argument: repetitions (for perf); two by default (the second is warmed up).
+    let reps: usize = a.get(3).and_then(|s| s.parse().ok()).unwrap_or(2);
+    for _ in 0..reps {
         el.extract(&l, &mut fl).unwrap();
         er.extract(&r, &mut fr).unwrap();
         let scales = el.scales().to_vec();

@@ -8,6 +8,9 @@ pub const MAX_STEREO_DISTANCE: u32 = 72;
 /// SAD window half-size and search half-range (level pixels).
 const WIN: isize = 5;
 const RANGE: isize = 5;
+/// Window width and number of shifts searched (2·5 + 1 each).
+const N_WIN: usize = 2 * WIN as usize + 1;
+const N_SHIFTS: usize = 2 * RANGE as usize + 1;
 
 /// Per left keypoint: the right image's u (level-0 px) and the depth; `None` where unmatched.
 #[derive(Debug, Clone, Default)]
@@ -106,27 +109,14 @@ impl StereoMatcher {
             {
                 continue;
             }
-            let lc = i32::from(ll.at(ul as usize, vl as usize));
-            let mut costs = [0u32; (2 * RANGE + 1) as usize];
-            for (k, delta) in (-RANGE..=RANGE).enumerate() {
-                let rc = i32::from(rl.at((ur + delta) as usize, vl as usize));
-                let mut sad = 0u32;
-                for dy in -WIN..=WIN {
-                    let y = (vl + dy) as usize;
-                    for dx in -WIN..=WIN {
-                        let a = i32::from(ll.at((ul + dx) as usize, y)) - lc;
-                        let b = i32::from(rl.at((ur + delta + dx) as usize, y)) - rc;
-                        sad += (a - b).unsigned_abs();
-                    }
-                }
-                costs[k] = sad;
-            }
+            let costs = sad_costs(ll, rl, (ul as usize, vl as usize), ur as usize);
+            let costs = &costs[..N_SHIFTS];
             let (k_best, &c0) = costs.iter().enumerate().min_by_key(|&(_, c)| *c).unwrap_or((0, &0));
             if k_best == 0 || k_best == costs.len() - 1 {
                 continue;
             }
-            let (cm, cp) = (costs[k_best - 1] as f32, costs[k_best + 1] as f32);
-            let denom = 2.0 * (cm + cp - 2.0 * c0 as f32);
+            let (cm, cp) = (f32::from(costs[k_best - 1]), f32::from(costs[k_best + 1]));
+            let denom = 2.0 * (cm + cp - 2.0 * f32::from(c0));
             if denom == 0.0 {
                 continue;
             }
@@ -147,7 +137,7 @@ impl StereoMatcher {
             };
             out.u_right[i] = Some(u_r);
             out.depth[i] = Some(bf / disparity);
-            self.sads.push((c0, i));
+            self.sads.push((u32::from(c0), i));
         }
         // Matches far worse than the typical one (SAD ≥ 1.5 · 1.4 · median) are dropped.
         if self.sads.is_empty() {
@@ -164,4 +154,37 @@ impl StereoMatcher {
             out.depth[i] = None;
         }
     }
+}
+
+/// SAD of the 11×11 window at `(ul, vl)` of the left level against the right level's windows centred at
+/// ur − 5 … ur + 5 on the same row, each window with its centre pixel subtracted (§2). Lanes 0..11 of the result
+/// hold the shifts; the other lanes are padding. The shifts are the vector lanes (16 × i16: two SSE2/NEON
+/// registers), so each (dy, dx) of the window is one vector step for all shifts. The caller keeps the windows
+/// inside the levels. Sums fit u16: 121 · 510 < 65536.
+fn sad_costs(ll: &Level, rl: &Level, (ul, vl): (usize, usize), ur: usize) -> [u16; 16] {
+    const LANES: usize = 16;
+    let lc = i16::from(ll.at(ul, vl));
+    // Right-window centres for each shift, and the row segment the windows cover (padded with zeros).
+    let mut rc = [0i16; LANES];
+    for (k, c) in rc.iter_mut().take(N_SHIFTS).enumerate() {
+        *c = i16::from(rl.at(ur + k - RANGE as usize, vl));
+    }
+    let mut costs = [0u16; LANES];
+    let mut right = [0i16; LANES + N_WIN];
+    for dy in 0..N_WIN {
+        let y = vl + dy - WIN as usize;
+        let start = y * rl.w + ur - (RANGE + WIN) as usize;
+        for (r, &v) in right.iter_mut().zip(&rl.data[start..start + N_SHIFTS + N_WIN - 1]) {
+            *r = i16::from(v);
+        }
+        let left_row = &ll.data[y * ll.w + ul - WIN as usize..][..N_WIN];
+        for (dx, &l) in left_row.iter().enumerate() {
+            let l = i16::from(l) - lc;
+            let window: &[i16; LANES] = right[dx..dx + LANES].try_into().unwrap_or(&[0; LANES]);
+            for k in 0..LANES {
+                costs[k] = costs[k].wrapping_add((l + rc[k] - window[k]).unsigned_abs());
+            }
+        }
+    }
+    costs
 }
