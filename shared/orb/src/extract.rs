@@ -3,6 +3,7 @@
 //! Every buffer is owned by the [`OrbExtractor`] and reused.
 
 use crate::pattern;
+use crate::simd::multiversion;
 
 /// Extractor settings (`ORBextractor.*`).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -100,8 +101,8 @@ const CIRCLE: [(i32, i32); 16] = [
     (-1, -3),
 ];
 
-/// A bilinear tap: source index, next source index, weight of the next one in 1/256.
-type Tap = (u16, u16, u8);
+/// A bilinear tap: source index, weight of the next source sample in 1/256.
+type Tap = (u16, u8);
 
 #[derive(Debug, Clone, Copy)]
 struct Corner {
@@ -121,12 +122,14 @@ pub struct OrbExtractor {
     blurred: Vec<Level>,
     blur_tmp: Vec<u16>,
     blur_acc: Vec<u16>,
-    /// The pyramid's two horizontally interpolated source rows (one level's width each).
-    pyramid_rows: Vec<u16>,
-    /// Per level: bilinear taps (index, index, weight of the second in 1/256) for columns and rows.
-    taps: Vec<(Vec<Tap>, Vec<Tap>)>,
-    /// The pattern rotated to each whole degree: 360 × 256 pairs of (dx, dy) offsets.
-    rotated: Vec<[(i8, i8); 2]>,
+    /// The pyramid's vertically blended source row (plus one spare sample).
+    pyramid_row: Vec<u16>,
+    /// Per level: the bilinear taps from the level above.
+    taps: Vec<LevelTaps>,
+    /// The pattern rotated to each whole degree: 360 × 256 pairs of offsets into `patch`.
+    rotated: Vec<[u16; 2]>,
+    /// The neighbourhood of the keypoint being described.
+    patch: Box<[u8; PATCH_LEN]>,
     scores: Vec<u8>,
     cand_ini: Vec<u8>,
     cand_min: Vec<u8>,
@@ -160,7 +163,7 @@ struct Node {
 /// brighter than centre + t: the smallest of the 8 pair maxima must be. Dark corners likewise with the largest pair
 /// minimum. Black centres are never corners. Byte min/max are single vector instructions, and the loop over
 /// equal-length row slices is vectorised by the compiler; both thresholds share the loads and the reductions.
-#[inline(never)] // a stage of its own in profiles
+#[inline(always)]
 fn candidates_row(
     data: &[u8],
     w: usize,
@@ -192,66 +195,164 @@ fn candidates_row(
     }
 }
 
+/// [`candidates_row`] for rows `y_lo..y_hi` of a level, into masks the size of the level. Not compiled for AVX2
+/// as well (see `simd.rs`): with AVX2 the compiler leaves this loop scalar, and the SSE2 vectors are as fast.
+#[allow(clippy::too_many_arguments)]
+fn candidate_masks(
+    level: &Level,
+    y_lo: usize,
+    y_hi: usize,
+    x_lo: usize,
+    x_hi: usize,
+    t: (u8, u8),
+    ini: &mut [u8],
+    min: &mut [u8],
+) {
+    let w = level.w;
+    for y in y_lo..y_hi {
+        let span = y * w + x_lo..y * w + x_hi;
+        candidates_row(&level.data, w, y, (x_lo, x_hi), t, (&mut ini[span.clone()], &mut min[span]));
+    }
+}
+
+/// The taps of one pyramid step, and how far along a row they repeat every 5 outputs with 6 inputs (scale
+/// factor 1.2, the default): there the gather needs no table.
+#[derive(Debug, Clone, Default)]
+pub(crate) struct LevelTaps {
+    x: Vec<Tap>,
+    y: Vec<Tap>,
+    /// Outputs 0..periodic (a multiple of 5) have x0 = 6q + i and weight `weights5[i]` (x = 5q + i).
+    periodic: usize,
+    weights5: [u16; 5],
+}
+
+impl LevelTaps {
+    fn new(x: Vec<Tap>, y: Vec<Tap>) -> Self {
+        let mut weights5 = [0u16; 5];
+        let mut periodic = 0;
+        if x.len() >= 5 && x[..5].iter().enumerate().all(|(i, t)| usize::from(t.0) == i) {
+            for (w, t) in weights5.iter_mut().zip(&x) {
+                *w = u16::from(t.1);
+            }
+            let fits = |x_out: usize| {
+                let (q, i) = (x_out / 5, x_out % 5);
+                usize::from(x[x_out].0) == 6 * q + i && u16::from(x[x_out].1) == weights5[i]
+            };
+            while periodic + 5 <= x.len() && (periodic..periodic + 5).all(fits) {
+                periodic += 5;
+            }
+        }
+        Self { x, y, periodic, weights5 }
+    }
+}
+
+multiversion! {
+    /// One pyramid step (see [`OrbExtractor::build_pyramid`]): `src` resized to `dst` with the taps of that size;
+    /// `blended` holds at least `src.w + 1` samples.
+    fn resize_level / resize_level_portable(src: &Level, dst: &mut Level, taps: &LevelTaps, blended: &mut [u16]) {
+        #[inline(always)]
+        fn lerp(a: u16, b: u16, wx: u16) -> u8 {
+            let (a, b, wx) = (u32::from(a), u32::from(b), u32::from(wx));
+            let v = ((a * (256 - wx) + b * wx + 32768) >> 16) as u8;
+            if (a != 0) & (b != 0) { v.max(1) } else { 0 }
+        }
+        // One spare sample past the row's end, a copy of the last, so that every tap reads x0 and x0 + 1 (at the
+        // right edge x1 = x0, and the spare gives the same value).
+        let blended = &mut blended[..src.w + 1];
+        for (y, &(y0, wy)) in taps.y.iter().enumerate() {
+            let (y0, y1) = (usize::from(y0), (usize::from(y0) + 1).min(src.h - 1));
+            let (r0, r1) = (&src.data[y0 * src.w..][..src.w], &src.data[y1 * src.w..][..src.w]);
+            let wy = u16::from(wy);
+            for ((b, &top), &bottom) in blended.iter_mut().zip(r0).zip(r1) {
+                let v = u16::from(top) * (256 - wy) + u16::from(bottom) * wy;
+                // Branch-free: black taps are rare but unpredictable where they occur.
+                *b = v * u16::from((top != 0) & (bottom != 0));
+            }
+            blended[src.w] = blended[src.w - 1];
+            let out = &mut dst.data[y * dst.w..(y + 1) * dst.w];
+            // The periodic part: 5 outputs from 6 inputs with fixed weights, no table.
+            let w5 = taps.weights5;
+            for (o, s) in out[..taps.periodic].chunks_exact_mut(5).zip(blended.chunks_exact(6)) {
+                for i in 0..5 {
+                    o[i] = lerp(s[i], s[i + 1], w5[i]);
+                }
+            }
+            for (o, &(x0, wx)) in out.iter_mut().zip(&taps.x).skip(taps.periodic) {
+                let pair = &blended[x0 as usize..x0 as usize + 2];
+                *o = lerp(pair[0], pair[1], u16::from(wx));
+            }
+        }
+    }
+}
+
 /// Candidates scored together: the lanes of [`fast_scores`].
 const SCORE_LANES: usize = 16;
 
-/// FAST scores of up to 16 pixels (`at`: their indices into `img`): the largest t for which each is still a
-/// 9-of-16 corner, 0 where it is none at `threshold` or where its ring touches black (outside the endoscope's
-/// view). The score of an arc of 9 is its smallest difference to the centre; the best arc is found by doubling
-/// windows round the ring (2, 4, 8, then 8 + 1). The candidates are the vector lanes: the ring is gathered into
-/// 16 rows of 16 lanes, then every step is an element-wise min/max over whole rows, which the compiler turns
-/// into vector instructions (one pixel at a time it is ~300 scalar instructions).
-#[inline(never)] // a stage of its own in profiles
-fn fast_scores(img: &[u8], ring: &[isize; 16], at: &[u32], threshold: u8, scores: &mut [u8; SCORE_LANES]) {
-    type Row = [i16; SCORE_LANES];
-    let mut bright: [Row; 16] = [[0; SCORE_LANES]; 16];
-    let mut black: Row = [0; SCORE_LANES];
-    for (j, &p) in at.iter().take(SCORE_LANES).enumerate() {
-        let c = i16::from(img[p as usize]);
-        for k in 0..16 {
-            let v = img[(p as isize + ring[k]) as usize];
-            black[j] |= i16::from(v == 0);
-            bright[k][j] = i16::from(v) - c;
-        }
-    }
-    // Plain loops over fixed-size rows (closures and array::from_fn here defeat the vectoriser).
-    fn best_arc(d: &[Row; 16]) -> Row {
-        let (mut m2, mut m4, mut m8) =
-            ([[0i16; SCORE_LANES]; 16], [[0i16; SCORE_LANES]; 16], [[0i16; SCORE_LANES]; 16]);
-        for k in 0..16 {
-            for j in 0..SCORE_LANES {
-                m2[k][j] = d[k][j].min(d[(k + 1) & 15][j]);
+multiversion! {
+    /// FAST scores of up to 16 pixels (`at`: their indices into `img`): the largest t for which each is still a
+    /// 9-of-16 corner, 0 where it is none at `threshold` or where its ring touches black (outside the endoscope's
+    /// view). The score of an arc of 9 is its smallest difference to the centre; the best arc is found by doubling
+    /// windows round the ring (2, 4, 8, then 8 + 1). The candidates are the vector lanes: the ring is gathered into
+    /// 16 rows of 16 lanes, then every step is an element-wise min/max over whole rows, which the compiler turns
+    /// into vector instructions (one pixel at a time it is ~300 scalar instructions).
+    fn fast_scores / fast_scores_portable(
+        img: &[u8],
+        ring: &[isize; 16],
+        at: &[u32],
+        threshold: u8,
+        scores: &mut [u8; SCORE_LANES],
+    ) {
+        type Row = [i16; SCORE_LANES];
+        let mut bright: [Row; 16] = [[0; SCORE_LANES]; 16];
+        let mut black: Row = [0; SCORE_LANES];
+        for (j, &p) in at.iter().take(SCORE_LANES).enumerate() {
+            let c = i16::from(img[p as usize]);
+            for k in 0..16 {
+                let v = img[(p as isize + ring[k]) as usize];
+                black[j] |= i16::from(v == 0);
+                bright[k][j] = i16::from(v) - c;
             }
         }
+        // Plain loops over fixed-size rows (closures and array::from_fn here defeat the vectoriser).
+        #[inline(always)]
+        fn best_arc(d: &[Row; 16]) -> Row {
+            let (mut m2, mut m4, mut m8) =
+                ([[0i16; SCORE_LANES]; 16], [[0i16; SCORE_LANES]; 16], [[0i16; SCORE_LANES]; 16]);
+            for k in 0..16 {
+                for j in 0..SCORE_LANES {
+                    m2[k][j] = d[k][j].min(d[(k + 1) & 15][j]);
+                }
+            }
+            for k in 0..16 {
+                for j in 0..SCORE_LANES {
+                    m4[k][j] = m2[k][j].min(m2[(k + 2) & 15][j]);
+                }
+            }
+            for k in 0..16 {
+                for j in 0..SCORE_LANES {
+                    m8[k][j] = m4[k][j].min(m4[(k + 4) & 15][j]);
+                }
+            }
+            let mut best = [i16::MIN; SCORE_LANES];
+            for k in 0..16 {
+                for j in 0..SCORE_LANES {
+                    best[j] = best[j].max(m8[k][j].min(d[(k + 8) & 15][j]));
+                }
+            }
+            best
+        }
+        let mut dark: [Row; 16] = [[0; SCORE_LANES]; 16];
         for k in 0..16 {
             for j in 0..SCORE_LANES {
-                m4[k][j] = m2[k][j].min(m2[(k + 2) & 15][j]);
+                dark[k][j] = -bright[k][j];
             }
         }
-        for k in 0..16 {
-            for j in 0..SCORE_LANES {
-                m8[k][j] = m4[k][j].min(m4[(k + 4) & 15][j]);
-            }
-        }
-        let mut best = [i16::MIN; SCORE_LANES];
-        for k in 0..16 {
-            for j in 0..SCORE_LANES {
-                best[j] = best[j].max(m8[k][j].min(d[(k + 8) & 15][j]));
-            }
-        }
-        best
-    }
-    let mut dark: [Row; 16] = [[0; SCORE_LANES]; 16];
-    for k in 0..16 {
+        let (b, d) = (best_arc(&bright), best_arc(&dark));
+        let t = i16::from(threshold);
         for j in 0..SCORE_LANES {
-            dark[k][j] = -bright[k][j];
+            let score = b[j].max(d[j]) - 1;
+            scores[j] = if score >= t && black[j] == 0 { score.min(255) as u8 } else { 0 };
         }
-    }
-    let (b, d) = (best_arc(&bright), best_arc(&dark));
-    let t = i16::from(threshold);
-    for j in 0..SCORE_LANES {
-        let score = b[j].max(d[j]) - 1;
-        scores[j] = if score >= t && black[j] == 0 { score.min(255) as u8 } else { 0 };
     }
 }
 
@@ -295,23 +396,25 @@ impl OrbExtractor {
         let used: usize = per_level.iter().sum();
         per_level.push((params.n_features as usize).saturating_sub(used));
         let levels: Vec<Level> = sizes.iter().map(|&(w, h)| Level { w, h, data: vec![0; w * h] }).collect();
+        // Level l samples level l − 1 at (x + 0.5)·s − 0.5 with s the nominal scale factor (not the ratio of the
+        // rounded sizes), so that level coordinates times s^l are level-0 coordinates; samples past the last
+        // pixel take the last (replicated border).
         let axis = |src: usize, dst: usize| -> Vec<Tap> {
-            let f = src as f64 / dst as f64;
+            let f = params.scale_factor;
             (0..dst)
                 .map(|x| {
                     let sx = ((x as f64 + 0.5) * f - 0.5).max(0.0);
                     let x0 = (sx as usize).min(src - 1);
-                    let x1 = (x0 + 1).min(src - 1);
-                    (x0 as u16, x1 as u16, ((sx - x0 as f64) * 256.0).round().min(255.0) as u8)
+                    (x0 as u16, ((sx - x0 as f64) * 256.0).round().min(255.0) as u8)
                 })
                 .collect()
         };
         let taps = (0..levels.len())
             .map(|l| {
                 if l == 0 {
-                    (Vec::new(), Vec::new())
+                    LevelTaps::default()
                 } else {
-                    (axis(sizes[l - 1].0, sizes[l].0), axis(sizes[l - 1].1, sizes[l].1))
+                    LevelTaps::new(axis(sizes[l - 1].0, sizes[l].0), axis(sizes[l - 1].1, sizes[l].1))
                 }
             })
             .collect();
@@ -323,9 +426,10 @@ impl OrbExtractor {
             levels,
             blur_tmp: vec![0; width * height],
             blur_acc: vec![0; width],
-            pyramid_rows: vec![0; 2 * width],
+            pyramid_row: vec![0; width + 1],
             taps,
             rotated: rotate_pattern(&pattern::generate()),
+            patch: Box::new([0; PATCH_LEN]),
             scores: vec![0; width * height],
             cand_ini: vec![0; width * height],
             cand_min: vec![0; width * height],
@@ -374,6 +478,7 @@ impl OrbExtractor {
                     x,
                     y,
                     &self.rotated[bin * 256..(bin + 1) * 256],
+                    &mut self.patch,
                 ));
                 out.keypoints.push(KeyPoint {
                     x: c.x as f32 * scale,
@@ -389,54 +494,17 @@ impl OrbExtractor {
     }
 
     /// Level 0 is the image; level l is level l−1 resized bilinearly (OpenCV INTER_LINEAR, §1.1), in 8-bit
-    /// fixed point with taps computed once per size. Separable: each source row needed is interpolated along x
-    /// once (a gather), then pairs of those rows are blended along y over whole rows (vector code). A pixel whose
-    /// footprint touches black stays black (the view's edge must not become texture): a horizontal sample with a
-    /// black tap is stored as 0, which real samples (≥ 256) never are.
-    #[inline(never)] // a stage of its own in profiles
+    /// fixed point with taps computed once per size. Separable, vertical first: the two source rows of an output
+    /// row are blended over their whole width (vector code), then the blended row is interpolated along x (a
+    /// gather: one per output pixel). Both passes keep every bit (8.8 then 16.16 fixed point), so the result is
+    /// the exact bilinear value rounded once. A pixel whose footprint touches black stays black (the view's edge
+    /// must not become texture): a blended sample with a black tap is stored as 0, which real samples (≥ 256)
+    /// never are.
     fn build_pyramid(&mut self, image: &[u8]) {
         self.levels[0].data.copy_from_slice(image);
         for l in 1..self.levels.len() {
             let (prev, rest) = self.levels.split_at_mut(l);
-            let (src, dst) = (&prev[l - 1], &mut rest[0]);
-            let (x_taps, y_taps) = (&self.taps[l].0, &self.taps[l].1);
-            let dw = dst.w;
-            // Two horizontal rows: the source rows they hold (usize::MAX = none yet).
-            let (mut held, rows) = ([usize::MAX; 2], &mut self.pyramid_rows);
-            let horizontal = |sy: usize, out: &mut [u16]| {
-                let r = &src.data[sy * src.w..(sy + 1) * src.w];
-                for (o, &(x0, x1, wx)) in out.iter_mut().zip(x_taps) {
-                    let (a, b) = (r[x0 as usize], r[x1 as usize]);
-                    let wx = u16::from(wx);
-                    let v = u16::from(a) * (256 - wx) + u16::from(b) * wx;
-                    // Branch-free: black taps are rare but unpredictable where they occur.
-                    *o = v * u16::from((a != 0) & (b != 0));
-                }
-            };
-            for (y, &(y0, y1, wy)) in y_taps.iter().enumerate() {
-                let (y0, y1) = (y0 as usize, y1 as usize);
-                let (r0, r1) = rows.split_at_mut(dw);
-                let (r0, r1) = (&mut r0[..dw], &mut r1[..dw]);
-                // Reuse what the previous output row computed (rows advance by ~1.2 source rows per output row).
-                if held[0] != y0 {
-                    if held[1] == y0 {
-                        r0.copy_from_slice(r1);
-                    } else {
-                        horizontal(y0, r0);
-                    }
-                    held[0] = y0;
-                }
-                if held[1] != y1 {
-                    horizontal(y1, r1);
-                    held[1] = y1;
-                }
-                let wy = u32::from(wy);
-                let out = &mut dst.data[y * dw..(y + 1) * dw];
-                for ((o, &top), &bottom) in out.iter_mut().zip(r0.iter()).zip(r1.iter()) {
-                    let v = ((u32::from(top) * (256 - wy) + u32::from(bottom) * wy + 32768) >> 16) as u8;
-                    *o = if top == 0 || bottom == 0 { 0 } else { v.max(1) };
-                }
-            }
+            resize_level(&prev[l - 1], &mut rest[0], &self.taps[l], &mut self.pyramid_row);
         }
     }
 
@@ -456,11 +524,8 @@ impl OrbExtractor {
         // candidates. (On in-vivo images about half of the cells fall back to minThFAST.)
         let (ini, min) = (self.params.ini_th_fast, self.params.min_th_fast);
         let (x_lo, x_hi) = (min_x + 3, max_x - 3);
-        for y in (min_y + 3)..(max_y - 3) {
-            let span = y * w + x_lo..y * w + x_hi;
-            let out = (&mut self.cand_ini[span.clone()], &mut self.cand_min[span]);
-            candidates_row(&level.data, w, y, (x_lo, x_hi), (ini, min), out);
-        }
+        let (cand_ini, cand_min) = (&mut self.cand_ini, &mut self.cand_min);
+        candidate_masks(level, min_y + 3, max_y - 3, x_lo, x_hi, (ini, min), cand_ini, cand_min);
         let scores = &mut self.scores[..w * h];
         for i in 0..n_rows {
             let y_start = min_y + i * h_cell;
@@ -653,8 +718,8 @@ pub fn orientation(level: &Level, x: usize, y: usize) -> f32 {
     let mut m10: i32 = centre.iter().zip(&U).map(|(&i, &u)| u * i32::from(i)).sum();
     let mut m01 = 0i32;
     // Rows v and −v together: m10 takes their sum, m01 their difference.
-    for v in 1..=15usize {
-        let span = UMAX[v] as usize;
+    for (v, &span) in UMAX.iter().enumerate().skip(1) {
+        let span = span as usize;
         let (below, above) = (row_at(v as isize, span), row_at(-(v as isize), span));
         let weights = &U[15 - span..=15 + span];
         let (mut sum_u, mut diff) = (0i32, 0i32);
@@ -669,85 +734,107 @@ pub fn orientation(level: &Level, x: usize, y: usize) -> f32 {
     (m01 as f32).atan2(m10 as f32)
 }
 
-/// 7×7 Gaussian (σ = 2) with reflect-101 borders (§1.6), separable, in 16-bit fixed point so that eight (SSE2,
-/// NEON) or sixteen (AVX2) pixels go through each instruction. The horizontal pass gives 8.8 fixed point (weights
-/// ×256 summing to 256: ≤ 65280, exact). The vertical pass adds the high halves of tmp·(K·256), i.e. ⌊tmp·K/256⌋,
-/// which again sums to ≤ 65280; each of the 7 truncations loses < 1/256 of an output grey level. Interiors run
-/// over shifted whole-row slices (vector code); only the 3-pixel frame needs the reflection.
-#[inline(never)] // a stage of its own in profiles
-fn blur_level(src: &Level, dst: &mut Level, tmp: &mut [u16], acc: &mut [u16]) {
-    // exp(−d²/8) for d = −3..3, normalised to 256 and rounded (the centre takes the rounding remainder).
-    const K: [u16; 7] = [18, 34, 49, 54, 49, 34, 18];
-    let (w, h) = (src.w, src.h);
-    let reflect = |i: isize, n: usize| -> usize {
-        let n = n as isize;
-        let r = if i < 0 {
-            -i
-        } else if i >= n {
-            2 * n - 2 - i
-        } else {
-            i
+multiversion! {
+    /// 7×7 Gaussian (σ = 2) with reflect-101 borders (§1.6), separable, in 16-bit fixed point so that eight (SSE2,
+    /// NEON) or sixteen (AVX2) pixels go through each instruction. The horizontal pass gives 8.8 fixed point (weights
+    /// ×256 summing to 256: ≤ 65280, exact). The vertical pass adds the high halves of tmp·(K·256), i.e. ⌊tmp·K/256⌋,
+    /// which again sums to ≤ 65280; each of the 7 truncations loses < 1/256 of an output grey level. Interiors run
+    /// over shifted whole-row slices (vector code); only the 3-pixel frame needs the reflection.
+    fn blur_level / blur_level_portable(src: &Level, dst: &mut Level, tmp: &mut [u16], acc: &mut [u16]) {
+        // exp(−d²/8) for d = −3..3, normalised to 256 and rounded (the centre takes the rounding remainder).
+        const K: [u16; 7] = [18, 34, 49, 54, 49, 34, 18];
+        let (w, h) = (src.w, src.h);
+        let reflect = |i: isize, n: usize| -> usize {
+            let n = n as isize;
+            let r = if i < 0 {
+                -i
+            } else if i >= n {
+                2 * n - 2 - i
+            } else {
+                i
+            };
+            r.clamp(0, n - 1) as usize
         };
-        r.clamp(0, n - 1) as usize
-    };
-    let tmp = &mut tmp[..w * h];
-    for y in 0..h {
-        let row = &src.data[y * w..(y + 1) * w];
-        let out = &mut tmp[y * w..(y + 1) * w];
-        let n = w - 6;
-        let taps: [&[u8]; 7] = std::array::from_fn(|k| &row[k..k + n]);
-        for (i, o) in out[3..w - 3].iter_mut().enumerate() {
-            let mut sum = 0u16;
-            for k in 0..7 {
-                sum += K[k] * u16::from(taps[k][i]);
+        let tmp = &mut tmp[..w * h];
+        for y in 0..h {
+            let row = &src.data[y * w..(y + 1) * w];
+            let out = &mut tmp[y * w..(y + 1) * w];
+            let n = w - 6;
+            let taps: [&[u8]; 7] = std::array::from_fn(|k| &row[k..k + n]);
+            for (i, o) in out[3..w - 3].iter_mut().enumerate() {
+                let mut sum = 0u16;
+                for k in 0..7 {
+                    sum += K[k] * u16::from(taps[k][i]);
+                }
+                *o = sum;
             }
-            *o = sum;
-        }
-        for x in (0..3).chain(w - 3..w) {
-            out[x] = (0..7).map(|k| K[k] * u16::from(row[reflect(x as isize + k as isize - 3, w)])).sum();
-        }
-    }
-    let acc = &mut acc[..w];
-    for y in 0..h {
-        acc.fill(128); // rounding of the final >> 8
-        for (k, &kv) in K.iter().enumerate() {
-            let r = reflect(y as isize + k as isize - 3, h);
-            let kv = u32::from(kv) << 8;
-            for (a, &t) in acc.iter_mut().zip(&tmp[r * w..(r + 1) * w]) {
-                *a += ((u32::from(t) * kv) >> 16) as u16;
+            for x in (0..3).chain(w - 3..w) {
+                out[x] = (0..7).map(|k| K[k] * u16::from(row[reflect(x as isize + k as isize - 3, w)])).sum();
             }
         }
-        for (o, &a) in dst.data[y * w..(y + 1) * w].iter_mut().zip(acc.iter()) {
-            *o = (a >> 8) as u8;
+        let acc = &mut acc[..w];
+        for y in 0..h {
+            acc.fill(128); // rounding of the final >> 8
+            for (k, &kv) in K.iter().enumerate() {
+                let r = reflect(y as isize + k as isize - 3, h);
+                let kv = u32::from(kv) << 8;
+                for (a, &t) in acc.iter_mut().zip(&tmp[r * w..(r + 1) * w]) {
+                    *a += ((u32::from(t) * kv) >> 16) as u16;
+                }
+            }
+            for (o, &a) in dst.data[y * w..(y + 1) * w].iter_mut().zip(acc.iter()) {
+                *o = (a >> 8) as u8;
+            }
         }
     }
 }
 
-/// The pattern rotated to 0°, 1°, …, 359° (x' = round(x cos θ − y sin θ), y' = round(x sin θ + y cos θ)).
-fn rotate_pattern(pattern: &[[(i8, i8); 2]]) -> Vec<[(i8, i8); 2]> {
+/// Side of the square patch a descriptor reads: the pattern lies in [−13, 13]², so rotated it stays within
+/// radius 13√2 < 19 of the keypoint, which is ≥ 19 px inside the level (FAST margin 16 + ring 3).
+const PATCH_RADIUS: usize = 18;
+const PATCH_SIDE: usize = 2 * PATCH_RADIUS + 1;
+/// Row stride of the patch buffer, and its size (a power of two, so that a masked offset needs no bounds check).
+const PATCH_STRIDE: usize = 64;
+const PATCH_LEN: usize = 4096;
+
+/// The pattern rotated to 0°, 1°, …, 359° (x' = round(x cos θ − y sin θ), y' = round(x sin θ + y cos θ)), as
+/// offsets into the patch buffer ((y' + 18) · 64 + x' + 18): 360 × 256 pairs.
+fn rotate_pattern(pattern: &[[(i8, i8); 2]]) -> Vec<[u16; 2]> {
     let mut out = Vec::with_capacity(360 * pattern.len());
     for deg in 0..360 {
         let (s, c) = (deg as f32).to_radians().sin_cos();
         let turn = |(x, y): (i8, i8)| {
             let (fx, fy) = (f32::from(x), f32::from(y));
-            ((fx * c - fy * s).round() as i8, (fx * s + fy * c).round() as i8)
+            let (rx, ry) = ((fx * c - fy * s).round() as i32, (fx * s + fy * c).round() as i32);
+            ((ry + PATCH_RADIUS as i32) * PATCH_STRIDE as i32 + rx + PATCH_RADIUS as i32) as u16
         };
         out.extend(pattern.iter().map(|[p, q]| [turn(*p), turn(*q)]));
     }
     out
 }
 
-/// The descriptor at (x, y) of the blurred level with an already rotated pattern.
+/// The descriptor at (x, y) of the blurred level with an already rotated pattern. The keypoint's neighbourhood
+/// is copied once into `patch` (37 row copies); the 512 reads then use fixed offsets into it.
 #[inline(never)] // a stage of its own in profiles
-pub fn describe_rotated(blurred: &Level, x: usize, y: usize, rotated: &[[(i8, i8); 2]]) -> [u8; 32] {
-    let (w, centre) = (blurred.w as isize, (y * blurred.w + x) as isize);
-    let at = |(dx, dy): (i8, i8)| blurred.data[(centre + isize::from(dy) * w + isize::from(dx)) as usize];
+pub fn describe_rotated(
+    blurred: &Level,
+    x: usize,
+    y: usize,
+    rotated: &[[u16; 2]],
+    patch: &mut [u8; PATCH_LEN],
+) -> [u8; 32] {
+    for r in 0..PATCH_SIDE {
+        let start = (y + r - PATCH_RADIUS) * blurred.w + x - PATCH_RADIUS;
+        let row: &[u8; PATCH_SIDE] = blurred.data[start..start + PATCH_SIDE].try_into().unwrap_or(&[0; PATCH_SIDE]);
+        patch[r * PATCH_STRIDE..r * PATCH_STRIDE + PATCH_SIDE].copy_from_slice(row);
+    }
+    let at = |o: u16| patch[usize::from(o) & (PATCH_LEN - 1)];
     // Bits gathered in registers, 64 at a time (a read-modify-write of the output byte per bit is 3× slower).
     let mut d = [0u8; 32];
     for (word, pairs) in d.chunks_exact_mut(8).zip(rotated.chunks(64)) {
         let mut bits = 0u64;
-        for (j, [p, q]) in pairs.iter().enumerate() {
-            bits |= u64::from(at(*p) < at(*q)) << j;
+        for (j, &[p, q]) in pairs.iter().enumerate() {
+            bits |= u64::from(at(p) < at(q)) << j;
         }
         word.copy_from_slice(&bits.to_le_bytes());
     }

@@ -3,6 +3,7 @@
 
 pub mod extract;
 pub mod pattern;
+mod simd;
 pub mod stereo;
 
 pub use extract::{Features, KeyPoint, OrbError, OrbExtractor, OrbParams, hamming};

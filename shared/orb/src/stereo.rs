@@ -2,6 +2,7 @@
 //! distance, SAD refinement with a parabola fit, rejection by distance to the median SAD.
 
 use crate::extract::{Features, Level, hamming};
+use crate::simd::multiversion;
 
 /// Best Hamming distance accepted for a stereo match: (TH_HIGH + TH_LOW) / 2 with BDIS-SLAM's thresholds.
 pub const MAX_STEREO_DISTANCE: u32 = 72;
@@ -109,7 +110,7 @@ impl StereoMatcher {
             {
                 continue;
             }
-            let costs = sad_costs(ll, rl, (ul as usize, vl as usize), ur as usize);
+            let costs = sad_costs(ll, rl, ul as usize, vl as usize, ur as usize);
             let costs = &costs[..N_SHIFTS];
             let (k_best, &c0) = costs.iter().enumerate().min_by_key(|&(_, c)| *c).unwrap_or((0, &0));
             if k_best == 0 || k_best == costs.len() - 1 {
@@ -156,35 +157,37 @@ impl StereoMatcher {
     }
 }
 
-/// SAD of the 11×11 window at `(ul, vl)` of the left level against the right level's windows centred at
-/// ur − 5 … ur + 5 on the same row, each window with its centre pixel subtracted (§2). Lanes 0..11 of the result
-/// hold the shifts; the other lanes are padding. The shifts are the vector lanes (16 × i16: two SSE2/NEON
-/// registers), so each (dy, dx) of the window is one vector step for all shifts. The caller keeps the windows
-/// inside the levels. Sums fit u16: 121 · 510 < 65536.
-fn sad_costs(ll: &Level, rl: &Level, (ul, vl): (usize, usize), ur: usize) -> [u16; 16] {
-    const LANES: usize = 16;
-    let lc = i16::from(ll.at(ul, vl));
-    // Right-window centres for each shift, and the row segment the windows cover (padded with zeros).
-    let mut rc = [0i16; LANES];
-    for (k, c) in rc.iter_mut().take(N_SHIFTS).enumerate() {
-        *c = i16::from(rl.at(ur + k - RANGE as usize, vl));
-    }
-    let mut costs = [0u16; LANES];
-    let mut right = [0i16; LANES + N_WIN];
-    for dy in 0..N_WIN {
-        let y = vl + dy - WIN as usize;
-        let start = y * rl.w + ur - (RANGE + WIN) as usize;
-        for (r, &v) in right.iter_mut().zip(&rl.data[start..start + N_SHIFTS + N_WIN - 1]) {
-            *r = i16::from(v);
+multiversion! {
+    /// SAD of the 11×11 window at `(ul, vl)` of the left level against the right level's windows centred at
+    /// ur − 5 … ur + 5 on the same row, each window with its centre pixel subtracted (§2). Lanes 0..11 of the result
+    /// hold the shifts; the other lanes are padding. The shifts are the vector lanes (16 × i16: two SSE2/NEON
+    /// registers), so each (dy, dx) of the window is one vector step for all shifts. The caller keeps the windows
+    /// inside the levels. Sums fit u16: 121 · 510 < 65536.
+    fn sad_costs / sad_costs_portable(ll: &Level, rl: &Level, ul: usize, vl: usize, ur: usize) -> [u16; 16] {
+        const LANES: usize = 16;
+        let lc = i16::from(ll.at(ul, vl));
+        // Right-window centres for each shift, and the row segment the windows cover (padded with zeros).
+        let mut rc = [0i16; LANES];
+        for (k, c) in rc.iter_mut().take(N_SHIFTS).enumerate() {
+            *c = i16::from(rl.at(ur + k - RANGE as usize, vl));
         }
-        let left_row = &ll.data[y * ll.w + ul - WIN as usize..][..N_WIN];
-        for (dx, &l) in left_row.iter().enumerate() {
-            let l = i16::from(l) - lc;
-            let window: &[i16; LANES] = right[dx..dx + LANES].try_into().unwrap_or(&[0; LANES]);
-            for k in 0..LANES {
-                costs[k] = costs[k].wrapping_add((l + rc[k] - window[k]).unsigned_abs());
+        let mut costs = [0u16; LANES];
+        let mut right = [0i16; LANES + N_WIN];
+        for dy in 0..N_WIN {
+            let y = vl + dy - WIN as usize;
+            let start = y * rl.w + ur - (RANGE + WIN) as usize;
+            for (r, &v) in right.iter_mut().zip(&rl.data[start..start + N_SHIFTS + N_WIN - 1]) {
+                *r = i16::from(v);
+            }
+            let left_row = &ll.data[y * ll.w + ul - WIN as usize..][..N_WIN];
+            for (dx, &l) in left_row.iter().enumerate() {
+                let l = i16::from(l) - lc;
+                let window: &[i16; LANES] = right[dx..dx + LANES].try_into().unwrap_or(&[0; LANES]);
+                for k in 0..LANES {
+                    costs[k] = costs[k].wrapping_add((l + rc[k] - window[k]).unsigned_abs());
+                }
             }
         }
+        costs
     }
-    costs
 }
