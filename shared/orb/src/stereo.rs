@@ -191,3 +191,36 @@ multiversion! {
         costs
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_avx2_sad_gives_the_portable_result_and_the_plain_sum() {
+        let (w, h) = (64usize, 32usize);
+        let level = |seed: u32| Level {
+            w,
+            h,
+            data: (0..w * h).map(|i| ((i as u32 ^ seed).wrapping_mul(2_654_435_761) >> 24) as u8).collect(),
+        };
+        let (ll, rl) = (level(1), level(7));
+        for (ul, vl, ur) in [(20usize, 10usize, 30usize), (11, 6, 10), (40, 20, 45)] {
+            let (a, b) = (sad_costs(&ll, &rl, ul, vl, ur), sad_costs_portable(&ll, &rl, ul, vl, ur));
+            assert_eq!(a, b);
+            for (k, &cost) in a.iter().take(N_SHIFTS).enumerate() {
+                let u = ur + k - RANGE as usize;
+                let (lc, rc) = (i32::from(ll.at(ul, vl)), i32::from(rl.at(u, vl)));
+                let mut sum = 0u32;
+                for y in vl - 5..=vl + 5 {
+                    for dx in 0..11 {
+                        let l = i32::from(ll.at(ul + dx - 5, y)) - lc;
+                        let r = i32::from(rl.at(u + dx - 5, y)) - rc;
+                        sum += (l - r).unsigned_abs();
+                    }
+                }
+                assert_eq!(u32::from(cost), sum, "shift {k}");
+            }
+        }
+    }
+}
