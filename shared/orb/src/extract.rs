@@ -43,7 +43,7 @@ pub enum OrbError {
     Buffer { len: usize, w: usize, h: usize, needed: usize },
 }
 
-/// A keypoint in level-0 pixels.
+/// A keypoint in level-0 pixels: the centre of pixel x of level l is at `level_to_image(x, s^l)` (see there).
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct KeyPoint {
     pub x: f32,
@@ -54,6 +54,21 @@ pub struct KeyPoint {
     pub response: f32,
     /// Patch diameter at level 0: 31·s^octave.
     pub size: f32,
+}
+
+/// Level-0 position of the centre of pixel `x` of a level at scale `s`: (x + 0.5)·s − 0.5, since each level
+/// samples the one above at exactly that position (pixel centres at integers). ORB-SLAM2 uses x·s, which puts
+/// keypoints of octave l up to 0.5·(s^l − 1) px (1.3 px at octave 7) towards the image origin: a bias in x and y
+/// of every coarse measurement.
+#[inline]
+pub fn level_to_image(x: f32, s: f32) -> f32 {
+    (x + 0.5) * s - 0.5
+}
+
+/// The inverse of [`level_to_image`].
+#[inline]
+pub fn image_to_level(u: f32, s: f32) -> f32 {
+    (u + 0.5) / s - 0.5
 }
 
 /// Keypoints and their 256-bit descriptors, in the same order (level 0 first).
@@ -481,8 +496,8 @@ impl OrbExtractor {
                     &mut self.patch,
                 ));
                 out.keypoints.push(KeyPoint {
-                    x: c.x as f32 * scale,
-                    y: c.y as f32 * scale,
+                    x: level_to_image(f32::from(c.x), scale),
+                    y: level_to_image(f32::from(c.y), scale),
                     octave: l as u8,
                     angle: angle.to_degrees().rem_euclid(360.0),
                     response: f32::from(c.response),

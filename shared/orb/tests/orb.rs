@@ -160,9 +160,10 @@ fn stereo_matches_on_set_31_agree_with_ground_truth() {
         errors[errors.len() / 2]
     );
     assert!(total > 16 * 150, "{total} matches");
-    // Measured 87.2 % (median error 0.34 px) on the last version; the issue aims at > 95 % (see the issue note).
-    assert!(frac > 0.85, "{:.3} within 1 px", frac);
-    assert!(errors[errors.len() / 2] < 0.5);
+    // Measured 88.7 % (median error 0.26 px); the issue aims at > 95 %. What is left is mostly 1–2 px misses of
+    // the 11×11 SAD on weak, slanted texture (BENCHMARKS.md).
+    assert!(frac > 0.87, "{:.3} within 1 px", frac);
+    assert!(errors[errors.len() / 2] < 0.32);
 }
 
 #[test]
