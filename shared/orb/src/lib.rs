@@ -2,9 +2,11 @@
 //! of features (§2), written from the specification. Buffers are owned by the extractor and matcher and reused.
 
 pub mod extract;
+pub mod matching;
 pub mod pattern;
 mod simd;
 pub mod stereo;
 
-pub use extract::{Features, KeyPoint, OrbError, OrbExtractor, OrbParams, hamming};
-pub use stereo::{StereoFeatures, StereoMatcher};
+pub use extract::{Features, KeyPoint, OrbError, OrbExtractor, OrbParams, hamming, image_to_level, level_to_image};
+pub use matching::{FeatureGrid, RotationBins, RotationHistogram};
+pub use stereo::{StereoFeatures, StereoMatcher, close_depth};

@@ -19,6 +19,11 @@ const RANGE: isize = 5;
 const N_WIN: usize = 2 * WIN as usize + 1;
 const N_SHIFTS: usize = 2 * RANGE as usize + 1;
 
+/// The depth limit of close points: ThDepth baselines (bf·ThDepth/fx, §2.7).
+pub fn close_depth(th_depth: f32, baseline: f32) -> f32 {
+    th_depth * baseline
+}
+
 /// Per left keypoint: the right image's u (level-0 px) and the depth; `None` where unmatched.
 #[derive(Debug, Clone, Default)]
 pub struct StereoFeatures {
@@ -29,6 +34,13 @@ pub struct StereoFeatures {
 impl StereoFeatures {
     pub fn matched(&self) -> usize {
         self.depth.iter().filter(|d| d.is_some()).count()
+    }
+
+    /// Whether keypoint `i` is a *close* stereo point (§2.7): a depth in (0, `close_depth`), where
+    /// `close_depth` = [`close_depth`]`(ThDepth, baseline)`. Close points seed new map points at keyframes and
+    /// count in the keyframe decision; far ones are still used with full stereo residuals.
+    pub fn is_close(&self, i: usize, close_depth: f32) -> bool {
+        matches!(self.depth.get(i), Some(Some(z)) if *z > 0.0 && *z < close_depth)
     }
 }
 
@@ -213,6 +225,18 @@ multiversion! {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn close_points_are_nearer_than_th_depth_baselines() {
+        let st = StereoFeatures {
+            u_right: vec![Some(1.0), Some(1.0), None, Some(1.0)],
+            depth: vec![Some(50.0), Some(120.0), None, Some(107.0)],
+        };
+        // ThDepth 20 with b = 5.38 mm (Hamlyn 6): 107.6 mm.
+        let limit = close_depth(20.0, 5.38);
+        let close: Vec<bool> = (0..5).map(|i| st.is_close(i, limit)).collect();
+        assert_eq!(close, [true, false, false, true, false]);
+    }
 
     #[test]
     fn the_avx2_sad_gives_the_portable_result_and_the_plain_zero_mean_sum() {

@@ -1,10 +1,12 @@
 #![allow(clippy::unwrap_used, clippy::expect_used)] // test code: a panic is the failure report
-//! A warmed-up extraction and stereo match allocate nothing.
+//! A warmed-up extraction, stereo match, grid and rotation filter allocate nothing.
 
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::sync::atomic::{AtomicUsize, Ordering};
 
-use bdis_orb::{Features, OrbExtractor, OrbParams, StereoFeatures, StereoMatcher};
+use bdis_orb::{
+    FeatureGrid, Features, OrbExtractor, OrbParams, RotationBins, RotationHistogram, StereoFeatures, StereoMatcher,
+};
 
 struct Counting;
 static ALLOCATIONS: AtomicUsize = AtomicUsize::new(0);
@@ -40,10 +42,24 @@ fn a_warmed_up_stereo_frame_allocates_nothing() {
     let scales = el.scales().to_vec();
     let mut m = StereoMatcher::new();
     let (mut fl, mut fr, mut st) = (Features::default(), Features::default(), StereoFeatures::default());
+    let (mut grid, mut histogram) =
+        (FeatureGrid::new(w as f32, h as f32), RotationHistogram::new(RotationBins::FAITHFUL));
+    let (mut found, mut rejected) = (Vec::with_capacity(4096), Vec::with_capacity(4096));
     let mut frame = |el: &mut OrbExtractor, er: &mut OrbExtractor| {
         el.extract(&left, &mut fl).unwrap();
         er.extract(&right, &mut fr).unwrap();
         m.match_features(&fl, &fr, &el.levels, &er.levels, &scales, 500.0, 2500.0, &mut st);
+        // What the tracker does next: bin the right image's features, search around each left one, filter by
+        // rotation.
+        grid.build(&fr.keypoints);
+        histogram.clear();
+        for (i, k) in fl.keypoints.iter().enumerate() {
+            grid.features_in_area(&fr.keypoints, (k.x, k.y), 15.0, 0..=7, &mut found);
+            if let Some(&j) = found.first() {
+                histogram.add(i as u32, k.angle, fr.keypoints[j].angle);
+            }
+        }
+        histogram.rejected(&mut rejected);
     };
     frame(&mut el, &mut er);
     frame(&mut el, &mut er);
