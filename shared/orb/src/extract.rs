@@ -443,7 +443,7 @@ impl OrbExtractor {
             blur_acc: vec![0; width],
             pyramid_row: vec![0; width + 1],
             taps,
-            rotated: rotate_pattern(&pattern::generate()),
+            rotated: rotate_pattern(&pattern::PATTERN),
             patch: Box::new([0; PATCH_LEN]),
             scores: vec![0; width * height],
             cand_ini: vec![0; width * height],
