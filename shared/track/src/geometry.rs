@@ -1,0 +1,112 @@
+//! SE(3) helpers and the rectified stereo camera model (ORB-SLAM2-STEREO.md §3.1, §5.5).
+//!
+//! Poses here are `camera_from_world` (T_cw, the tracker's working convention: it maps world points into the
+//! camera); trajectories leave the crate as `world_from_camera` (bdis_core::geometry::Pose).
+
+use nalgebra::{Isometry3, Matrix3, Point3, Translation3, UnitQuaternion, Vector3, Vector6};
+
+/// `camera_from_world` of the left camera.
+pub type CameraFromWorld = Isometry3<f64>;
+
+/// The cross-product matrix: `skew(a)·b = a × b`.
+pub fn skew(a: &Vector3<f64>) -> Matrix3<f64> {
+    Matrix3::new(0.0, -a.z, a.y, a.z, 0.0, -a.x, -a.y, a.x, 0.0)
+}
+
+/// exp of a twist ξ = (ω, υ) (rotation first): the rigid motion of the left-multiplicative update T ← exp(ξ)·T.
+pub fn exp_se3(xi: &Vector6<f64>) -> Isometry3<f64> {
+    let omega = Vector3::new(xi[0], xi[1], xi[2]);
+    let upsilon = Vector3::new(xi[3], xi[4], xi[5]);
+    let theta = omega.norm();
+    let w = skew(&omega);
+    // V = I + (1 − cos θ)/θ² [ω]× + (θ − sin θ)/θ³ [ω]×², with its series near 0.
+    let (a, b) = if theta < 1e-5 {
+        (0.5 - theta * theta / 24.0, 1.0 / 6.0 - theta * theta / 120.0)
+    } else {
+        ((1.0 - theta.cos()) / (theta * theta), (theta - theta.sin()) / (theta * theta * theta))
+    };
+    let v = Matrix3::identity() + w * a + w * w * b;
+    Isometry3::from_parts(Translation3::from(v * upsilon), UnitQuaternion::from_scaled_axis(omega))
+}
+
+/// A rectified stereo pair's left camera: pinhole, no distortion (ORB-SLAM2-STEREO.md §1.7), and `bf`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct StereoCamera {
+    pub fx: f64,
+    pub fy: f64,
+    pub cx: f64,
+    pub cy: f64,
+    /// fx · baseline.
+    pub bf: f64,
+    pub width: usize,
+    pub height: usize,
+}
+
+impl StereoCamera {
+    pub fn baseline(&self) -> f64 {
+        self.bf / self.fx
+    }
+
+    /// (u, v) of a camera-frame point (z must be > 0).
+    pub fn project(&self, p: &Point3<f64>) -> (f64, f64) {
+        let iz = 1.0 / p.z;
+        (self.fx * p.x * iz + self.cx, self.fy * p.y * iz + self.cy)
+    }
+
+    /// (u_L, v, u_R) of a camera-frame point.
+    pub fn project_stereo(&self, p: &Point3<f64>) -> Vector3<f64> {
+        let (u, v) = self.project(p);
+        Vector3::new(u, v, u - self.bf / p.z)
+    }
+
+    /// The camera-frame point at pixel (u, v) and depth z.
+    pub fn unproject(&self, u: f64, v: f64, z: f64) -> Point3<f64> {
+        Point3::new((u - self.cx) * z / self.fx, (v - self.cy) * z / self.fy, z)
+    }
+
+    pub fn in_image(&self, u: f64, v: f64) -> bool {
+        u >= 0.0 && v >= 0.0 && u < self.width as f64 && v < self.height as f64
+    }
+}
+
+impl StereoCamera {
+    pub fn from_settings(c: &bdis_core::calib::StereoCamera, width: usize, height: usize) -> Self {
+        Self { fx: c.fx, fy: c.fy, cx: c.cx, cy: c.cy, bf: c.bf, width, height }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn exp_of_small_and_large_twists_matches_integration() {
+        for xi in [Vector6::new(1e-8, -2e-8, 3e-8, 0.1, 0.2, -0.3), Vector6::new(0.3, -0.5, 0.2, 1.0, -2.0, 0.5)] {
+            // Integrate the constant twist in 10⁴ small steps.
+            let mut t = Isometry3::identity();
+            let step = exp_first_order(&(xi / 10_000.0));
+            for _ in 0..10_000 {
+                t = step * t;
+            }
+            let e = exp_se3(&xi);
+            assert!((e.translation.vector - t.translation.vector).norm() < 1e-4, "{e} vs {t}");
+            assert!(e.rotation.angle_to(&t.rotation) < 1e-6);
+        }
+    }
+
+    fn exp_first_order(xi: &Vector6<f64>) -> Isometry3<f64> {
+        Isometry3::from_parts(
+            Translation3::new(xi[3], xi[4], xi[5]),
+            UnitQuaternion::from_scaled_axis(Vector3::new(xi[0], xi[1], xi[2])),
+        )
+    }
+
+    #[test]
+    fn stereo_projection_inverts_unprojection() {
+        let cam = StereoCamera { fx: 520.0, fy: 520.0, cx: 320.0, cy: 240.0, bf: 2600.0, width: 640, height: 480 };
+        let p = cam.unproject(100.5, 300.25, 42.0);
+        let z = cam.project_stereo(&p);
+        assert!((z.x - 100.5).abs() < 1e-12 && (z.y - 300.25).abs() < 1e-12);
+        assert!((z.x - z.z - 2600.0 / 42.0).abs() < 1e-12);
+    }
+}
