@@ -142,8 +142,8 @@ impl Surface for Abdomen {
         }
         None
     }
-    fn albedo(&self, uv: (f64, f64)) -> [u8; 3] {
-        self.texture.rgb(uv.0, uv.1)
+    fn albedo(&self, uv: (f64, f64), footprint_mm: f64) -> [u8; 3] {
+        self.texture.rgb_filtered(uv.0, uv.1, footprint_mm)
     }
     fn seed(&self) -> u64 {
         self.seed

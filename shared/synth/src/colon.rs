@@ -190,17 +190,17 @@ impl Surface for Colon {
     fn hit(&self, origin: &Point3<f64>, dir: &Vector3<f64>, max_t: f64) -> Option<Hit> {
         Colon::hit(self, origin, dir, max_t)
     }
-    fn albedo(&self, uv: (f64, f64)) -> [u8; 3] {
+    fn albedo(&self, uv: (f64, f64), footprint_mm: f64) -> [u8; 3] {
         // u runs once around the tube (0..2πR). The texture is not periodic, so over the last `blend` mm it fades
         // into its own continuation from u = 0: no seam along the tube.
         let circumference = std::f64::consts::TAU * self.radius_mm;
         let blend = 8.0;
-        let a = self.texture.rgb(uv.0, uv.1);
+        let a = self.texture.rgb_filtered(uv.0, uv.1, footprint_mm);
         let into_seam = uv.0 - (circumference - blend);
         if into_seam <= 0.0 {
             return a;
         }
-        let b = self.texture.rgb(uv.0 - circumference, uv.1);
+        let b = self.texture.rgb_filtered(uv.0 - circumference, uv.1, footprint_mm);
         let t = (into_seam / blend).clamp(0.0, 1.0);
         [0, 1, 2].map(|c| (f64::from(a[c]) * (1.0 - t) + f64::from(b[c]) * t).round() as u8)
     }

@@ -60,20 +60,62 @@ pub struct TissueTexture {
 }
 
 impl TissueTexture {
+    /// The albedo at (u, v) with all detail (a footprint of 0).
     pub fn rgb(&self, u: f64, v: f64) -> [u8; 3] {
+        self.rgb_filtered(u, v, 0.0)
+    }
+
+    /// The albedo at (u, v) for a pixel covering `footprint_mm` of surface: the fine structure (pits,
+    /// capillaries) keeps its edges at least ~2 pixels wide and fades out as it shrinks below ~3 pixels, as a
+    /// camera's optics would blur it; without this it aliases into noise in the distance.
+    pub fn rgb_filtered(&self, u: f64, v: f64, footprint_mm: f64) -> [u8; 3] {
         let n = |scale_mm: f64, k: u64| value_noise(self.seed.wrapping_add(k), u / scale_mm, v / scale_mm);
         let base = 0.5 * n(4.0, 1) + 0.3 * n(1.5, 2) + 0.2 * n(0.5, 3);
         // Vessels: thin bands where a warped noise field crosses one level.
         let warp = n(6.0, 4);
         let band = (n(3.0, 5) + 0.3 * warp - 0.55).abs();
         let vessel = (1.0 - (band / 0.025).min(1.0)).powi(2);
+        // Fine capillaries: a second, denser and fainter network of thinner bands.
+        const PIT_RADIUS_MM: f64 = 0.22;
+        let fade = ((PIT_RADIUS_MM / footprint_mm.max(1e-9) - 1.0) / 2.0).clamp(0.0, 1.0);
+        let band2 = (n(1.1, 7) + 0.25 * n(2.5, 8) - 0.55).abs();
+        let capillary = fade * (1.0 - (band2 / 0.035).min(1.0)).powi(2);
+        // Crypt openings of the mucosa: small dark pits on a jittered ~1.1 mm lattice (corner-like features,
+        // well localised, as real mucosa has and smooth noise has not).
+        let pit = fade * self.pits(u, v, 1.1, PIT_RADIUS_MM, footprint_mm);
         // Smooth areas: flatten the fine detail where a slow field is high (hard cases for matching).
         let smooth = ((n(12.0, 6) - 0.6) / 0.2).clamp(0.0, 1.0);
         let detail = base * (1.0 - smooth) + 0.55 * smooth;
-        let r = 150.0 + 90.0 * detail - 90.0 * vessel;
-        let g = 60.0 + 70.0 * detail - 40.0 * vessel;
-        let b = 60.0 + 60.0 * detail - 30.0 * vessel;
+        // The fine structure darkens the albedo (multiplicatively, so it keeps its contrast in dim light).
+        let fine = 1.0 - (0.35 * capillary + 0.55 * pit) * (1.0 - 0.7 * smooth);
+        let r = (150.0 + 90.0 * detail - 90.0 * vessel) * fine;
+        let g = (60.0 + 70.0 * detail - 40.0 * vessel) * fine;
+        let b = (60.0 + 60.0 * detail - 30.0 * vessel) * fine;
         [r.clamp(0.0, 255.0) as u8, g.clamp(0.0, 255.0) as u8, b.clamp(0.0, 255.0) as u8]
+    }
+}
+
+impl TissueTexture {
+    /// Darkness in [0, 1] of pits of radius `radius_mm` at one jittered point per `spacing_mm` cell, with a
+    /// smooth rim (band-limited for the renderer's single ray per pixel).
+    fn pits(&self, u: f64, v: f64, spacing_mm: f64, radius_mm: f64, footprint_mm: f64) -> f64 {
+        let (cu, cv) = (u / spacing_mm, v / spacing_mm);
+        let (i0, j0) = (cu.floor() as i64, cv.floor() as i64);
+        let mut nearest = f64::MAX;
+        for j in j0 - 1..=j0 + 1 {
+            for i in i0 - 1..=i0 + 1 {
+                let (pu, pv) = (
+                    i as f64 + 0.15 + 0.7 * lattice(self.seed.wrapping_add(11), i, j),
+                    j as f64 + 0.15 + 0.7 * lattice(self.seed.wrapping_add(12), i, j),
+                );
+                nearest = nearest.min((cu - pu).hypot(cv - pv));
+            }
+        }
+        let d = nearest * spacing_mm / radius_mm;
+        // A rim 0.8 r wide, or 2 pixels where that is wider, centred on r.
+        let rim = (0.8f64).max(2.0 * footprint_mm / radius_mm);
+        let t = ((1.0 + 0.5 * rim - d) / rim).clamp(0.0, 1.0);
+        t * t * (3.0 - 2.0 * t)
     }
 }
 

@@ -20,8 +20,9 @@ pub struct Hit {
 pub trait Surface: Sync {
     /// The first surface point along `origin + t·dir` (dir unit) with t < `max_t`.
     fn hit(&self, origin: &Point3<f64>, dir: &Vector3<f64>, max_t: f64) -> Option<Hit>;
-    /// Albedo at surface coordinates.
-    fn albedo(&self, uv: (f64, f64)) -> [u8; 3];
+    /// Albedo at surface coordinates, filtered for a pixel footprint of `footprint_mm` on the surface (detail
+    /// smaller than a pixel fades instead of aliasing).
+    fn albedo(&self, uv: (f64, f64), footprint_mm: f64) -> [u8; 3];
     /// Seed of the sensor noise.
     fn seed(&self) -> u64;
 }
@@ -99,7 +100,9 @@ pub fn render(
         let dir_cam = Vector3::new((u - rig.cx) / rig.fx, (v - rig.cy) / rig.fy, 1.0);
         let dir = (pose.rotation * dir_cam).normalize();
         let hit = surface.hit(&(pose * Point3::origin()), &dir, max_t)?;
-        let albedo = surface.albedo(hit.uv).map(|c| f64::from(c) / 255.0);
+        // One pixel's footprint on the surface (ignoring obliqueness).
+        let footprint_mm = hit.t / rig.fx;
+        let albedo = surface.albedo(hit.uv, footprint_mm).map(|c| f64::from(c) / 255.0);
         let (diffuse, spec) = if shading.lighting {
             let to_light = light - hit.point;
             let d2 = to_light.norm_squared();
@@ -267,8 +270,19 @@ pub fn write_sequence(
     let settings = dir.join("settings.yaml");
     let text = format!(
         "%YAML:1.0\n# Synthetic sequence written by bdis-slam synth. Units: millimetres.\n\
-Camera.fx: {}\nCamera.fy: {}\nCamera.cx: {}\nCamera.cy: {}\nCamera.width: {}\nCamera.height: {}\nCamera.fps: {}\nCamera.bf: {}\nCamera.RGB: 1\nThDepth: 20\n",
-        rig.fx, rig.fy, rig.cx, rig.cy, rig.width, rig.height, fps, bf
+# Pixel centres are at integer coordinates: the rays went through (x + 0.5, y + 0.5) with the rig's principal\n\
+# point, so the principal point here is half a pixel less.\n\
+Camera.fx: {}\nCamera.fy: {}\nCamera.cx: {}\nCamera.cy: {}\nCamera.width: {}\nCamera.height: {}\nCamera.fps: {}\nCamera.bf: {}\nCamera.RGB: 1\nThDepth: 20\n\
+# ORB settings for tracking (ORB-SLAM2's defaults; 1000 features at 640×480).\n\
+ORBextractor.nFeatures: 1000\nORBextractor.scaleFactor: 1.2\nORBextractor.nLevels: 8\nORBextractor.iniThFAST: 20\nORBextractor.minThFAST: 7\n",
+        rig.fx,
+        rig.fy,
+        rig.cx - 0.5,
+        rig.cy - 0.5,
+        rig.width,
+        rig.height,
+        fps,
+        bf
     );
     std::fs::write(&settings, text).map_err(|e| fail(&settings, &e))?;
     Ok(WrittenSequence {
