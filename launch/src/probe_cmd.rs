@@ -14,7 +14,7 @@ use iceoryx2::waitset::WaitSetRunResult;
 
 #[derive(Debug, clap::Args)]
 pub struct ProbeArgs {
-    /// Topic to watch: `frames` or `telemetry`.
+    /// Topic to watch: `frames`, `depth`, `poses` or `telemetry`.
     topic: String,
     /// Checksum each frame's left RGB pixels (FNV-1a 64) into the summary.
     #[arg(long)]
@@ -58,6 +58,10 @@ pub fn probe(args: ProbeArgs) -> Result<()> {
         Some(Topic::Frames) => probe_frames(&args),
         Some(Topic::Telemetry) => probe_telemetry(&args),
         Some(Topic::Depth) => probe_depth(&args),
+        Some(Topic::Poses) => probe_poses(&args),
+        Some(t @ (Topic::Keyframes | Topic::Corrections)) => {
+            bail!("topic `{}` has no probe yet (watch `poses` or `depth`)", t.short_name())
+        }
         None => bail!(
             "unknown topic `{}` (topics: {})",
             args.topic,
@@ -376,4 +380,98 @@ fn probe_telemetry(args: &ProbeArgs) -> Result<()> {
             bail!("no telemetry for {idle_s:.0} s");
         }
     }
+}
+
+/// What `probe poses` saw.
+#[derive(Debug, Default, serde::Serialize)]
+struct PoseSummary {
+    records: u64,
+    ok: u64,
+    lost: u64,
+    not_initialized: u64,
+    keyframes: u64,
+    end_of_stream: bool,
+    frame_seqs_in_order: bool,
+    last_world_from_camera: Option<[f64; 7]>,
+}
+
+fn probe_poses(args: &ProbeArgs) -> Result<()> {
+    use bdis_ipc::track::tracking_state;
+    let ipc = Ipc::open(&args.name, &args.ipc_prefix)?;
+    let poses = ipc.poses()?;
+    let subscriber = poses.subscriber_builder().create().map_err(|e| iox("create the poses subscriber")(&e))?;
+    let listener = ipc.listener(&ipc.events(Topic::Poses)?)?;
+    let mut telemetry = TelemetryPublisher::new(&ipc, &args.name, Some(Topic::Poses), None)?;
+    let waitset = WaitSetBuilder::new().create::<ipc::Service>().map_err(|e| iox("create a WaitSet")(&e))?;
+    let guard =
+        waitset.attach_deadline(&listener, Duration::from_secs(1)).map_err(|e| iox("attach the poses listener")(&e))?;
+    telemetry.ready();
+    let mut summary = PoseSummary { frame_seqs_in_order: true, ..Default::default() };
+    let mut last_seq: Option<u64> = None;
+    let mut last_rx = monotonic_ns();
+    'outer: loop {
+        let result =
+            waitset.wait_and_process_once(|_| CallbackProgression::Continue).map_err(|e| iox("wait for poses")(&e))?;
+        if matches!(result, WaitSetRunResult::TerminationRequest | WaitSetRunResult::Interrupt) {
+            break;
+        }
+        let _ = bdis_ipc::drain_events(&listener);
+        let _ = &guard;
+        while let Some(sample) = subscriber.receive().map_err(|e| iox("receive a pose")(&e))? {
+            let r = *sample.payload();
+            last_rx = monotonic_ns();
+            if r.state == tracking_state::END_OF_STREAM {
+                summary.end_of_stream = true;
+                break 'outer;
+            }
+            summary.records += 1;
+            match r.state {
+                tracking_state::OK => {
+                    summary.ok += 1;
+                    summary.last_world_from_camera = Some(r.world_from_camera);
+                }
+                tracking_state::LOST => summary.lost += 1,
+                _ => summary.not_initialized += 1,
+            }
+            summary.keyframes += u64::from(r.new_keyframe != u64::MAX);
+            if last_seq.is_some_and(|l| r.frame_seq <= l) {
+                summary.frame_seqs_in_order = false;
+            }
+            last_seq = Some(r.frame_seq);
+            telemetry.message(
+                MessageTiming {
+                    frame_seq: r.frame_seq,
+                    t_capture_ns: r.t_capture_ns,
+                    t_upstream_publish_ns: r.t_publish_ns,
+                    t_receive_ns: last_rx,
+                    t_done_ns: monotonic_ns(),
+                },
+                0,
+            );
+        }
+        status(&format!(
+            "poses: {} ({} ok, {} lost, {} keyframes)",
+            summary.records, summary.ok, summary.lost, summary.keyframes
+        ));
+        if args.max_frames.is_some_and(|m| summary.records >= m) {
+            break;
+        }
+        if args.idle_timeout.is_some_and(|t| (monotonic_ns() - last_rx) as f64 / 1e9 > t) {
+            break;
+        }
+    }
+    if let Some(path) = summary_path(args) {
+        let text = serde_json::to_string_pretty(&summary).context("serialise the probe summary")?;
+        std::fs::write(&path, text).with_context(|| format!("{}: cannot write the probe summary", path.display()))?;
+    }
+    println!(
+        "poses: {} records, {} ok, {} lost, {} keyframes, end of stream: {}",
+        summary.records,
+        summary.ok,
+        summary.lost,
+        summary.keyframes,
+        if summary.end_of_stream { "yes" } else { "no" }
+    );
+    telemetry.finished();
+    Ok(())
 }

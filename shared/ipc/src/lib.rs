@@ -26,11 +26,13 @@ pub mod frame;
 pub mod process;
 pub mod shm;
 pub mod telemetry;
+pub mod track;
 
 pub use clock::monotonic_ns;
 pub use depth::{DepthHeader, DepthView};
 pub use frame::{FrameHeader, FrameLayout, FrameView};
 pub use telemetry::{TelemetryKind, TelemetryPublisher, TelemetryRecord};
+pub use track::{KeyframeHeader, KeyframePose, PoseRecord};
 
 /// The environment variable through which the launcher hands each child its run's name prefix.
 pub const PREFIX_ENV: &str = "BDIS_IPC_PREFIX";
@@ -62,10 +64,17 @@ pub enum Topic {
     Telemetry,
     /// Depth keyframes from stereo: `[u8]` = disparity f32, confidence f32, left RGB; header [`DepthHeader`].
     Depth,
+    /// A pose per frame from tracking: fixed-size [`PoseRecord`]s.
+    Poses,
+    /// Keyframes from tracking: `[u8]` = left grey, right grey, left RGB (as frames); header [`KeyframeHeader`].
+    Keyframes,
+    /// Keyframe pose corrections from tracking's bundle adjustment: fixed-size [`KeyframePose`]s.
+    Corrections,
 }
 
 impl Topic {
-    pub const ALL: [Topic; 3] = [Topic::Frames, Topic::Telemetry, Topic::Depth];
+    pub const ALL: [Topic; 6] =
+        [Topic::Frames, Topic::Telemetry, Topic::Depth, Topic::Poses, Topic::Keyframes, Topic::Corrections];
 
     /// The short name users type (`bdis-slam probe frames`).
     pub fn short_name(self) -> &'static str {
@@ -73,6 +82,9 @@ impl Topic {
             Topic::Frames => "frames",
             Topic::Telemetry => "telemetry",
             Topic::Depth => "depth",
+            Topic::Poses => "poses",
+            Topic::Keyframes => "keyframes",
+            Topic::Corrections => "corrections",
         }
     }
 
@@ -82,6 +94,9 @@ impl Topic {
             Topic::Frames => "bdis/v1/frames",
             Topic::Telemetry => "bdis/v1/telemetry",
             Topic::Depth => "bdis/v1/depth",
+            Topic::Poses => "bdis/v1/poses",
+            Topic::Keyframes => "bdis/v1/keyframes",
+            Topic::Corrections => "bdis/v1/corrections",
         }
     }
 
@@ -132,6 +147,9 @@ pub struct Ipc {
 pub type FramesService = PubSubFactory<ipc::Service, [u8], FrameHeader>;
 pub type TelemetryService = PubSubFactory<ipc::Service, TelemetryRecord, ()>;
 pub type DepthService = PubSubFactory<ipc::Service, [u8], DepthHeader>;
+pub type PosesService = PubSubFactory<ipc::Service, PoseRecord, ()>;
+pub type KeyframesService = PubSubFactory<ipc::Service, [u8], KeyframeHeader>;
+pub type CorrectionsService = PubSubFactory<ipc::Service, KeyframePose, ()>;
 pub type Events = EventFactory<ipc::Service>;
 
 /// QoS of every topic. Sizing (IPC-NOTES §2): samples per publisher segment =
@@ -149,6 +167,16 @@ pub mod qos {
     pub const DEPTH_BORROWED: usize = 2;
     pub const MAX_NODES: usize = 32;
     pub const TELEMETRY_MAX_PUBLISHERS: usize = 16;
+    /// Keyframes: 3 · (8 + 2) + 0 + 1 = 31 samples of 5·W·H bytes (48 MB at 640×480). The buffer covers a
+    /// stereo instance being busy for 8 keyframes (seconds of tracking) before the oldest is lost.
+    pub const KEYFRAMES_MAX_PUBLISHERS: usize = 2;
+    pub const KEYFRAMES_MAX_SUBSCRIBERS: usize = 3;
+    pub const KEYFRAMES_BUFFER: usize = 8;
+    pub const KEYFRAMES_BORROWED: usize = 2;
+    /// Poses and corrections are small; their buffers hold seconds of them.
+    pub const POSES_MAX_SUBSCRIBERS: usize = 4;
+    pub const POSES_BUFFER: usize = 256;
+    pub const CORRECTIONS_BUFFER: usize = 1024;
     pub const TELEMETRY_MAX_SUBSCRIBERS: usize = 3;
     /// Records are drained by the launcher every [`TELEMETRY_DRAIN_PERIOD`](super::TELEMETRY_DRAIN_PERIOD); the
     /// buffer holds seconds of them at pipeline rates.
@@ -293,6 +321,84 @@ impl Ipc {
             .buffer_size(qos::FRAMES_BUFFER)
             .create()
             .map_err(iox("create the frames subscriber"))
+    }
+
+    pub fn poses(&self) -> Result<PosesService, IpcError> {
+        let name = Self::service_name(Topic::Poses)?;
+        Self::with_retry("open the poses service", || {
+            self.node
+                .service_builder(&name)
+                .publish_subscribe::<PoseRecord>()
+                .max_publishers(2)
+                .max_subscribers(qos::POSES_MAX_SUBSCRIBERS)
+                .max_nodes(qos::MAX_NODES)
+                .subscriber_max_buffer_size(qos::POSES_BUFFER)
+                .subscriber_max_borrowed_samples(2)
+                .history_size(0)
+                .enable_safe_overflow(true)
+                .open_or_create()
+        })
+    }
+
+    pub fn corrections(&self) -> Result<CorrectionsService, IpcError> {
+        let name = Self::service_name(Topic::Corrections)?;
+        Self::with_retry("open the corrections service", || {
+            self.node
+                .service_builder(&name)
+                .publish_subscribe::<KeyframePose>()
+                .max_publishers(2)
+                .max_subscribers(qos::POSES_MAX_SUBSCRIBERS)
+                .max_nodes(qos::MAX_NODES)
+                .subscriber_max_buffer_size(qos::CORRECTIONS_BUFFER)
+                .subscriber_max_borrowed_samples(2)
+                .history_size(0)
+                .enable_safe_overflow(true)
+                .open_or_create()
+        })
+    }
+
+    pub fn keyframes(&self) -> Result<KeyframesService, IpcError> {
+        let name = Self::service_name(Topic::Keyframes)?;
+        Self::with_retry("open the keyframes service", || {
+            self.node
+                .service_builder(&name)
+                .publish_subscribe::<[u8]>()
+                .user_header::<KeyframeHeader>()
+                .max_publishers(qos::KEYFRAMES_MAX_PUBLISHERS)
+                .max_subscribers(qos::KEYFRAMES_MAX_SUBSCRIBERS)
+                .max_nodes(qos::MAX_NODES)
+                .subscriber_max_buffer_size(qos::KEYFRAMES_BUFFER)
+                .subscriber_max_borrowed_samples(qos::KEYFRAMES_BORROWED)
+                .history_size(0)
+                .enable_safe_overflow(true)
+                .open_or_create()
+        })
+    }
+
+    /// A keyframe publisher for frames of up to `max_frame_bytes`.
+    pub fn keyframe_publisher(
+        &self,
+        service: &KeyframesService,
+        max_frame_bytes: usize,
+    ) -> Result<Publisher<ipc::Service, [u8], KeyframeHeader>, IpcError> {
+        service
+            .publisher_builder()
+            .initial_max_slice_len(max_frame_bytes)
+            .allocation_strategy(AllocationStrategy::Static)
+            .max_loaned_samples(1)
+            .create()
+            .map_err(iox("create the keyframes publisher"))
+    }
+
+    pub fn keyframe_subscriber(
+        &self,
+        service: &KeyframesService,
+    ) -> Result<Subscriber<ipc::Service, [u8], KeyframeHeader>, IpcError> {
+        service
+            .subscriber_builder()
+            .buffer_size(qos::KEYFRAMES_BUFFER)
+            .create()
+            .map_err(iox("create the keyframes subscriber"))
     }
 
     pub fn depth(&self) -> Result<DepthService, IpcError> {

@@ -1,5 +1,13 @@
 //! Stereo tracking in the manner of ORB-SLAM2 (ORB-SLAM2-STEREO.md §3–§7), written from the specification, as
-//! pure compute: no threads it does not own, no processes, no I/O.
+//! pure compute: no processes, no I/O.
 
+pub mod frame;
 pub mod geometry;
+pub mod map;
+pub mod mapper;
 pub mod optim;
+pub mod search;
+pub mod tracker;
+
+pub use geometry::{CameraFromWorld, StereoCamera};
+pub use tracker::{FrameResult, TrackError, Tracker, TrackerSettings, TrackingState};

@@ -4,7 +4,7 @@
 //! Bundle adjustment marginalises the points with the Schur complement and solves the reduced camera system
 //! densely (a local window holds tens of keyframes).
 
-use crate::geometry::{CameraFromWorld, StereoCamera, exp_se3, skew};
+use crate::geometry::{CameraFromWorld, StereoCamera, skew, update};
 use nalgebra::{DMatrix, DVector, Matrix3, Matrix3x6, Matrix6, Point3, SMatrix, Vector3, Vector6};
 
 /// χ² thresholds (95 %) of 2 and 3 degrees of freedom: outlier classification.
@@ -188,7 +188,7 @@ impl PoseOptimizer {
                         lambda *= 10.0;
                         continue;
                     };
-                    let candidate = exp_se3(&step) * current;
+                    let candidate = update(&step, &current);
                     let c = cost(&candidate, outlier);
                     if c < current_cost {
                         current = candidate;
@@ -420,7 +420,7 @@ impl BaProblem {
                         if block[i] == usize::MAX {
                             *t
                         } else {
-                            exp_se3(&Vector6::from_iterator(dp.fixed_rows::<6>(6 * block[i]).iter().copied())) * t
+                            update(&Vector6::from_iterator(dp.fixed_rows::<6>(6 * block[i]).iter().copied()), t)
                         }
                     })
                     .collect();
@@ -446,6 +446,7 @@ impl BaProblem {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::geometry::exp_se3;
     use nalgebra::{Isometry3, Vector3};
 
     fn cam() -> StereoCamera {

@@ -1,0 +1,279 @@
+//! `bdis-tracking`: the tracking service. Reads each frame's grey images in place in shared memory, tracks it
+//! (`bdis-track`), and publishes a pose per frame, each new keyframe with its stereo images, pose and
+//! intrinsics (for the dense stereo service), and the keyframes bundle adjustment moved. It never waits for a
+//! consumer of its outputs: their topics overflow safely. On the end of the stream it writes the trajectory
+//! (TUM and KITTI) and the keyframe trajectory into the run folder.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::time::Duration;
+
+use anyhow::{Context, Result, anyhow, bail};
+use bdis_core::geometry::StampedPose;
+use bdis_ipc::telemetry::MessageTiming;
+use bdis_ipc::track::{pose_to_array, tracking_state};
+use bdis_ipc::{
+    FrameView, Ipc, KeyframeHeader, KeyframePose, PoseRecord, TelemetryPublisher, Topic, event_id, monotonic_ns,
+};
+use bdis_track::{StereoCamera, Tracker, TrackerSettings, TrackingState};
+use clap::Parser;
+use iceoryx2::prelude::*;
+use iceoryx2::waitset::WaitSetRunResult;
+
+/// Tracking service: stereo frames in; poses, keyframes and pose corrections out.
+#[derive(Debug, Parser)]
+#[command(name = "bdis-tracking", version)]
+struct Args {
+    /// Settings file: the camera (fx, fy, cx, cy, bf, width, height, fps), `ThDepth`, `ORBextractor.*`.
+    #[arg(long)]
+    settings: PathBuf,
+    /// Folder for the trajectories (default: the run folder the launcher gives, else the current folder).
+    #[arg(long, env = "BDIS_RUN_DIR")]
+    out: Option<PathBuf>,
+    /// Name of this process in the run.
+    #[arg(long, env = "BDIS_SERVICE_NAME", default_value = "tracking")]
+    name: String,
+    /// Shared-memory name prefix of the run (set by the launcher).
+    #[arg(long, env = bdis_ipc::PREFIX_ENV, default_value = bdis_ipc::DEFAULT_PREFIX)]
+    ipc_prefix: String,
+}
+
+fn main() -> ExitCode {
+    bdis_ipc::process::init_logging();
+    bdis_ipc::process::finish("bdis-tracking", run(Args::parse()))
+}
+
+fn iox(what: &'static str) -> impl FnOnce(&dyn std::fmt::Debug) -> anyhow::Error {
+    move |e| anyhow!("{what}: {e:?}")
+}
+
+fn state_code(state: TrackingState) -> u32 {
+    match state {
+        TrackingState::NotInitialized => tracking_state::NOT_INITIALIZED,
+        TrackingState::Ok => tracking_state::OK,
+        TrackingState::Lost => tracking_state::LOST,
+    }
+}
+
+fn run(args: Args) -> Result<()> {
+    // Everything that can be wrong with the input is found before shared memory is touched.
+    let settings = bdis_core::Settings::load(&args.settings)?;
+    let camera = settings.camera;
+    let (Some(width), Some(height)) = (camera.width, camera.height) else {
+        bail!("{}: the tracker needs `Camera.width` and `Camera.height`", args.settings.display());
+    };
+    if !camera.distortion.is_zero() {
+        bail!("{}: Camera.k1…: stereo tracking needs rectified images (no distortion)", args.settings.display());
+    }
+    let cam = StereoCamera::from_settings(&camera, width as usize, height as usize);
+    let tracker_settings = TrackerSettings {
+        th_depth: settings.th_depth,
+        fps: settings.fps,
+        orb: bdis_orb::OrbParams::from_settings(&settings.orb),
+    };
+    let mut tracker = Tracker::new(cam, tracker_settings).with_context(|| format!("{}", args.settings.display()))?;
+    let out_dir = args.out.clone().unwrap_or_else(|| PathBuf::from("."));
+
+    let ipc = Ipc::open(&args.name, &args.ipc_prefix)?;
+    let frames = ipc.frames()?;
+    let subscriber = ipc.frame_subscriber(&frames)?;
+    let frame_events = ipc.listener(&ipc.events(Topic::Frames)?)?;
+    let credits = ipc.notifier(&ipc.frames_consumed()?)?;
+    let poses = ipc.poses()?;
+    let pose_publisher = poses.publisher_builder().create().map_err(|e| iox("create the poses publisher")(&e))?;
+    let pose_events = ipc.notifier(&ipc.events(Topic::Poses)?)?;
+    let keyframes = ipc.keyframes()?;
+    let frame_bytes = bdis_ipc::FrameLayout::packed(width, height)
+        .ok_or_else(|| anyhow!("{width}×{height}: no frame layout"))?
+        .payload_len();
+    let keyframe_publisher = ipc.keyframe_publisher(&keyframes, frame_bytes)?;
+    let keyframe_events = ipc.notifier(&ipc.events(Topic::Keyframes)?)?;
+    let corrections = ipc.corrections()?;
+    let correction_publisher =
+        corrections.publisher_builder().create().map_err(|e| iox("create the corrections publisher")(&e))?;
+    let correction_events = ipc.notifier(&ipc.events(Topic::Corrections)?)?;
+    let mut telemetry = TelemetryPublisher::new(&ipc, &args.name, Some(Topic::Frames), Some(Topic::Poses))?;
+    let waitset = WaitSetBuilder::new().create::<ipc::Service>().map_err(|e| iox("create a WaitSet")(&e))?;
+    let guard = waitset
+        .attach_deadline(&frame_events, Duration::from_secs(1))
+        .map_err(|e| iox("attach the frames listener")(&e))?;
+
+    let mut generation = 0u64;
+    let mut last_seq: Option<u64> = None;
+    let (mut n_frames, mut n_keyframes, mut n_lost) = (0u64, 0u64, 0u64);
+    telemetry.ready();
+    bdis_ipc::notify(&credits, event_id::JOINED)?;
+    tracing::info!("tracking ready ({}×{}, {} features)", width, height, settings.orb.n_features);
+
+    'outer: loop {
+        let result =
+            waitset.wait_and_process_once(|_| CallbackProgression::Continue).map_err(|e| iox("wait for frames")(&e))?;
+        if matches!(result, WaitSetRunResult::TerminationRequest | WaitSetRunResult::Interrupt) {
+            tracing::info!("stop requested after {n_frames} frames");
+            break;
+        }
+        let _ = bdis_ipc::drain_events(&frame_events);
+        let _ = &guard;
+        loop {
+            let sample = match subscriber.receive() {
+                Ok(Some(s)) => s,
+                Ok(None) => break,
+                Err(e) => bail!("receive a frame: {e:?}"),
+            };
+            let t_receive_ns = monotonic_ns();
+            let header = *sample.user_header();
+            if header.is_end_of_stream() {
+                let mut end = keyframe_publisher
+                    .loan_slice_uninit(0)
+                    .map_err(|e| anyhow!("loan the end-of-stream keyframe: {e:?}"))?;
+                end.user_header_mut().frame = header;
+                // SAFETY: a zero-length payload has nothing to initialise.
+                let end = unsafe { end.assume_init() };
+                end.send().map_err(|e| anyhow!("send the end-of-stream keyframe: {e:?}"))?;
+                bdis_ipc::notify(&keyframe_events, event_id::END_OF_STREAM)?;
+                let record = PoseRecord {
+                    frame_seq: header.frame_seq,
+                    state: tracking_state::END_OF_STREAM,
+                    ..Default::default()
+                };
+                pose_publisher.send_copy(record).map_err(|e| anyhow!("send the end-of-stream pose: {e:?}"))?;
+                bdis_ipc::notify(&pose_events, event_id::END_OF_STREAM)?;
+                tracing::info!("end of stream after {n_frames} frames");
+                break 'outer;
+            }
+            // A frame sent again after a consumer joined (on-demand replay) that this instance already tracked.
+            if last_seq.is_some_and(|l| header.frame_seq <= l) {
+                drop(sample);
+                bdis_ipc::notify(&credits, event_id::CONSUMED)?;
+                continue;
+            }
+            let view = match FrameView::new(sample.user_header(), sample.payload()) {
+                Ok(v) if v.header.gray_stride == v.header.width => v,
+                Ok(_) => bail!("frame {}: padded grey rows are not supported", header.frame_seq),
+                Err(e) => bail!("{e}"),
+            };
+            if (header.width, header.height) != (width, height) {
+                bail!(
+                    "frame {} is {}×{}, but {} says Camera.width × Camera.height = {width}×{height}",
+                    header.frame_seq,
+                    header.width,
+                    header.height,
+                    args.settings.display()
+                );
+            }
+            let cpu_start = bdis_ipc::clock::process_cpu_ns();
+            let result = tracker
+                .track(header.t_source_ns, view.left_gray, view.right_gray)
+                .with_context(|| format!("frame {}", header.frame_seq))?;
+            let cpu_ns = bdis_ipc::clock::process_cpu_ns().saturating_sub(cpu_start);
+            // A new keyframe goes out with its images (copied from the frame, which goes back to acquisition).
+            if let Some(kf) = result.new_keyframe {
+                let pose = tracker.map.keyframes[kf].camera_from_world.inverse();
+                let mut loan = keyframe_publisher
+                    .loan_slice_uninit(frame_bytes)
+                    .map_err(|e| anyhow!("loan a keyframe sample: {e:?}"))?;
+                let payload = sample.payload();
+                for (d, &b) in loan.payload_mut().iter_mut().zip(&payload[..frame_bytes.min(payload.len())]) {
+                    d.write(b);
+                }
+                // SAFETY: the frame's payload has frame_bytes bytes (checked by FrameView against its layout,
+                // and the layout is the packed one of this size), all copied above.
+                let mut kf_sample = unsafe { loan.assume_init() };
+                *kf_sample.user_header_mut() = KeyframeHeader {
+                    frame: header,
+                    kf_id: kf as u64,
+                    world_from_camera: pose_to_array(&pose),
+                    fx: camera.fx,
+                    fy: camera.fy,
+                    cx: camera.cx,
+                    cy: camera.cy,
+                    bf: camera.bf,
+                };
+                kf_sample.send().map_err(|e| anyhow!("send keyframe {kf}: {e:?}"))?;
+                bdis_ipc::notify(&keyframe_events, event_id::NEW_SAMPLE)?;
+                n_keyframes += 1;
+            }
+            drop(sample);
+            bdis_ipc::notify(&credits, event_id::CONSUMED)?;
+            // Corrections for every keyframe bundle adjustment moved (the new one included).
+            if let Some(report) = &result.mapper {
+                generation += 1;
+                for &k in &report.moved {
+                    let k_pose = tracker.map.keyframes[k].camera_from_world.inverse();
+                    let record = KeyframePose {
+                        kf_id: k as u64,
+                        world_from_camera: pose_to_array(&k_pose),
+                        generation,
+                        culled: 0,
+                        reserved: 0,
+                    };
+                    correction_publisher.send_copy(record).map_err(|e| anyhow!("send a correction: {e:?}"))?;
+                }
+                if !report.moved.is_empty() {
+                    bdis_ipc::notify(&correction_events, event_id::NEW_SAMPLE)?;
+                }
+            }
+            let t_publish_ns = monotonic_ns();
+            let record = PoseRecord {
+                frame_seq: header.frame_seq,
+                t_capture_ns: header.t_capture_ns,
+                t_source_ns: header.t_source_ns,
+                t_publish_ns,
+                world_from_camera: result.camera_from_world.map(|p| pose_to_array(&p.inverse())).unwrap_or([0.0; 7]),
+                state: state_code(result.state),
+                inliers: result.inliers as u32,
+                new_keyframe: result.new_keyframe.map_or(u64::MAX, |k| k as u64),
+                cpu_ns,
+            };
+            pose_publisher.send_copy(record).map_err(|e| anyhow!("send pose {}: {e:?}", header.frame_seq))?;
+            bdis_ipc::notify(&pose_events, event_id::NEW_SAMPLE)?;
+            n_frames += 1;
+            n_lost += u64::from(result.state == TrackingState::Lost);
+            last_seq = Some(header.frame_seq);
+            if result.state != TrackingState::Ok || result.new_keyframe.is_some() || header.frame_seq % 50 == 0 {
+                tracing::info!(
+                    "frame {}: {:?}, {} inliers{}, {:.1} ms CPU",
+                    header.frame_seq,
+                    result.state,
+                    result.inliers,
+                    result.new_keyframe.map(|k| format!(", keyframe {k}")).unwrap_or_default(),
+                    cpu_ns as f64 / 1e6
+                );
+            }
+            telemetry.message(
+                MessageTiming {
+                    frame_seq: header.frame_seq,
+                    t_capture_ns: header.t_capture_ns,
+                    t_upstream_publish_ns: header.t_publish_ns,
+                    t_receive_ns,
+                    t_done_ns: t_publish_ns,
+                },
+                cpu_ns,
+            );
+        }
+    }
+    write_trajectories(&tracker, &out_dir)?;
+    tracing::info!("{n_frames} frames, {n_keyframes} keyframes, {n_lost} lost; trajectories in {}", out_dir.display());
+    telemetry.finished();
+    Ok(())
+}
+
+/// trajectory.tum / trajectory.kitti (every tracked frame, from the final keyframe poses) and keyframes.tum.
+fn write_trajectories(tracker: &Tracker, dir: &std::path::Path) -> Result<()> {
+    use bdis_core::formats::trajectory::{write_kitti, write_tum};
+    let frames: Vec<StampedPose> = tracker
+        .trajectory()
+        .into_iter()
+        .map(|(t_ns, pose, _lost)| StampedPose { t_s: t_ns as f64 * 1e-9, world_from_camera: pose })
+        .collect();
+    write_tum(&dir.join("trajectory.tum"), &frames)?;
+    let kitti: Vec<_> = frames.iter().map(|p| p.world_from_camera).collect();
+    write_kitti(&dir.join("trajectory.kitti"), &kitti)?;
+    let keyframes: Vec<StampedPose> = tracker
+        .keyframe_trajectory()
+        .into_iter()
+        .map(|(t_ns, pose)| StampedPose { t_s: t_ns as f64 * 1e-9, world_from_camera: pose })
+        .collect();
+    write_tum(&dir.join("keyframes.tum"), &keyframes)?;
+    Ok(())
+}

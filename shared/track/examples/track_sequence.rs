@@ -1,0 +1,73 @@
+//! Tracks a plain sequence folder (left/<n>.png, right/<n>.png, times.txt, settings.yaml, n from 1) offline and
+//! writes the trajectory as TUM: a development tool (the product runs the `bdis-tracking` service).
+//!
+//! cargo run --release -p bdis-track --example track_sequence -- <dir> <out.tum> [max frames]
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+use bdis_track::{StereoCamera, Tracker, TrackerSettings};
+use std::io::Write;
+
+fn grey(path: &std::path::Path) -> (Vec<u8>, usize, usize) {
+    let img = image::open(path).unwrap().to_rgb8();
+    let (w, h) = (img.width() as usize, img.height() as usize);
+    let g = img
+        .pixels()
+        .map(|p| ((u32::from(p[0]) * 4899 + u32::from(p[1]) * 9617 + u32::from(p[2]) * 1868 + 8192) >> 14) as u8)
+        .collect();
+    (g, w, h)
+}
+
+fn main() {
+    let a: Vec<String> = std::env::args().collect();
+    let dir = std::path::Path::new(&a[1]);
+    let max: usize = a.get(3).and_then(|s| s.parse().ok()).unwrap_or(usize::MAX);
+    let settings = bdis_core::settings::Settings::load(&dir.join("settings.yaml")).unwrap();
+    let times: Vec<f64> =
+        std::fs::read_to_string(dir.join("times.txt")).unwrap().lines().map(|l| l.trim().parse().unwrap()).collect();
+    let (_, w, h) = grey(&dir.join("left/1.png"));
+    let cam = StereoCamera::from_settings(&settings.camera, w, h);
+    let ts = TrackerSettings {
+        th_depth: settings.th_depth,
+        fps: settings.fps,
+        orb: bdis_orb::OrbParams::from_settings(&settings.orb),
+    };
+    let mut tracker = Tracker::new(cam, ts).unwrap();
+    let mut cpu = Vec::new();
+    let mut kf_ms = Vec::new();
+    for (i, &t) in times.iter().enumerate().take(max) {
+        let (l, _, _) = grey(&dir.join(format!("left/{}.png", i + 1)));
+        let (r, _, _) = grey(&dir.join(format!("right/{}.png", i + 1)));
+        let start = std::time::Instant::now();
+        let res = tracker.track((t * 1e9).round() as u64, &l, &r).unwrap();
+        let ms = start.elapsed().as_secs_f64() * 1e3;
+        if res.new_keyframe.is_some() {
+            kf_ms.push(ms);
+        } else {
+            cpu.push(ms);
+        }
+        if i % 20 == 0 || res.state != bdis_track::TrackingState::Ok {
+            eprintln!(
+                "frame {i}: {:?} inliers {} kf {:?} {:.1} ms, map {} kfs {} points",
+                res.state,
+                res.inliers,
+                res.new_keyframe,
+                ms,
+                tracker.map.n_good_keyframes(),
+                tracker.map.points.iter().filter(|p| !p.bad).count()
+            );
+        }
+    }
+    cpu.sort_by(f64::total_cmp);
+    kf_ms.sort_by(f64::total_cmp);
+    eprintln!(
+        "per frame (no keyframe): median {:.1} ms; keyframe frames: {} median {:.1} ms",
+        cpu.get(cpu.len() / 2).copied().unwrap_or(0.0),
+        kf_ms.len(),
+        kf_ms.get(kf_ms.len() / 2).copied().unwrap_or(0.0)
+    );
+    let mut out = std::fs::File::create(&a[2]).unwrap();
+    for (t_ns, pose, _lost) in tracker.trajectory() {
+        let q = pose.rotation.quaternion();
+        let p = pose.translation.vector;
+        writeln!(out, "{:.6} {} {} {} {} {} {} {}", t_ns as f64 * 1e-9, p.x, p.y, p.z, q.i, q.j, q.k, q.w).unwrap();
+    }
+}

@@ -1,0 +1,170 @@
+//! A stereo frame: ORB features of the left image, their stereo matches and depths, the grid (§2, §3.1).
+
+use crate::geometry::{CameraFromWorld, StereoCamera};
+use crate::map::PointId;
+use bdis_orb::{FeatureGrid, Features, KeyPoint, OrbError, OrbExtractor, OrbParams, StereoFeatures, StereoMatcher};
+
+/// The pyramid's scales and the information of each octave (σ⁻² = s^−2o).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Scales {
+    pub factor: f64,
+    pub scale: Vec<f64>,
+    pub inv_sigma2: Vec<f64>,
+}
+
+impl Scales {
+    pub fn new(factor: f64, levels: usize) -> Self {
+        let scale: Vec<f64> = (0..levels).map(|l| factor.powi(l as i32)).collect();
+        let inv_sigma2 = scale.iter().map(|s| 1.0 / (s * s)).collect();
+        Self { factor, scale, inv_sigma2 }
+    }
+
+    pub fn levels(&self) -> usize {
+        self.scale.len()
+    }
+
+    /// The octave at which a point seen at `dist` with a scale-invariance limit `max_dist` should appear.
+    pub fn predict_level(&self, dist: f64, max_dist: f64) -> usize {
+        let ratio = max_dist / dist;
+        let level = (ratio.ln() / self.factor.ln()).ceil();
+        if level.is_nan() || level < 0.0 { 0 } else { (level as usize).min(self.levels() - 1) }
+    }
+}
+
+/// One stereo frame. `points[i]` links keypoint i to a map point; `outlier[i]` marks links rejected by the
+/// last pose optimisation.
+#[derive(Debug, Clone)]
+pub struct Frame {
+    pub id: u64,
+    pub t_ns: u64,
+    pub keypoints: Vec<KeyPoint>,
+    pub descriptors: Vec<[u8; 32]>,
+    /// u of the right-image match (level-0 px), −1 where none.
+    pub u_right: Vec<f32>,
+    /// Stereo depth, −1 where none.
+    pub depth: Vec<f32>,
+    pub grid: FeatureGrid,
+    pub points: Vec<Option<PointId>>,
+    pub outlier: Vec<bool>,
+    pub camera_from_world: Option<CameraFromWorld>,
+}
+
+impl Frame {
+    pub fn empty(cam: &StereoCamera) -> Self {
+        Self {
+            id: 0,
+            t_ns: 0,
+            keypoints: Vec::new(),
+            descriptors: Vec::new(),
+            u_right: Vec::new(),
+            depth: Vec::new(),
+            grid: FeatureGrid::new(cam.width as f32, cam.height as f32),
+            points: Vec::new(),
+            outlier: Vec::new(),
+            camera_from_world: None,
+        }
+    }
+
+    pub fn len(&self) -> usize {
+        self.keypoints.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.keypoints.is_empty()
+    }
+
+    /// The world point of keypoint i from its stereo depth (needs a pose and a depth).
+    pub fn unproject_world(&self, cam: &StereoCamera, i: usize) -> Option<nalgebra::Point3<f64>> {
+        let z = f64::from(*self.depth.get(i)?);
+        if z <= 0.0 {
+            return None;
+        }
+        let k = &self.keypoints[i];
+        let pc = cam.unproject(f64::from(k.x), f64::from(k.y), z);
+        Some(self.camera_from_world?.inverse() * pc)
+    }
+
+    /// Copies another frame into this one, reusing this one's buffers.
+    pub fn copy_from(&mut self, other: &Frame) {
+        self.id = other.id;
+        self.t_ns = other.t_ns;
+        self.keypoints.clone_from(&other.keypoints);
+        self.descriptors.clone_from(&other.descriptors);
+        self.u_right.clone_from(&other.u_right);
+        self.depth.clone_from(&other.depth);
+        self.grid.clone_from(&other.grid);
+        self.points.clone_from(&other.points);
+        self.outlier.clone_from(&other.outlier);
+        self.camera_from_world = other.camera_from_world;
+    }
+}
+
+/// Builds frames from grey stereo pairs with buffers it owns.
+#[derive(Debug)]
+pub struct FrameBuilder {
+    cam: StereoCamera,
+    left: OrbExtractor,
+    right: OrbExtractor,
+    matcher: StereoMatcher,
+    left_features: Features,
+    right_features: Features,
+    stereo: StereoFeatures,
+    scales: Scales,
+    next_id: u64,
+}
+
+impl FrameBuilder {
+    pub fn new(cam: StereoCamera, params: OrbParams) -> Result<Self, OrbError> {
+        let left = OrbExtractor::new(params, cam.width, cam.height)?;
+        let right = OrbExtractor::new(params, cam.width, cam.height)?;
+        let scales = Scales::new(params.scale_factor, params.n_levels as usize);
+        Ok(Self {
+            cam,
+            left,
+            right,
+            matcher: StereoMatcher::new(),
+            left_features: Features::default(),
+            right_features: Features::default(),
+            stereo: StereoFeatures::default(),
+            scales,
+            next_id: 0,
+        })
+    }
+
+    pub fn scales(&self) -> &Scales {
+        &self.scales
+    }
+
+    /// Extracts and matches a grey pair into `frame` (its buffers reused).
+    pub fn build(&mut self, t_ns: u64, left: &[u8], right: &[u8], frame: &mut Frame) -> Result<(), OrbError> {
+        self.left.extract(left, &mut self.left_features)?;
+        self.right.extract(right, &mut self.right_features)?;
+        self.matcher.match_features(
+            &self.left_features,
+            &self.right_features,
+            &self.left.levels,
+            &self.right.levels,
+            &self.scales.scale,
+            self.cam.fx as f32,
+            self.cam.bf as f32,
+            &mut self.stereo,
+        );
+        frame.id = self.next_id;
+        self.next_id += 1;
+        frame.t_ns = t_ns;
+        frame.keypoints.clone_from(&self.left_features.keypoints);
+        frame.descriptors.clone_from(&self.left_features.descriptors);
+        frame.u_right.clear();
+        frame.u_right.extend(self.stereo.u_right.iter().map(|u| u.unwrap_or(-1.0)));
+        frame.depth.clear();
+        frame.depth.extend(self.stereo.depth.iter().map(|d| d.unwrap_or(-1.0)));
+        frame.grid.build(&frame.keypoints);
+        let n = frame.keypoints.len();
+        frame.points.clear();
+        frame.points.resize(n, None);
+        frame.outlier.clear();
+        frame.outlier.resize(n, false);
+        frame.camera_from_world = None;
+        Ok(())
+    }
+}

@@ -1,0 +1,466 @@
+//! Local mapping (ORB-SLAM2-STEREO.md §6): one keyframe at a time — its observations, recent point culling,
+//! new points by triangulation with neighbours, duplicate fusion, local bundle adjustment, keyframe culling.
+
+use crate::frame::Scales;
+use crate::geometry::{CameraFromWorld, StereoCamera, skew};
+use crate::map::{KfId, Map, PointId};
+use crate::optim::{BaEdge, BaProblem, CHI2_MONO, CHI2_STEREO, Observation};
+use crate::search::TH_LOW;
+use bdis_orb::hamming;
+use nalgebra::{Matrix3, Matrix4, Point3, Vector3};
+use std::collections::{BTreeMap, BTreeSet};
+
+/// What one keyframe cost and changed.
+#[derive(Debug, Clone, Default)]
+pub struct MapperReport {
+    pub new_points: usize,
+    pub fused: usize,
+    pub culled_points: usize,
+    pub culled_keyframes: usize,
+    pub ba_keyframes: usize,
+    pub ba_points: usize,
+    pub ba_iterations: usize,
+    /// Keyframes whose pose bundle adjustment changed.
+    pub moved: Vec<KfId>,
+}
+
+#[derive(Debug, Default)]
+pub struct LocalMapper {
+    recent: Vec<PointId>,
+}
+
+impl LocalMapper {
+    /// Runs every step of §6 for keyframe `kf` (already in the map with its tracked links and new stereo points).
+    pub fn process(
+        &mut self,
+        map: &mut Map,
+        kf: KfId,
+        cam: &StereoCamera,
+        scales: &Scales,
+        th_depth: f64,
+    ) -> MapperReport {
+        let mut report = MapperReport::default();
+        self.process_new_keyframe(map, kf, scales);
+        report.culled_points = self.cull_recent_points(map, kf);
+        report.new_points = self.create_new_points(map, kf, cam, scales);
+        report.fused = search_in_neighbours(map, kf, cam, scales);
+        if map.n_good_keyframes() > 2 {
+            local_bundle_adjustment(map, kf, cam, scales, &mut report);
+        }
+        report.culled_keyframes = cull_keyframes(map, kf, cam, th_depth);
+        report
+    }
+
+    /// §6.1.
+    fn process_new_keyframe(&mut self, map: &mut Map, kf: KfId, scales: &Scales) {
+        let links: Vec<(usize, PointId)> =
+            map.keyframes[kf].points.iter().enumerate().filter_map(|(i, p)| p.map(|p| (i, p))).collect();
+        for (i, p) in links {
+            if map.points[p].bad {
+                map.keyframes[kf].points[i] = None;
+                continue;
+            }
+            if map.points[p].observations.contains_key(&kf) {
+                if map.points[p].first_kf == kf {
+                    self.recent.push(p);
+                }
+            } else {
+                map.add_observation(p, kf, i);
+                map.update_normal_and_depth(p, scales);
+                map.compute_descriptor(p);
+            }
+        }
+        map.update_connections(kf);
+    }
+
+    /// §6.2.
+    fn cull_recent_points(&mut self, map: &mut Map, kf: KfId) -> usize {
+        let mut culled = 0;
+        self.recent.retain(|&p| {
+            let point = &map.points[p];
+            if point.bad {
+                return false;
+            }
+            let age = kf.saturating_sub(point.first_kf);
+            if point.found_ratio() < 0.25 || (age >= 2 && point.n_obs <= 3) {
+                map.set_bad_point(p);
+                culled += 1;
+                return false;
+            }
+            age < 3
+        });
+        culled
+    }
+
+    /// §6.3: matches between keypoints without points along epipolar lines (brute force over the unmatched
+    /// keypoints instead of a vocabulary node), then triangulation or stereo unprojection.
+    fn create_new_points(&mut self, map: &mut Map, kf1: KfId, cam: &StereoCamera, scales: &Scales) -> usize {
+        let neighbours: Vec<KfId> = map.keyframes[kf1].best_covisibles(10).collect();
+        let k_inv =
+            Matrix3::new(1.0 / cam.fx, 0.0, -cam.cx / cam.fx, 0.0, 1.0 / cam.fy, -cam.cy / cam.fy, 0.0, 0.0, 1.0);
+        let mut created = 0;
+        let ratio_factor = 1.5 * scales.factor;
+        for kf2 in neighbours {
+            let (k1, k2) = (&map.keyframes[kf1], &map.keyframes[kf2]);
+            if (k1.centre() - k2.centre()).norm() < cam.baseline() {
+                continue;
+            }
+            let t1 = k1.camera_from_world;
+            let t2 = k2.camera_from_world;
+            // F₁₂ = K⁻ᵀ [t₁₂]× R₁₂ K⁻¹ (x₁ᵀ F₁₂ x₂ = 0).
+            let t12 = t1 * t2.inverse();
+            let r12 = t12.rotation.to_rotation_matrix().into_inner();
+            let f12 = k_inv.transpose() * skew(&t12.translation.vector) * r12 * k_inv;
+            let free1: Vec<usize> = (0..k1.keypoints.len()).filter(|&i| k1.points[i].is_none()).collect();
+            let free2: Vec<usize> = (0..k2.keypoints.len()).filter(|&i| k2.points[i].is_none()).collect();
+            let mut taken2 = BTreeSet::new();
+            let mut pairs = Vec::new();
+            for &i in &free1 {
+                let kp1 = &k1.keypoints[i];
+                let x1 = Vector3::new(f64::from(kp1.x), f64::from(kp1.y), 1.0);
+                let line = f12.transpose() * x1;
+                let norm2 = line.x * line.x + line.y * line.y;
+                let mut best = (TH_LOW + 1, usize::MAX);
+                for &j in &free2 {
+                    if taken2.contains(&j) {
+                        continue;
+                    }
+                    let d = hamming(&k1.descriptors[i], &k2.descriptors[j]);
+                    if d >= best.0 {
+                        continue;
+                    }
+                    let kp2 = &k2.keypoints[j];
+                    let num = line.x * f64::from(kp2.x) + line.y * f64::from(kp2.y) + line.z;
+                    if num * num / norm2 < 3.84 / scales.inv_sigma2[usize::from(kp2.octave)] {
+                        best = (d, j);
+                    }
+                }
+                if best.1 != usize::MAX {
+                    taken2.insert(best.1);
+                    pairs.push((i, best.1));
+                }
+            }
+            for (i, j) in pairs {
+                let Some(x) = triangulate_pair(map, cam, scales, kf1, i, kf2, j, &k_inv, ratio_factor) else {
+                    continue;
+                };
+                let p = map.new_point(x, kf1, i, scales);
+                map.add_observation(p, kf2, j);
+                map.compute_descriptor(p);
+                map.update_normal_and_depth(p, scales);
+                self.recent.push(p);
+                created += 1;
+            }
+        }
+        created
+    }
+}
+
+/// Steps 3–5 of §6.3 for one keypoint pair; the world point when every check passes.
+#[allow(clippy::too_many_arguments)]
+fn triangulate_pair(
+    map: &Map,
+    cam: &StereoCamera,
+    scales: &Scales,
+    kf1: KfId,
+    i: usize,
+    kf2: KfId,
+    j: usize,
+    k_inv: &Matrix3<f64>,
+    ratio_factor: f64,
+) -> Option<Point3<f64>> {
+    let (k1, k2) = (&map.keyframes[kf1], &map.keyframes[kf2]);
+    let (kp1, kp2) = (&k1.keypoints[i], &k2.keypoints[j]);
+    let (t1, t2) = (k1.camera_from_world, k2.camera_from_world);
+    let ray = |t: &CameraFromWorld, u: f32, v: f32| {
+        let r = k_inv * Vector3::new(f64::from(u), f64::from(v), 1.0);
+        t.inverse().rotation * r
+    };
+    let (r1, r2) = (ray(&t1, kp1.x, kp1.y), ray(&t2, kp2.x, kp2.y));
+    let cos_parallax = r1.dot(&r2) / (r1.norm() * r2.norm());
+    let b = cam.baseline();
+    let stereo_cos = |k: &crate::map::KeyFrame, idx: usize| {
+        if k.is_stereo(idx) { (2.0 * (b / 2.0).atan2(f64::from(k.depth[idx]))).cos() } else { cos_parallax + 1.0 }
+    };
+    let (c1, c2) = (stereo_cos(k1, i), stereo_cos(k2, j));
+    let min_stereo = c1.min(c2);
+    let x = if cos_parallax < min_stereo
+        && cos_parallax > 0.0
+        && (k1.is_stereo(i) || k2.is_stereo(j) || cos_parallax < 0.9998)
+    {
+        // Linear triangulation (DLT): the null vector of the 4×4 system.
+        let p1 = t1.to_homogeneous();
+        let p2 = t2.to_homogeneous();
+        let (x1, y1) = ((f64::from(kp1.x) - cam.cx) / cam.fx, (f64::from(kp1.y) - cam.cy) / cam.fy);
+        let (x2, y2) = ((f64::from(kp2.x) - cam.cx) / cam.fx, (f64::from(kp2.y) - cam.cy) / cam.fy);
+        let mut a = Matrix4::zeros();
+        a.set_row(0, &(p1.row(2) * x1 - p1.row(0)));
+        a.set_row(1, &(p1.row(2) * y1 - p1.row(1)));
+        a.set_row(2, &(p2.row(2) * x2 - p2.row(0)));
+        a.set_row(3, &(p2.row(2) * y2 - p2.row(1)));
+        let svd = a.svd(false, true);
+        let vt = svd.v_t?;
+        // The singular vector of the smallest singular value.
+        let (k_min, _) = svd.singular_values.iter().enumerate().min_by(|a, b| a.1.total_cmp(b.1))?;
+        let h = vt.row(k_min);
+        if h[3].abs() < 1e-12 {
+            return None;
+        }
+        Point3::new(h[0] / h[3], h[1] / h[3], h[2] / h[3])
+    } else if k1.is_stereo(i) && c1 < c2 {
+        t1.inverse() * cam.unproject(f64::from(kp1.x), f64::from(kp1.y), f64::from(k1.depth[i]))
+    } else if k2.is_stereo(j) && c2 < c1 {
+        t2.inverse() * cam.unproject(f64::from(kp2.x), f64::from(kp2.y), f64::from(k2.depth[j]))
+    } else {
+        return None;
+    };
+    // Checks: in front of both, reprojection within χ², scale consistency.
+    for (t, k, idx) in [(&t1, k1, i), (&t2, k2, j)] {
+        let pc = t * x;
+        if pc.z <= 0.0 {
+            return None;
+        }
+        let kp = &k.keypoints[idx];
+        let obs = Observation {
+            u: f64::from(kp.x),
+            v: f64::from(kp.y),
+            u_right: k.is_stereo(idx).then(|| f64::from(k.u_right[idx])),
+            inv_sigma2: scales.inv_sigma2[usize::from(kp.octave)],
+        };
+        let limit = if obs.is_stereo() { 7.8 } else { CHI2_MONO };
+        if crate::optim::chi2(cam, t, &x, &obs) > limit {
+            return None;
+        }
+    }
+    let (d1, d2) = ((x - k1.centre()).norm(), (x - k2.centre()).norm());
+    if d1 == 0.0 || d2 == 0.0 {
+        return None;
+    }
+    let ratio_dist = d2 / d1;
+    let ratio_octave = scales.scale[usize::from(kp1.octave)] / scales.scale[usize::from(kp2.octave)];
+    if ratio_dist * ratio_factor < ratio_octave || ratio_dist > ratio_octave * ratio_factor {
+        return None;
+    }
+    Some(x)
+}
+
+/// Fuses point `p` into keyframe `kf` (§4 Fuse, th = 3). Returns whether it was fused or added.
+fn fuse_point(map: &mut Map, cam: &StereoCamera, scales: &Scales, kf: KfId, p: PointId) -> bool {
+    let point = &map.points[p];
+    if point.bad || point.observations.contains_key(&kf) {
+        return false;
+    }
+    if !map.point_visible_in(cam, p, kf) {
+        return false;
+    }
+    let k = &map.keyframes[kf];
+    let t = k.camera_from_world;
+    let pc = t * point.position;
+    let (u, v) = cam.project(&pc);
+    let u_r = u - cam.bf / pc.z;
+    let dist = (point.position - k.centre()).norm();
+    let level = scales.predict_level(dist, point.max_dist);
+    let r = 3.0 * scales.scale[level];
+    let mut found = Vec::new();
+    k.grid.features_in_area(
+        &k.keypoints,
+        (u as f32, v as f32),
+        r as f32,
+        level.saturating_sub(1) as u8..=level as u8,
+        &mut found,
+    );
+    let mut best = (u32::MAX, usize::MAX);
+    for &j in &found {
+        let kp = &k.keypoints[j];
+        let inv_s2 = scales.inv_sigma2[usize::from(kp.octave)];
+        let (eu, ev) = (u - f64::from(kp.x), v - f64::from(kp.y));
+        let e2 = if k.is_stereo(j) {
+            let er = u_r - f64::from(k.u_right[j]);
+            (eu * eu + ev * ev + er * er) * inv_s2 > 7.8
+        } else {
+            (eu * eu + ev * ev) * inv_s2 > CHI2_MONO
+        };
+        if e2 {
+            continue;
+        }
+        let d = hamming(&point.descriptor, &k.descriptors[j]);
+        if d < best.0 {
+            best = (d, j);
+        }
+    }
+    if best.0 > TH_LOW {
+        return false;
+    }
+    match map.keyframes[kf].points[best.1] {
+        Some(q) if !map.points[q].bad => {
+            // The point with more observations survives.
+            if map.points[q].n_obs > map.points[p].n_obs {
+                map.replace_point(p, q);
+            } else {
+                map.replace_point(q, p);
+            }
+        }
+        _ => map.add_observation(p, kf, best.1),
+    }
+    true
+}
+
+/// §6.4.
+fn search_in_neighbours(map: &mut Map, kf: KfId, cam: &StereoCamera, scales: &Scales) -> usize {
+    let mut targets: Vec<KfId> = Vec::new();
+    for n in map.keyframes[kf].best_covisibles(10).collect::<Vec<_>>() {
+        if map.keyframes[n].bad || targets.contains(&n) {
+            continue;
+        }
+        targets.push(n);
+        for n2 in map.keyframes[n].best_covisibles(5).collect::<Vec<_>>() {
+            if n2 != kf && !map.keyframes[n2].bad && !targets.contains(&n2) {
+                targets.push(n2);
+            }
+        }
+    }
+    let mut fused = 0;
+    let own: Vec<PointId> = map.keyframes[kf].points.iter().flatten().copied().collect();
+    for &t in &targets {
+        for &p in &own {
+            if let Some(p) = map.resolve(p) {
+                fused += usize::from(fuse_point(map, cam, scales, t, p));
+            }
+        }
+    }
+    let mut candidates: BTreeSet<PointId> = BTreeSet::new();
+    for &t in &targets {
+        candidates.extend(map.keyframes[t].points.iter().flatten().copied().filter(|&p| !map.points[p].bad));
+    }
+    for p in candidates {
+        fused += usize::from(fuse_point(map, cam, scales, kf, p));
+    }
+    let own: Vec<PointId> = map.keyframes[kf].points.iter().flatten().copied().collect();
+    for p in own {
+        if !map.points[p].bad {
+            map.compute_descriptor(p);
+            map.update_normal_and_depth(p, scales);
+        }
+    }
+    map.update_connections(kf);
+    fused
+}
+
+/// §6.5: local keyframes = `kf` and its ordered covisibles; fixed = other keyframes seeing local points (and
+/// keyframe 0). 5 robust iterations, outliers excluded, 10 plain ones; bad observations erased.
+fn local_bundle_adjustment(map: &mut Map, kf: KfId, cam: &StereoCamera, scales: &Scales, report: &mut MapperReport) {
+    let mut local: Vec<KfId> = vec![kf];
+    local.extend(map.keyframes[kf].ordered.iter().map(|(k, _)| *k).filter(|&k| !map.keyframes[k].bad));
+    let local_set: BTreeSet<KfId> = local.iter().copied().collect();
+    let mut points: BTreeSet<PointId> = BTreeSet::new();
+    for &k in &local {
+        points.extend(map.keyframes[k].points.iter().flatten().copied().filter(|&p| !map.points[p].bad));
+    }
+    let mut fixed: BTreeSet<KfId> = BTreeSet::new();
+    for &p in &points {
+        for &k in map.points[p].observations.keys() {
+            if !local_set.contains(&k) && !map.keyframes[k].bad {
+                fixed.insert(k);
+            }
+        }
+    }
+    let mut pose_index: BTreeMap<KfId, usize> = BTreeMap::new();
+    let mut problem = BaProblem::default();
+    for (&k, is_fixed) in local.iter().map(|k| (k, false)).chain(fixed.iter().map(|k| (k, true))) {
+        pose_index.insert(k, problem.poses.len());
+        problem.poses.push(map.keyframes[k].camera_from_world);
+        problem.fixed.push(is_fixed || k == 0);
+    }
+    let point_list: Vec<PointId> = points.into_iter().collect();
+    let mut edge_keys: Vec<(PointId, KfId)> = Vec::new();
+    for (pi, &p) in point_list.iter().enumerate() {
+        problem.points.push(map.points[p].position);
+        for (&k, &idx) in &map.points[p].observations {
+            let Some(&pose) = pose_index.get(&k) else { continue };
+            let kp = &map.keyframes[k].keypoints[idx];
+            let obs = Observation {
+                u: f64::from(kp.x),
+                v: f64::from(kp.y),
+                u_right: map.keyframes[k].is_stereo(idx).then(|| f64::from(map.keyframes[k].u_right[idx])),
+                inv_sigma2: scales.inv_sigma2[usize::from(kp.octave)],
+            };
+            problem.edges.push(BaEdge { pose, point: pi, obs });
+            edge_keys.push((p, k));
+        }
+    }
+    problem.excluded = vec![false; problem.edges.len()];
+    let first = problem.solve(cam, 5, true, &|| false);
+    let threshold = |e: &BaEdge| if e.obs.is_stereo() { CHI2_STEREO } else { CHI2_MONO };
+    for k in 0..problem.edges.len() {
+        let x2 = problem.edge_chi2(cam, k);
+        if x2.is_nan() || x2 > threshold(&problem.edges[k]) {
+            problem.excluded[k] = true;
+        }
+    }
+    let second = problem.solve(cam, 10, false, &|| false);
+    report.ba_iterations = first.iterations + second.iterations;
+    report.ba_keyframes = local.len();
+    report.ba_points = point_list.len();
+    for (k, &(p, kf)) in edge_keys.iter().enumerate() {
+        let x2 = problem.edge_chi2(cam, k);
+        if x2.is_nan() || x2 > threshold(&problem.edges[k]) {
+            map.erase_observation(p, kf);
+        }
+    }
+    for &k in &local {
+        let i = pose_index[&k];
+        if !problem.fixed[i] {
+            map.keyframes[k].camera_from_world = problem.poses[i];
+            report.moved.push(k);
+        }
+    }
+    for (pi, &p) in point_list.iter().enumerate() {
+        if !map.points[p].bad {
+            map.points[p].position = problem.points[pi];
+            map.update_normal_and_depth(p, scales);
+        }
+    }
+}
+
+/// §6.6: a covisible keyframe whose close stereo points are > 90 % seen by ≥ 3 other keyframes at the same or a
+/// finer (or one coarser) octave is redundant.
+fn cull_keyframes(map: &mut Map, kf: KfId, cam: &StereoCamera, th_depth: f64) -> usize {
+    let close = th_depth * cam.baseline();
+    let candidates: Vec<KfId> = map.keyframes[kf].ordered.iter().map(|(k, _)| *k).collect();
+    let mut culled = 0;
+    for k in candidates {
+        if k == 0 || map.keyframes[k].bad {
+            continue;
+        }
+        let (mut n_mps, mut redundant) = (0, 0);
+        let kfr = &map.keyframes[k];
+        for (i, p) in kfr.points.iter().enumerate() {
+            let Some(p) = *p else { continue };
+            let point = &map.points[p];
+            if point.bad {
+                continue;
+            }
+            let z = f64::from(kfr.depth[i]);
+            if z < 0.0 || z > close {
+                continue;
+            }
+            n_mps += 1;
+            if point.n_obs > 3 {
+                let octave = kfr.keypoints[i].octave;
+                let others = point
+                    .observations
+                    .iter()
+                    .filter(|&(&o, &idx)| o != k && map.keyframes[o].keypoints[idx].octave <= octave + 1)
+                    .count();
+                if others >= 3 {
+                    redundant += 1;
+                }
+            }
+        }
+        if n_mps > 0 && redundant as f64 > 0.9 * n_mps as f64 {
+            map.set_bad_keyframe(k);
+            culled += 1;
+        }
+    }
+    culled
+}

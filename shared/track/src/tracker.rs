@@ -1,0 +1,711 @@
+//! The per-frame tracking state machine (ORB-SLAM2-STEREO.md §5): stereo initialisation, motion-model and
+//! reference-keyframe tracking, local-map tracking, relocalisation, the keyframe decision and creation.
+
+use crate::frame::{Frame, FrameBuilder, Scales};
+use crate::geometry::{CameraFromWorld, StereoCamera};
+use crate::map::{KeyFrame, KfId, Map, PointId};
+use crate::mapper::{LocalMapper, MapperReport};
+use crate::optim::{Observation, PoseOptimizer};
+use crate::search::{Searcher, TH_HIGH, TH_LOW, frustum_check};
+use bdis_orb::{OrbError, OrbParams, hamming};
+use nalgebra::{Isometry3, Matrix3, Point3, Translation3, UnitQuaternion};
+use std::collections::{BTreeMap, BTreeSet};
+
+#[derive(Debug, thiserror::Error)]
+pub enum TrackError {
+    #[error(transparent)]
+    Orb(#[from] OrbError),
+}
+
+/// Settings of the tracker, from the ORB-SLAM2 keys (`ThDepth`, `Camera.fps`, `ORBextractor.*`).
+#[derive(Debug, Clone, Copy)]
+pub struct TrackerSettings {
+    /// Close/far limit in baselines.
+    pub th_depth: f64,
+    pub fps: f64,
+    pub orb: OrbParams,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum TrackingState {
+    NotInitialized,
+    Ok,
+    Lost,
+}
+
+/// What one frame gave.
+#[derive(Debug, Clone)]
+pub struct FrameResult {
+    pub frame_id: u64,
+    pub t_ns: u64,
+    pub state: TrackingState,
+    pub camera_from_world: Option<CameraFromWorld>,
+    pub inliers: usize,
+    pub new_keyframe: Option<KfId>,
+    pub mapper: Option<MapperReport>,
+    /// The frame relocalised.
+    pub relocalised: bool,
+}
+
+/// Per frame, for the trajectory: the pose relative to the reference keyframe (rebuilt with the keyframe's
+/// final pose, §5.1 step 7).
+#[derive(Debug, Clone, Copy)]
+struct FrameRecord {
+    t_ns: u64,
+    reference: KfId,
+    camera_from_reference: Isometry3<f64>,
+    lost: bool,
+}
+
+#[derive(Debug)]
+pub struct Tracker {
+    cam: StereoCamera,
+    scales: Scales,
+    settings: TrackerSettings,
+    builder: FrameBuilder,
+    pub map: Map,
+    mapper: LocalMapper,
+    state: TrackingState,
+    current: Frame,
+    last: Frame,
+    velocity: Option<Isometry3<f64>>,
+    reference_kf: Option<KfId>,
+    last_kf_frame: u64,
+    last_reloc_frame: Option<u64>,
+    local_kfs: Vec<KfId>,
+    local_points: Vec<PointId>,
+    searcher: Searcher,
+    optimizer: PoseOptimizer,
+    opt_points: Vec<Point3<f64>>,
+    opt_obs: Vec<Observation>,
+    opt_index: Vec<usize>,
+    opt_outlier: Vec<bool>,
+    records: Vec<FrameRecord>,
+    /// The last frame's pose relative to its reference keyframe.
+    last_from_reference: Option<(KfId, Isometry3<f64>)>,
+    ransac_state: u64,
+}
+
+impl Tracker {
+    pub fn new(cam: StereoCamera, settings: TrackerSettings) -> Result<Self, TrackError> {
+        let builder = FrameBuilder::new(cam, settings.orb)?;
+        let scales = builder.scales().clone();
+        Ok(Self {
+            cam,
+            scales,
+            settings,
+            builder,
+            map: Map::default(),
+            mapper: LocalMapper::default(),
+            state: TrackingState::NotInitialized,
+            current: Frame::empty(&cam),
+            last: Frame::empty(&cam),
+            velocity: None,
+            reference_kf: None,
+            last_kf_frame: 0,
+            last_reloc_frame: None,
+            local_kfs: Vec::new(),
+            local_points: Vec::new(),
+            searcher: Searcher::default(),
+            optimizer: PoseOptimizer::default(),
+            opt_points: Vec::new(),
+            opt_obs: Vec::new(),
+            opt_index: Vec::new(),
+            opt_outlier: Vec::new(),
+            records: Vec::new(),
+            last_from_reference: None,
+            ransac_state: 0x005e_ed0f_7ac4,
+        })
+    }
+
+    pub fn state(&self) -> TrackingState {
+        self.state
+    }
+
+    pub fn camera(&self) -> &StereoCamera {
+        &self.cam
+    }
+
+    fn max_frames(&self) -> u64 {
+        self.settings.fps.round().max(1.0) as u64
+    }
+
+    fn close_depth(&self) -> f64 {
+        self.settings.th_depth * self.cam.baseline()
+    }
+
+    /// Tracks one grey stereo pair.
+    pub fn track(&mut self, t_ns: u64, left: &[u8], right: &[u8]) -> Result<FrameResult, TrackError> {
+        let mut frame = std::mem::replace(&mut self.current, Frame::empty(&self.cam));
+        self.builder.build(t_ns, left, right, &mut frame)?;
+        self.current = frame;
+        let mut result = FrameResult {
+            frame_id: self.current.id,
+            t_ns,
+            state: self.state,
+            camera_from_world: None,
+            inliers: 0,
+            new_keyframe: None,
+            mapper: None,
+            relocalised: false,
+        };
+        if self.state == TrackingState::NotInitialized {
+            if self.current.len() > 500 {
+                self.initialise(&mut result);
+            }
+            self.finish_frame(&mut result);
+            return Ok(result);
+        }
+        let mut ok = if self.state == TrackingState::Ok {
+            self.replace_last_frame_points();
+            let recently_relocalised = self.last_reloc_frame.is_some_and(|r| self.current.id < r + 2);
+            if self.velocity.is_none() || recently_relocalised {
+                self.track_reference_keyframe()
+            } else {
+                self.track_motion_model() || self.track_reference_keyframe()
+            }
+        } else {
+            let r = self.relocalise();
+            result.relocalised = r;
+            r
+        };
+        if ok {
+            ok = self.track_local_map(&mut result);
+        }
+        self.state = if ok { TrackingState::Ok } else { TrackingState::Lost };
+        if ok {
+            let pose = self.current.camera_from_world.unwrap_or_else(Isometry3::identity);
+            if let Some(last_pose) = self.last.camera_from_world {
+                self.velocity = Some(pose * last_pose.inverse());
+            }
+            if self.need_keyframe(result.inliers) {
+                self.create_keyframe(&mut result);
+            }
+            // Outlier links go after the keyframe decision (§5.1 step 5).
+            for i in 0..self.current.len() {
+                if self.current.outlier[i] {
+                    self.current.points[i] = None;
+                    self.current.outlier[i] = false;
+                }
+            }
+        } else {
+            self.velocity = None;
+        }
+        self.finish_frame(&mut result);
+        Ok(result)
+    }
+
+    fn finish_frame(&mut self, result: &mut FrameResult) {
+        result.state = self.state;
+        let tracked = self.state == TrackingState::Ok;
+        if tracked {
+            result.camera_from_world = self.current.camera_from_world;
+        }
+        // The trajectory record: relative to the reference keyframe; when lost, the last relative pose again.
+        if let (Some(r), Some(pose)) = (self.reference_kf, self.current.camera_from_world.filter(|_| tracked)) {
+            let rel = pose * self.map.keyframes[r].camera_from_world.inverse();
+            self.records.push(FrameRecord { t_ns: result.t_ns, reference: r, camera_from_reference: rel, lost: false });
+            self.last_from_reference = Some((r, rel));
+        } else if let Some((r, rel)) = self.last_from_reference {
+            self.records.push(FrameRecord { t_ns: result.t_ns, reference: r, camera_from_reference: rel, lost: true });
+        }
+        self.last.copy_from(&self.current);
+        if !tracked {
+            self.last.camera_from_world = None;
+        }
+    }
+
+    /// §5.2.
+    fn initialise(&mut self, result: &mut FrameResult) {
+        self.current.camera_from_world = Some(Isometry3::identity());
+        let kf = self.map.add_keyframe(KeyFrame::from_frame(0, &self.current, Isometry3::identity()));
+        for i in 0..self.current.len() {
+            if self.current.depth[i] > 0.0
+                && let Some(x) = self.current.unproject_world(&self.cam, i)
+            {
+                let p = self.map.new_point(x, kf, i, &self.scales);
+                self.current.points[i] = Some(p);
+            }
+        }
+        self.reference_kf = Some(kf);
+        self.last_kf_frame = self.current.id;
+        self.local_kfs = vec![kf];
+        self.local_points = self.map.keyframes[kf].points.iter().flatten().copied().collect();
+        self.state = TrackingState::Ok;
+        result.new_keyframe = Some(kf);
+        result.inliers = self.local_points.len();
+    }
+
+    fn replace_last_frame_points(&mut self) {
+        for p in self.last.points.iter_mut() {
+            if let Some(q) = *p {
+                *p = self.map.resolve(q);
+            }
+        }
+    }
+
+    /// Pose-only optimisation of the current frame against its linked points; writes pose and outlier flags.
+    fn optimise_current(&mut self) -> usize {
+        self.opt_points.clear();
+        self.opt_obs.clear();
+        self.opt_index.clear();
+        for (i, p) in self.current.points.iter().enumerate() {
+            let Some(p) = *p else { continue };
+            let point = &self.map.points[p];
+            if point.bad {
+                continue;
+            }
+            let kp = &self.current.keypoints[i];
+            self.opt_points.push(point.position);
+            self.opt_obs.push(Observation {
+                u: f64::from(kp.x),
+                v: f64::from(kp.y),
+                u_right: (self.current.u_right[i] >= 0.0).then(|| f64::from(self.current.u_right[i])),
+                inv_sigma2: self.scales.inv_sigma2[usize::from(kp.octave)],
+            });
+            self.opt_index.push(i);
+        }
+        self.opt_outlier.clear();
+        self.opt_outlier.resize(self.opt_index.len(), false);
+        let Some(mut pose) = self.current.camera_from_world else { return 0 };
+        let inliers =
+            self.optimizer.optimize(&self.cam, &mut pose, &self.opt_points, &self.opt_obs, &mut self.opt_outlier);
+        if self.opt_index.len() >= 3 {
+            self.current.camera_from_world = Some(pose);
+        }
+        for (k, &i) in self.opt_index.iter().enumerate() {
+            self.current.outlier[i] = self.opt_outlier[k];
+        }
+        inliers
+    }
+
+    /// Unlinks the outliers of the last optimisation; returns the inliers linked to points with observations.
+    fn drop_outliers(&mut self) -> usize {
+        let mut good = 0;
+        for i in 0..self.current.len() {
+            let Some(p) = self.current.points[i] else { continue };
+            if self.current.outlier[i] {
+                self.current.points[i] = None;
+                self.current.outlier[i] = false;
+                self.map.points[p].cache.in_view = false;
+                self.map.points[p].cache.last_seen_frame = Some(self.current.id);
+            } else if self.map.points[p].n_obs > 0 {
+                good += 1;
+            }
+        }
+        good
+    }
+
+    /// The last frame's pose from its reference keyframe's current pose (bundle adjustment may have moved it).
+    fn update_last_frame(&mut self) {
+        if let Some((r, rel)) = self.last_from_reference {
+            self.last.camera_from_world = Some(rel * self.map.keyframe_pose(r));
+        }
+    }
+
+    /// §5.3.
+    fn track_motion_model(&mut self) -> bool {
+        self.update_last_frame();
+        let (Some(v), Some(last_pose)) = (self.velocity, self.last.camera_from_world) else { return false };
+        self.current.camera_from_world = Some(v * last_pose);
+        self.current.points.fill(None);
+        let mut n =
+            self.searcher.from_last_frame(&self.cam, &self.scales, &self.map, &mut self.current, &self.last, 7.0);
+        if n < 20 {
+            self.current.points.fill(None);
+            n = self.searcher.from_last_frame(&self.cam, &self.scales, &self.map, &mut self.current, &self.last, 14.0);
+        }
+        if n < 20 {
+            return false;
+        }
+        self.optimise_current();
+        self.drop_outliers() >= 10
+    }
+
+    /// §5.4, with guided projection from the last pose instead of the vocabulary (§7.3 B).
+    fn track_reference_keyframe(&mut self) -> bool {
+        self.update_last_frame();
+        let Some(r) = self.reference_kf else { return false };
+        let Some(last_pose) = self.last.camera_from_world else { return false };
+        self.current.camera_from_world = Some(last_pose);
+        self.current.points.fill(None);
+        let n = self.searcher.from_keyframe(
+            &self.cam,
+            &self.scales,
+            &self.map,
+            &mut self.current,
+            r,
+            &BTreeSet::new(),
+            15.0,
+            TH_HIGH,
+        );
+        if n < 15 {
+            return false;
+        }
+        self.optimise_current();
+        self.drop_outliers() >= 10
+    }
+
+    /// §5.6.
+    fn track_local_map(&mut self, result: &mut FrameResult) -> bool {
+        self.update_local_keyframes();
+        self.update_local_points();
+        let frame_id = self.current.id;
+        let Some(pose) = self.current.camera_from_world else { return false };
+        // Visibility: points already linked count as seen; the others go through the frustum test.
+        for p in self.current.points.iter().flatten() {
+            let point = &mut self.map.points[*p];
+            point.visible += 1;
+            point.cache.last_seen_frame = Some(frame_id);
+            point.cache.in_view = false;
+        }
+        let mut to_match = 0;
+        for k in 0..self.local_points.len() {
+            let p = self.local_points[k];
+            if self.map.points[p].bad || self.map.points[p].cache.last_seen_frame == Some(frame_id) {
+                continue;
+            }
+            if frustum_check(&self.cam, &self.scales, &mut self.map, p, &pose) {
+                self.map.points[p].visible += 1;
+                to_match += 1;
+            }
+        }
+        if to_match > 0 {
+            let th = if self.last_reloc_frame.is_some_and(|r| frame_id < r + 2) { 5.0 } else { 1.0 };
+            self.searcher.local_points(&self.scales, &self.map, &mut self.current, &self.local_points, th);
+        }
+        self.optimise_current();
+        let mut inliers = 0;
+        for i in 0..self.current.len() {
+            let Some(p) = self.current.points[i] else { continue };
+            if !self.current.outlier[i] {
+                self.map.points[p].found += 1;
+                if self.map.points[p].n_obs > 0 {
+                    inliers += 1;
+                }
+            } else if self.current.u_right[i] >= 0.0 {
+                self.current.points[i] = None;
+                self.current.outlier[i] = false;
+            }
+        }
+        result.inliers = inliers;
+        let needed = if self.last_reloc_frame.is_some_and(|r| frame_id < r + self.max_frames()) { 50 } else { 30 };
+        inliers >= needed
+    }
+
+    fn update_local_keyframes(&mut self) {
+        let mut votes: BTreeMap<KfId, u32> = BTreeMap::new();
+        for i in 0..self.current.len() {
+            let Some(p) = self.current.points[i] else { continue };
+            if self.map.points[p].bad {
+                self.current.points[i] = None;
+                continue;
+            }
+            for &k in self.map.points[p].observations.keys() {
+                *votes.entry(k).or_default() += 1;
+            }
+        }
+        if votes.is_empty() {
+            return;
+        }
+        let mut local: Vec<KfId> = votes.keys().copied().filter(|&k| !self.map.keyframes[k].bad).collect();
+        let mut included: BTreeSet<KfId> = local.iter().copied().collect();
+        let original = local.clone();
+        // Neighbours of the voters (the intended behaviour: adding a parent does not end the walk, §10.1 #7).
+        for k in original {
+            if local.len() > 80 {
+                break;
+            }
+            let kf = &self.map.keyframes[k];
+            let extra = kf
+                .best_covisibles(10)
+                .find(|n| !included.contains(n) && !self.map.keyframes[*n].bad)
+                .into_iter()
+                .chain(kf.children.iter().copied().find(|c| !included.contains(c) && !self.map.keyframes[*c].bad))
+                .chain(kf.parent.filter(|p| !included.contains(p) && !self.map.keyframes[*p].bad));
+            for n in extra.collect::<Vec<_>>() {
+                if included.insert(n) {
+                    local.push(n);
+                }
+            }
+        }
+        if let Some((&best, _)) = votes
+            .iter()
+            .filter(|(k, _)| !self.map.keyframes[**k].bad)
+            .max_by_key(|(k, v)| (**v, std::cmp::Reverse(**k)))
+        {
+            self.reference_kf = Some(best);
+        }
+        self.local_kfs = local;
+    }
+
+    fn update_local_points(&mut self) {
+        self.local_points.clear();
+        let frame_id = self.current.id;
+        for &k in &self.local_kfs {
+            for p in self.map.keyframes[k].points.iter().flatten() {
+                let point = &mut self.map.points[*p];
+                if point.bad || point.cache.local_for_frame == Some(frame_id) {
+                    continue;
+                }
+                point.cache.local_for_frame = Some(frame_id);
+                self.local_points.push(*p);
+            }
+        }
+    }
+
+    /// §5.8 with a mapper that runs inline (always idle, never stopped).
+    fn need_keyframe(&self, inliers: usize) -> bool {
+        let n_kfs = self.map.n_good_keyframes() as u64;
+        let frame_id = self.current.id;
+        if self.last_reloc_frame.is_some_and(|r| frame_id < r + self.max_frames()) && n_kfs > self.max_frames() {
+            return false;
+        }
+        let Some(r) = self.reference_kf else { return false };
+        let min_obs = if n_kfs <= 2 { 2 } else { 3 };
+        let n_ref = self.map.keyframes[r]
+            .points
+            .iter()
+            .flatten()
+            .filter(|&&p| !self.map.points[p].bad && self.map.points[p].n_obs >= min_obs)
+            .count() as f64;
+        let close = self.close_depth();
+        let (mut tracked_close, mut untracked_close) = (0, 0);
+        for i in 0..self.current.len() {
+            let z = f64::from(self.current.depth[i]);
+            if z > 0.0 && z < close {
+                if self.current.points[i].is_some() && !self.current.outlier[i] {
+                    tracked_close += 1;
+                } else {
+                    untracked_close += 1;
+                }
+            }
+        }
+        let need_close = tracked_close < 100 && untracked_close > 70;
+        let th_ref_ratio = if n_kfs < 2 { 0.4 } else { 0.75 };
+        let inliers = inliers as f64;
+        let overdue = frame_id >= self.last_kf_frame + self.max_frames();
+        let mapper_free = true; // the mapper runs inline, so it is always idle (minFrames = 0)
+        let weak = inliers < 0.25 * n_ref || need_close;
+        let content = inliers > 15.0 && (inliers < th_ref_ratio * n_ref || need_close);
+        (overdue || mapper_free || weak) && content
+    }
+
+    /// §5.9, then local mapping on the new keyframe.
+    fn create_keyframe(&mut self, result: &mut FrameResult) {
+        let Some(pose) = self.current.camera_from_world else { return };
+        let kf = self.map.add_keyframe(KeyFrame::from_frame(0, &self.current, pose));
+        // New stereo points, nearest first: every close keypoint, far ones until 100 have been covered.
+        let mut by_depth: Vec<(f32, usize)> = (0..self.current.len())
+            .filter(|&i| self.current.depth[i] > 0.0)
+            .map(|i| (self.current.depth[i], i))
+            .collect();
+        by_depth.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+        let close = self.close_depth();
+        let mut covered = 0;
+        for (z, i) in by_depth {
+            let has_point =
+                self.current.points[i].is_some_and(|p| !self.map.points[p].bad && self.map.points[p].n_obs > 0);
+            if !has_point && let Some(x) = self.current.unproject_world(&self.cam, i) {
+                let p = self.map.new_point(x, kf, i, &self.scales);
+                self.current.points[i] = Some(p);
+                self.current.outlier[i] = false;
+            }
+            covered += 1;
+            if f64::from(z) > close && covered > 100 {
+                break;
+            }
+        }
+        self.reference_kf = Some(kf);
+        self.last_kf_frame = self.current.id;
+        let report = self.mapper.process(&mut self.map, kf, &self.cam, &self.scales, self.settings.th_depth);
+        // The keyframe's pose may have moved in bundle adjustment: the frame follows it.
+        let kf_pose = self.map.keyframes[kf].camera_from_world;
+        self.current.camera_from_world = Some(kf_pose);
+        result.new_keyframe = Some(kf);
+        result.mapper = Some(report);
+    }
+
+    /// §5.7 without a vocabulary (§7.3 B): candidate keyframes by brute-force descriptor votes, a 3-point
+    /// RANSAC on the frame's stereo points (each keypoint with a depth is a 3-D point, so absolute orientation
+    /// replaces PnP), then pose optimisation and guided search as in ORB-SLAM2.
+    fn relocalise(&mut self) -> bool {
+        let n = self.current.len();
+        if n == 0 {
+            return false;
+        }
+        // Votes: frame descriptors against each keyframe's point descriptors.
+        let mut scored: Vec<(usize, KfId)> = Vec::new();
+        for kf in self.map.keyframes.iter().filter(|k| !k.bad) {
+            let mut votes = 0;
+            for d in &self.current.descriptors {
+                if kf
+                    .points
+                    .iter()
+                    .flatten()
+                    .any(|&p| !self.map.points[p].bad && hamming(d, &self.map.points[p].descriptor) <= TH_LOW)
+                {
+                    votes += 1;
+                }
+            }
+            if votes >= 15 {
+                scored.push((votes, kf.id));
+            }
+        }
+        scored.sort_by(|a, b| b.0.cmp(&a.0).then(a.1.cmp(&b.1)));
+        for &(_, kf) in scored.iter().take(5) {
+            if self.relocalise_against(kf) {
+                self.last_reloc_frame = Some(self.current.id);
+                self.reference_kf = Some(kf);
+                return true;
+            }
+        }
+        false
+    }
+
+    fn relocalise_against(&mut self, kf: KfId) -> bool {
+        // Matches: best descriptor (≤ TH_LOW, ratio 0.75) among the keyframe's points for each frame keypoint.
+        let mut pairs: Vec<(usize, PointId)> = Vec::new();
+        let points: Vec<PointId> =
+            self.map.keyframes[kf].points.iter().flatten().copied().filter(|&p| !self.map.points[p].bad).collect();
+        let mut used = BTreeSet::new();
+        for i in 0..self.current.len() {
+            let (mut best, mut second) = ((u32::MAX, usize::MAX), u32::MAX);
+            for &p in &points {
+                let d = hamming(&self.current.descriptors[i], &self.map.points[p].descriptor);
+                if d < best.0 {
+                    second = best.0;
+                    best = (d, p);
+                } else if d < second {
+                    second = d;
+                }
+            }
+            if best.0 <= TH_LOW && f64::from(best.0) < 0.75 * f64::from(second) && used.insert(best.1) {
+                pairs.push((i, best.1));
+            }
+        }
+        let stereo: Vec<(usize, PointId, Point3<f64>)> = pairs
+            .iter()
+            .filter_map(|&(i, p)| {
+                let z = self.current.depth[i];
+                (z > 0.0).then(|| {
+                    let k = &self.current.keypoints[i];
+                    (i, p, self.cam.unproject(f64::from(k.x), f64::from(k.y), f64::from(z)))
+                })
+            })
+            .collect();
+        if stereo.len() < 15 {
+            return false;
+        }
+        // RANSAC: 3 correspondences → camera_from_world by absolute orientation; inliers by reprojection.
+        let mut best: (usize, Option<CameraFromWorld>) = (0, None);
+        for _ in 0..300 {
+            let mut pick = [0usize; 3];
+            for slot in pick.iter_mut() {
+                self.ransac_state =
+                    self.ransac_state.wrapping_mul(6_364_136_223_846_793_005).wrapping_add(1_442_695_040_888_963_407);
+                *slot = (self.ransac_state >> 33) as usize % stereo.len();
+            }
+            if pick[0] == pick[1] || pick[1] == pick[2] || pick[0] == pick[2] {
+                continue;
+            }
+            let src: Vec<Point3<f64>> = pick.iter().map(|&k| self.map.points[stereo[k].1].position).collect();
+            let dst: Vec<Point3<f64>> = pick.iter().map(|&k| stereo[k].2).collect();
+            let Some(t) = rigid_fit(&src, &dst) else { continue };
+            let inliers = stereo
+                .iter()
+                .filter(|(i, p, _)| {
+                    let pc = t * self.map.points[*p].position;
+                    if pc.z <= 0.0 {
+                        return false;
+                    }
+                    let (u, v) = self.cam.project(&pc);
+                    let k = &self.current.keypoints[*i];
+                    let e2 = (u - f64::from(k.x)).powi(2) + (v - f64::from(k.y)).powi(2);
+                    e2 < 5.991 / self.scales.inv_sigma2[usize::from(k.octave)]
+                })
+                .count();
+            if inliers > best.0 {
+                best = (inliers, Some(t));
+            }
+        }
+        let (count, Some(pose)) = best else { return false };
+        if count < 10 {
+            return false;
+        }
+        self.current.camera_from_world = Some(pose);
+        self.current.points.fill(None);
+        self.current.outlier.fill(false);
+        for &(i, p) in &pairs {
+            self.current.points[i] = Some(p);
+        }
+        let mut good = self.optimise_current();
+        if good < 10 {
+            return false;
+        }
+        self.drop_outliers();
+        if good < 50 {
+            let found: BTreeSet<PointId> = self.current.points.iter().flatten().copied().collect();
+            let added = self.searcher.from_keyframe(
+                &self.cam,
+                &self.scales,
+                &self.map,
+                &mut self.current,
+                kf,
+                &found,
+                10.0,
+                100,
+            );
+            if good + added >= 50 {
+                good = self.optimise_current();
+                self.drop_outliers();
+            }
+        }
+        good >= 50
+    }
+
+    /// The trajectory so far: (t_ns, world_from_camera, lost) per frame, from each frame's reference keyframe as
+    /// it is now (so bundle adjustment's corrections reach every frame).
+    pub fn trajectory(&self) -> Vec<(u64, Isometry3<f64>, bool)> {
+        self.records
+            .iter()
+            .map(|r| {
+                let camera_from_world = r.camera_from_reference * self.map.keyframe_pose(r.reference);
+                (r.t_ns, camera_from_world.inverse(), r.lost)
+            })
+            .collect()
+    }
+
+    /// (t_ns, world_from_camera) of every keyframe still in the map.
+    pub fn keyframe_trajectory(&self) -> Vec<(u64, Isometry3<f64>)> {
+        self.map.good_keyframes().map(|k| (k.t_ns, k.camera_from_world.inverse())).collect()
+    }
+}
+
+/// The rigid motion `dst_from_src` that best maps `src` onto `dst` (Horn/Umeyama without scale); `None` for
+/// degenerate (collinear) sets.
+pub fn rigid_fit(src: &[Point3<f64>], dst: &[Point3<f64>]) -> Option<Isometry3<f64>> {
+    let n = src.len() as f64;
+    let (cs, cd) = (
+        src.iter().fold(nalgebra::Vector3::zeros(), |a, p| a + p.coords) / n,
+        dst.iter().fold(nalgebra::Vector3::zeros(), |a, p| a + p.coords) / n,
+    );
+    let mut cov = Matrix3::zeros();
+    for (s, d) in src.iter().zip(dst) {
+        cov += (d.coords - cd) * (s.coords - cs).transpose();
+    }
+    let svd = cov.svd(true, true);
+    let (u, v_t) = (svd.u?, svd.v_t?);
+    let sv = svd.singular_values;
+    if sv[1] < 1e-9 * sv[0].max(1e-30) {
+        return None;
+    }
+    let mut s = Matrix3::identity();
+    if (u * v_t).determinant() < 0.0 {
+        s[(2, 2)] = -1.0;
+    }
+    let r = u * s * v_t;
+    let rotation = UnitQuaternion::from_matrix(&r);
+    let t = cd - rotation * cs;
+    Some(Isometry3::from_parts(Translation3::from(t), rotation))
+}
