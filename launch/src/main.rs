@@ -49,9 +49,6 @@ struct DemoArgs {
     /// Pacing: on-demand (as fast as the pipeline consumes), recorded (30 fps), or a rate such as 60hz.
     #[arg(long, default_value = "on-demand")]
     pacing: bdis_acquisition::Pacing,
-    /// Every N-th frame becomes a keyframe for dense stereo (until the tracker chooses keyframes).
-    #[arg(long, default_value_t = 5)]
-    keyframe_every: u64,
 }
 
 #[derive(Debug, clap::Args)]
@@ -76,6 +73,11 @@ struct RunArgs {
     /// size); the probe then checks the depth keyframes.
     #[arg(long, requires = "sequence", value_name = "N")]
     stereo_every: Option<u64>,
+    /// Run the full pipeline on --sequence: acquisition → tracking → dense stereo on the tracker's keyframes;
+    /// writes the trajectory (TUM, KITTI) and keyframe trajectory into the run folder. Needs the camera
+    /// (--settings, or the settings.yaml a synthetic sequence comes with).
+    #[arg(long, requires = "sequence", conflicts_with_all = ["stereo_every", "checksums"])]
+    track: bool,
     /// Run folder to write (default: runs/<UTC time>-<name>).
     #[arg(long)]
     out: Option<PathBuf>,
@@ -111,6 +113,7 @@ fn plan_for_sequence(
     pacing: bdis_acquisition::Pacing,
     checksums: bool,
     stereo_every: Option<u64>,
+    track: bool,
 ) -> Result<bdis_slam::launch_file::LaunchFile> {
     use bdis_slam::launch_file::{LaunchFile, RunSection, ServiceSpec};
     // Check the input before anything starts: a bad sequence or settings file is reported here, by file and
@@ -137,6 +140,28 @@ fn plan_for_sequence(
         env: Default::default(),
     };
     let mut services = vec![spec("acquisition", "bdis-acquisition", acquisition_args, 0)];
+    if track {
+        let Some(settings) = &input.settings_path else {
+            anyhow::bail!("--track needs --settings (the tracker reads the camera and ORB settings from it)")
+        };
+        let settings = absolute(settings)?.display().to_string();
+        // Acquisition and tracking share core 0; the dense stereo (and its consumer) run on core 1, so the dense
+        // mapper does not slow the tracker.
+        services.push(spec("tracking", "bdis-tracking", vec!["--settings".into(), settings.clone()], 0));
+        services.push(spec(
+            "stereo",
+            "bdis-stereo",
+            vec!["--settings".into(), settings, "--input".into(), "keyframes".into()],
+            1,
+        ));
+        services.push(spec(
+            "probe",
+            "bdis-slam",
+            vec!["probe".into(), "depth".into(), "--preview".into(), "${RUN_DIR}/depth-preview.png".into()],
+            1,
+        ));
+        return Ok(LaunchFile { run: RunSection { name: Some(name), ..Default::default() }, services });
+    }
     match (stereo_every, &input.settings_path) {
         (Some(every), Some(settings)) => {
             let settings = absolute(settings)?.display().to_string();
@@ -188,11 +213,19 @@ fn run(args: RunArgs) -> Result<ExitCode> {
                 args.pacing,
                 args.checksums,
                 args.stereo_every,
+                args.track,
             )?,
             PathBuf::from("launch.toml"),
         ),
         (None, Some(sequence), None) => (
-            plan_for_sequence(sequence, args.settings.as_deref(), args.pacing, args.checksums, args.stereo_every)?,
+            plan_for_sequence(
+                sequence,
+                args.settings.as_deref(),
+                args.pacing,
+                args.checksums,
+                args.stereo_every,
+                args.track,
+            )?,
             PathBuf::from("launch.toml"),
         ),
         (None, None, _) => anyhow::bail!("give a launch file or --sequence"),
@@ -287,7 +320,7 @@ fn demo(args: DemoArgs) -> Result<ExitCode> {
     let preview = run_dir.join("preview.png");
     write_side_by_side(&sequence.join("left/1.png"), &sequence.join("right/1.png"), &preview)?;
 
-    let launch = plan_for_sequence(&sequence, Some(&settings), args.pacing, false, Some(args.keyframe_every))?;
+    let launch = plan_for_sequence(&sequence, Some(&settings), args.pacing, false, None, true)?;
     let (code, result) = execute_and_report(&launch, Path::new("launch.toml"), &run_dir, None)?;
     let find = |name: &str| result.latency.processes.iter().find(|p| p.name == name);
     let depth: Option<bdis_slam::probe::DepthSummary> =
@@ -295,15 +328,44 @@ fn demo(args: DemoArgs) -> Result<ExitCode> {
     println!();
     println!("demo summary");
     println!(
-        "  frames      {} rendered, {} published by acquisition",
+        "  frames      {} rendered, {} published by acquisition, {} tracked",
         args.frames,
-        find("acquisition").map_or(0, |p| p.messages)
+        find("acquisition").map_or(0, |p| p.messages),
+        find("tracking").map_or(0, |p| p.messages)
     );
+    // The trajectory against the renderer's ground truth.
+    let trajectory = (|| -> Result<(bdis_eval::traj::Ate, f64, usize)> {
+        use bdis_core::formats::trajectory::read_tum;
+        let gt = read_tum(&sequence.join("gt/poses.tum"))?;
+        let est = read_tum(&run_dir.join("trajectory.tum"))?;
+        let ate = bdis_eval::traj::ate(&gt, &est, 0.01)?;
+        let length: f64 = gt
+            .windows(2)
+            .map(|w| (w[1].world_from_camera.translation.vector - w[0].world_from_camera.translation.vector).norm())
+            .sum();
+        let keyframes = read_tum(&run_dir.join("keyframes.tum"))?.len();
+        Ok((ate, length, keyframes))
+    })();
+    match &trajectory {
+        Ok((ate, length, keyframes)) => println!(
+            "  tracking    {keyframes} keyframes; ATE RMSE {:.3} mm over a {:.1} mm path ({:.2} %), vs the renderer's ground truth",
+            ate.translation.rmse,
+            length,
+            100.0 * ate.translation.rmse / length.max(1e-9)
+        ),
+        Err(e) => println!("  tracking    no trajectory to evaluate ({e:#})"),
+    }
+    if let Some(t) = find("tracking").and_then(|p| p.processing_us) {
+        println!(
+            "  tracking    per frame p50 {:.1} ms, p99 {:.1} ms (ORB, stereo matching, pose, local map)",
+            t.p50 / 1000.0,
+            t.p99 / 1000.0
+        );
+    }
     if let Some(d) = &depth {
         println!(
-            "  keyframes   {} depth keyframes (every {}th frame), mean density {:.1} % of pixels",
+            "  dense       {} depth keyframes from the tracker's keyframes, mean density {:.1} % of pixels",
             d.keyframe_ids.len(),
-            args.keyframe_every,
             100.0 * d.mean_density
         );
     }
@@ -332,9 +394,13 @@ fn demo(args: DemoArgs) -> Result<ExitCode> {
         run_dir.join("depth-preview.png").display(),
         preview.display()
     );
-    println!("              {}", run_dir.join("latency.json").display());
-    println!("  not yet     tracking and the mosaic map are still to come (issues #6, #7): keyframes are every");
-    println!("              {}th frame and have no pose; the probe stands in for the mosaic.", args.keyframe_every);
+    println!(
+        "              {} and {} (trajectory), {}",
+        run_dir.join("trajectory.tum").display(),
+        run_dir.join("keyframes.tum").display(),
+        run_dir.join("latency.json").display()
+    );
+    println!("  not yet     the mosaic map is still to come (issue #7): the probe stands in for it.");
     Ok(code)
 }
 

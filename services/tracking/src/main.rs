@@ -92,7 +92,9 @@ fn run(args: Args) -> Result<()> {
     let correction_publisher =
         corrections.publisher_builder().create().map_err(|e| iox("create the corrections publisher")(&e))?;
     let correction_events = ipc.notifier(&ipc.events(Topic::Corrections)?)?;
-    let mut telemetry = TelemetryPublisher::new(&ipc, &args.name, Some(Topic::Frames), Some(Topic::Poses))?;
+    // Its declared output is the keyframes topic: that is what the dense stereo consumes (poses and corrections
+    // have no process downstream yet).
+    let mut telemetry = TelemetryPublisher::new(&ipc, &args.name, Some(Topic::Frames), Some(Topic::Keyframes))?;
     let waitset = WaitSetBuilder::new().create::<ipc::Service>().map_err(|e| iox("create a WaitSet")(&e))?;
     let guard = waitset
         .attach_deadline(&frame_events, Duration::from_secs(1))
@@ -100,7 +102,9 @@ fn run(args: Args) -> Result<()> {
 
     let mut generation = 0u64;
     let mut last_seq: Option<u64> = None;
-    let (mut n_frames, mut n_keyframes, mut n_lost) = (0u64, 0u64, 0u64);
+    let (mut n_frames, mut n_keyframes, mut n_lost, mut n_relocalised) = (0u64, 0u64, 0u64, 0u64);
+    // Per-frame CPU (frames without a new keyframe) and per-keyframe CPU (tracking plus local mapping), ms.
+    let (mut frame_ms, mut keyframe_ms) = (Vec::<f64>::with_capacity(4096), Vec::<f64>::with_capacity(1024));
     telemetry.ready();
     bdis_ipc::notify(&credits, event_id::JOINED)?;
     tracing::info!("tracking ready ({}×{}, {} features)", width, height, settings.orb.n_features);
@@ -180,7 +184,7 @@ fn run(args: Args) -> Result<()> {
                 // and the layout is the packed one of this size), all copied above.
                 let mut kf_sample = unsafe { loan.assume_init() };
                 *kf_sample.user_header_mut() = KeyframeHeader {
-                    frame: header,
+                    frame: bdis_ipc::FrameHeader { t_publish_ns: monotonic_ns(), ..header },
                     kf_id: kf as u64,
                     world_from_camera: pose_to_array(&pose),
                     fx: camera.fx,
@@ -229,6 +233,12 @@ fn run(args: Args) -> Result<()> {
             bdis_ipc::notify(&pose_events, event_id::NEW_SAMPLE)?;
             n_frames += 1;
             n_lost += u64::from(result.state == TrackingState::Lost);
+            n_relocalised += u64::from(result.relocalised);
+            if result.new_keyframe.is_some() {
+                keyframe_ms.push(cpu_ns as f64 / 1e6);
+            } else {
+                frame_ms.push(cpu_ns as f64 / 1e6);
+            }
             last_seq = Some(header.frame_seq);
             if result.state != TrackingState::Ok || result.new_keyframe.is_some() || header.frame_seq % 50 == 0 {
                 tracing::info!(
@@ -253,6 +263,27 @@ fn run(args: Args) -> Result<()> {
         }
     }
     write_trajectories(&tracker, &out_dir)?;
+    let median = |v: &mut Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        v.get(v.len() / 2).copied()
+    };
+    let p99 = |v: &[f64]| v.get(((v.len() as f64 * 0.99) as usize).min(v.len().saturating_sub(1))).copied();
+    let summary = serde_json::json!({
+        "schema": "bdis.v1.tracking",
+        "frames": n_frames,
+        "lost": n_lost,
+        "relocalisations": n_relocalised,
+        "keyframes_created": n_keyframes,
+        "keyframes_in_map": tracker.map.n_good_keyframes(),
+        "map_points": tracker.map.points.iter().filter(|p| !p.bad).count(),
+        "frame_cpu_ms_p50": median(&mut frame_ms),
+        "frame_cpu_ms_p99": p99(&frame_ms),
+        "keyframe_cpu_ms_p50": median(&mut keyframe_ms),
+        "keyframe_cpu_ms_p99": p99(&keyframe_ms),
+    });
+    let summary_path = out_dir.join("tracking.json");
+    std::fs::write(&summary_path, serde_json::to_string_pretty(&summary)?)
+        .with_context(|| format!("{}: cannot write", summary_path.display()))?;
     tracing::info!("{n_frames} frames, {n_keyframes} keyframes, {n_lost} lost; trajectories in {}", out_dir.display());
     telemetry.finished();
     Ok(())

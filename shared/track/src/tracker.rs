@@ -11,6 +11,9 @@ use bdis_orb::{OrbError, OrbParams, hamming};
 use nalgebra::{Isometry3, Matrix3, Point3, Translation3, UnitQuaternion};
 use std::collections::{BTreeMap, BTreeSet};
 
+/// Frames after a relocalisation during which no keyframe is made.
+pub const RELOCALISATION_HOLDOFF_FRAMES: u64 = 5;
+
 #[derive(Debug, thiserror::Error)]
 pub enum TrackError {
     #[error(transparent)]
@@ -69,6 +72,8 @@ pub struct Tracker {
     current: Frame,
     last: Frame,
     velocity: Option<Isometry3<f64>>,
+    /// The velocity when tracking was last OK: lost frames are extrapolated with it in the trajectory.
+    lost_velocity: Option<Isometry3<f64>>,
     reference_kf: Option<KfId>,
     last_kf_frame: u64,
     last_reloc_frame: Option<u64>,
@@ -101,6 +106,7 @@ impl Tracker {
             current: Frame::empty(&cam),
             last: Frame::empty(&cam),
             velocity: None,
+            lost_velocity: None,
             reference_kf: None,
             last_kf_frame: 0,
             last_reloc_frame: None,
@@ -189,6 +195,9 @@ impl Tracker {
                 }
             }
         } else {
+            if self.velocity.is_some() {
+                self.lost_velocity = self.velocity;
+            }
             self.velocity = None;
         }
         self.finish_frame(&mut result);
@@ -207,7 +216,11 @@ impl Tracker {
             self.records.push(FrameRecord { t_ns: result.t_ns, reference: r, camera_from_reference: rel, lost: false });
             self.last_from_reference = Some((r, rel));
         } else if let Some((r, rel)) = self.last_from_reference {
+            // While lost, the best guess is the last motion continued (ORB-SLAM2 repeats the last pose); it also
+            // puts the relocalisation's search near where the camera went.
+            let rel = self.lost_velocity.map_or(rel, |v| v * rel);
             self.records.push(FrameRecord { t_ns: result.t_ns, reference: r, camera_from_reference: rel, lost: true });
+            self.last_from_reference = Some((r, rel));
         }
         self.last.copy_from(&self.current);
         if !tracked {
@@ -458,7 +471,10 @@ impl Tracker {
     fn need_keyframe(&self, inliers: usize) -> bool {
         let n_kfs = self.map.n_good_keyframes() as u64;
         let frame_id = self.current.id;
-        if self.last_reloc_frame.is_some_and(|r| frame_id < r + self.max_frames()) && n_kfs > self.max_frames() {
+        // ORB-SLAM2 makes no keyframe for maxFrames (= fps) frames after a relocalisation. Moving forward through
+        // a colon, the old keyframes run out of view within that second and tracking is lost again (seen on the
+        // synthetic colon); a few frames of hold-off are enough to keep a doubtful pose out of the map.
+        if self.last_reloc_frame.is_some_and(|r| frame_id < r + RELOCALISATION_HOLDOFF_FRAMES) {
             return false;
         }
         let Some(r) = self.reference_kf else { return false };
@@ -534,24 +550,26 @@ impl Tracker {
         if n == 0 {
             return false;
         }
-        // Votes: frame descriptors against each keyframe's point descriptors.
-        let mut scored: Vec<(usize, KfId)> = Vec::new();
-        for kf in self.map.keyframes.iter().filter(|k| !k.bad) {
-            let mut votes = 0;
-            for d in &self.current.descriptors {
-                if kf
-                    .points
-                    .iter()
-                    .flatten()
-                    .any(|&p| !self.map.points[p].bad && hamming(d, &self.map.points[p].descriptor) <= TH_LOW)
-                {
-                    votes += 1;
-                }
-            }
-            if votes >= 15 {
-                scored.push((votes, kf.id));
-            }
+        // Candidates (§7.3 B): the camera is most likely near where it was last seen, so the last reference
+        // keyframe, its covisibles and the keyframes nearest to the last pose; when the last pose is unknown or
+        // those fail, every keyframe. Each is ranked by descriptor votes (a frame keypoint whose best match among
+        // the keyframe's points passes TH_LOW and the ratio test).
+        let mut near: Vec<KfId> = Vec::new();
+        if let Some(r) = self.reference_kf.filter(|&r| !self.map.keyframes[r].bad) {
+            near.push(r);
+            near.extend(self.map.keyframes[r].best_covisibles(5));
         }
+        if let Some((r, rel)) = self.last_from_reference {
+            let last_centre = (rel * self.map.keyframe_pose(r)).inverse() * Point3::origin();
+            let mut by_distance: Vec<(f64, KfId)> =
+                self.map.good_keyframes().map(|k| ((k.centre() - last_centre).norm(), k.id)).collect();
+            by_distance.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+            near.extend(by_distance.iter().take(5).map(|(_, k)| *k));
+        }
+        let mut seen = BTreeSet::new();
+        near.retain(|k| seen.insert(*k) && !self.map.keyframes[*k].bad);
+        let mut scored: Vec<(usize, KfId)> =
+            near.iter().map(|&k| (self.votes(k), k)).filter(|(v, _)| *v >= 15).collect();
         scored.sort_by(|a, b| b.0.cmp(&a.0).then(a.1.cmp(&b.1)));
         for &(_, kf) in scored.iter().take(5) {
             if self.relocalise_against(kf) {
@@ -561,6 +579,34 @@ impl Tracker {
             }
         }
         false
+    }
+
+    /// Frame keypoints whose best match among keyframe `kf`'s points is ≤ TH_LOW and < 0.75 of the second best.
+    fn votes(&self, kf: KfId) -> usize {
+        let descs: Vec<&[u8; 32]> = self.map.keyframes[kf]
+            .points
+            .iter()
+            .flatten()
+            .filter(|&&p| !self.map.points[p].bad)
+            .map(|&p| &self.map.points[p].descriptor)
+            .collect();
+        self.current
+            .descriptors
+            .iter()
+            .filter(|d| {
+                let (mut best, mut second) = (u32::MAX, u32::MAX);
+                for p in &descs {
+                    let h = hamming(d, p);
+                    if h < best {
+                        second = best;
+                        best = h;
+                    } else if h < second {
+                        second = h;
+                    }
+                }
+                best <= TH_LOW && f64::from(best) < 0.75 * f64::from(second)
+            })
+            .count()
     }
 
     fn relocalise_against(&mut self, kf: KfId) -> bool {
