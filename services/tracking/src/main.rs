@@ -165,11 +165,12 @@ fn run(args: Args) -> Result<()> {
                     args.settings.display()
                 );
             }
-            let cpu_start = bdis_ipc::clock::process_cpu_ns();
+            // The tracking thread's CPU (bundle adjustment runs on a worker thread and is not part of it).
+            let cpu_start = bdis_ipc::clock::thread_cpu_ns();
             let result = tracker
                 .track(header.t_source_ns, view.left_gray, view.right_gray)
                 .with_context(|| format!("frame {}", header.frame_seq))?;
-            let cpu_ns = bdis_ipc::clock::process_cpu_ns().saturating_sub(cpu_start);
+            let cpu_ns = bdis_ipc::clock::thread_cpu_ns().saturating_sub(cpu_start);
             // A new keyframe goes out with its images (copied from the frame, which goes back to acquisition).
             if let Some(kf) = result.new_keyframe {
                 let pose = tracker.map.keyframes[kf].camera_from_world.inverse();
@@ -199,23 +200,9 @@ fn run(args: Args) -> Result<()> {
             }
             drop(sample);
             bdis_ipc::notify(&credits, event_id::CONSUMED)?;
-            // Corrections for every keyframe bundle adjustment moved (the new one included).
+            // Corrections for every keyframe bundle adjustment moved.
             if let Some(report) = &result.mapper {
-                generation += 1;
-                for &k in &report.moved {
-                    let k_pose = tracker.map.keyframes[k].camera_from_world.inverse();
-                    let record = KeyframePose {
-                        kf_id: k as u64,
-                        world_from_camera: pose_to_array(&k_pose),
-                        generation,
-                        culled: 0,
-                        reserved: 0,
-                    };
-                    correction_publisher.send_copy(record).map_err(|e| anyhow!("send a correction: {e:?}"))?;
-                }
-                if !report.moved.is_empty() {
-                    bdis_ipc::notify(&correction_events, event_id::NEW_SAMPLE)?;
-                }
+                publish_corrections(&correction_publisher, &correction_events, &tracker, report, &mut generation)?;
             }
             let t_publish_ns = monotonic_ns();
             let record = PoseRecord {
@@ -262,6 +249,9 @@ fn run(args: Args) -> Result<()> {
             );
         }
     }
+    // The last keyframe's bundle adjustment, then the trajectories from the final keyframe poses.
+    let last = tracker.finish();
+    publish_corrections(&correction_publisher, &correction_events, &tracker, &last, &mut generation)?;
     write_trajectories(&tracker, &out_dir)?;
     let median = |v: &mut Vec<f64>| {
         v.sort_by(f64::total_cmp);
@@ -286,6 +276,32 @@ fn run(args: Args) -> Result<()> {
         .with_context(|| format!("{}: cannot write", summary_path.display()))?;
     tracing::info!("{n_frames} frames, {n_keyframes} keyframes, {n_lost} lost; trajectories in {}", out_dir.display());
     telemetry.finished();
+    Ok(())
+}
+
+fn publish_corrections(
+    publisher: &iceoryx2::port::publisher::Publisher<ipc::Service, KeyframePose, ()>,
+    events: &iceoryx2::port::notifier::Notifier<ipc::Service>,
+    tracker: &Tracker,
+    report: &bdis_track::mapper::MapperReport,
+    generation: &mut u64,
+) -> Result<()> {
+    if report.moved.is_empty() {
+        return Ok(());
+    }
+    *generation += 1;
+    for &k in &report.moved {
+        let pose = tracker.map.keyframes[k].camera_from_world.inverse();
+        let record = KeyframePose {
+            kf_id: k as u64,
+            world_from_camera: pose_to_array(&pose),
+            generation: *generation,
+            culled: 0,
+            reserved: 0,
+        };
+        publisher.send_copy(record).map_err(|e| anyhow!("send a correction: {e:?}"))?;
+    }
+    bdis_ipc::notify(events, event_id::NEW_SAMPLE)?;
     Ok(())
 }
 

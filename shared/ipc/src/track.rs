@@ -34,7 +34,7 @@ pub struct PoseRecord {
     pub inliers: u32,
     /// The keyframe made from this frame, or `u64::MAX`.
     pub new_keyframe: u64,
-    /// CPU time the tracker spent on this frame (thread CPU), ns.
+    /// CPU time the tracking thread spent on this frame, ns.
     pub cpu_ns: u64,
 }
 

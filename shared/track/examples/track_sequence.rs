@@ -33,12 +33,18 @@ fn main() {
     let mut tracker = Tracker::new(cam, ts).unwrap();
     let mut cpu = Vec::new();
     let mut kf_ms = Vec::new();
+    let mut steps = [0.0f64; 5];
     for (i, &t) in times.iter().enumerate().take(max) {
         let (l, _, _) = grey(&dir.join(format!("left/{}.png", i + 1)));
         let (r, _, _) = grey(&dir.join(format!("right/{}.png", i + 1)));
         let start = std::time::Instant::now();
         let res = tracker.track((t * 1e9).round() as u64, &l, &r).unwrap();
         let ms = start.elapsed().as_secs_f64() * 1e3;
+        if let Some(m) = &res.mapper {
+            for (total, step) in steps.iter_mut().zip(m.step_ms) {
+                *total += step;
+            }
+        }
         if res.new_keyframe.is_some() {
             kf_ms.push(ms);
         } else {
@@ -56,6 +62,7 @@ fn main() {
             );
         }
     }
+    tracker.finish();
     cpu.sort_by(f64::total_cmp);
     kf_ms.sort_by(f64::total_cmp);
     eprintln!(
@@ -63,6 +70,15 @@ fn main() {
         cpu.get(cpu.len() / 2).copied().unwrap_or(0.0),
         kf_ms.len(),
         kf_ms.get(kf_ms.len() / 2).copied().unwrap_or(0.0)
+    );
+    let n = kf_ms.len().max(1) as f64;
+    eprintln!(
+        "local mapping per keyframe (mean ms, tracking thread): observations {:.1}, new points {:.1}, fusion {:.1}, waiting for BA {:.1}, snapshot + culling {:.1}",
+        steps[0] / n,
+        steps[1] / n,
+        steps[2] / n,
+        steps[3] / n,
+        steps[4] / n
     );
     let mut out = std::fs::File::create(&a[2]).unwrap();
     for (t_ns, pose, _lost) in tracker.trajectory() {

@@ -22,14 +22,109 @@ pub struct MapperReport {
     pub ba_iterations: usize,
     /// Keyframes whose pose bundle adjustment changed.
     pub moved: Vec<KfId>,
+    /// Wall time of the steps, ms: observations and point culling, new points, fusion, waiting for and applying
+    /// the previous keyframe's bundle adjustment (all of it when it runs inline), snapshot and keyframe culling.
+    pub step_ms: [f64; 5],
+}
+
+/// Where local bundle adjustment runs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum BaMode {
+    /// On a worker thread: the map's owner hands it a snapshot and applies the result at the next keyframe.
+    #[default]
+    Worker,
+    /// In the caller's thread, applied at once (tests, offline tools).
+    Inline,
+}
+
+/// The bundle-adjustment worker: a thread that solves snapshots it receives on a channel.
+#[derive(Debug)]
+struct BaWorker {
+    jobs: Option<std::sync::mpsc::Sender<BaJob>>,
+    results: std::sync::mpsc::Receiver<BaJob>,
+    thread: Option<std::thread::JoinHandle<()>>,
+    in_flight: bool,
+}
+
+impl BaWorker {
+    fn spawn() -> Option<Self> {
+        let (job_tx, job_rx) = std::sync::mpsc::channel::<BaJob>();
+        let (result_tx, result_rx) = std::sync::mpsc::channel::<BaJob>();
+        let thread = std::thread::Builder::new()
+            .name("local-ba".into())
+            .spawn(move || {
+                // Ends when the sender side is dropped.
+                for job in job_rx {
+                    if result_tx.send(solve_local_ba(job)).is_err() {
+                        break;
+                    }
+                }
+            })
+            .ok()?;
+        Some(Self { jobs: Some(job_tx), results: result_rx, thread: Some(thread), in_flight: false })
+    }
+}
+
+impl Drop for BaWorker {
+    fn drop(&mut self) {
+        self.jobs = None;
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
 }
 
 #[derive(Debug, Default)]
 pub struct LocalMapper {
+    mode: BaMode,
+    worker: Option<BaWorker>,
     recent: Vec<PointId>,
 }
 
 impl LocalMapper {
+    pub fn new(mode: BaMode) -> Self {
+        Self { mode, ..Self::default() }
+    }
+
+    /// Hands a snapshot to the worker (spawned on first use), or solves and applies it here.
+    fn submit_ba(&mut self, job: BaJob, map: &mut Map, scales: &Scales, report: &mut MapperReport) {
+        if self.mode == BaMode::Worker {
+            if self.worker.is_none() {
+                self.worker = BaWorker::spawn();
+            }
+            if let Some(w) = self.worker.as_mut()
+                && let Some(tx) = &w.jobs
+            {
+                match tx.send(job) {
+                    Ok(()) => {
+                        w.in_flight = true;
+                        return;
+                    }
+                    // The worker is gone (it cannot panic on valid input; be safe): solve here.
+                    Err(std::sync::mpsc::SendError(job)) => {
+                        let solved = solve_local_ba(job);
+                        apply_local_ba(map, &solved, scales, report);
+                        return;
+                    }
+                }
+            }
+        }
+        let solved = solve_local_ba(job);
+        apply_local_ba(map, &solved, scales, report);
+    }
+
+    /// Waits for the bundle adjustment in flight, if any, and applies it to the map.
+    pub fn finish_ba(&mut self, map: &mut Map, scales: &Scales, report: &mut MapperReport) {
+        let Some(w) = self.worker.as_mut() else { return };
+        if !w.in_flight {
+            return;
+        }
+        w.in_flight = false;
+        if let Ok(job) = w.results.recv() {
+            apply_local_ba(map, &job, scales, report);
+        }
+    }
+
     /// Runs every step of §6 for keyframe `kf` (already in the map with its tracked links and new stereo points).
     pub fn process(
         &mut self,
@@ -40,14 +135,29 @@ impl LocalMapper {
         th_depth: f64,
     ) -> MapperReport {
         let mut report = MapperReport::default();
+        let mut clock = std::time::Instant::now();
+        let mut lap = |report: &mut MapperReport, step: usize| {
+            let now = std::time::Instant::now();
+            report.step_ms[step] = (now - clock).as_secs_f64() * 1e3;
+            clock = now;
+        };
+        // The previous keyframe's bundle adjustment first (waiting for it if it is still running): results are
+        // applied in keyframe order, at the same point of every run, so runs are deterministic.
+        self.finish_ba(map, scales, &mut report);
+        lap(&mut report, 3);
         self.process_new_keyframe(map, kf, scales);
         report.culled_points = self.cull_recent_points(map, kf);
+        lap(&mut report, 0);
         report.new_points = self.create_new_points(map, kf, cam, scales);
+        lap(&mut report, 1);
         report.fused = search_in_neighbours(map, kf, cam, scales);
+        lap(&mut report, 2);
         if map.n_good_keyframes() > 2 {
-            local_bundle_adjustment(map, kf, cam, scales, &mut report);
+            let job = snapshot_local_ba(map, kf, cam, scales);
+            self.submit_ba(job, map, scales, &mut report);
         }
         report.culled_keyframes = cull_keyframes(map, kf, cam, th_depth);
+        lap(&mut report, 4);
         report
     }
 
@@ -346,9 +456,22 @@ fn search_in_neighbours(map: &mut Map, kf: KfId, cam: &StereoCamera, scales: &Sc
     fused
 }
 
-/// §6.5: local keyframes = `kf` and its ordered covisibles; fixed = other keyframes seeing local points (and
-/// keyframe 0). 5 robust iterations, outliers excluded, 10 plain ones; bad observations erased.
-fn local_bundle_adjustment(map: &mut Map, kf: KfId, cam: &StereoCamera, scales: &Scales, report: &mut MapperReport) {
+/// A local bundle adjustment taken out of the map: the problem and which map ids its rows are.
+#[derive(Debug)]
+pub struct BaJob {
+    /// The keyframe it was made for (its epoch).
+    pub kf: KfId,
+    problem: BaProblem,
+    cam: StereoCamera,
+    pose_ids: Vec<KfId>,
+    point_ids: Vec<PointId>,
+    edge_keys: Vec<(PointId, KfId)>,
+    iterations: usize,
+}
+
+/// §6.5, step 1–2: local keyframes = `kf` and its ordered covisibles; fixed = other keyframes seeing local
+/// points (and keyframe 0); every observation of a local point by a good keyframe is an edge.
+fn snapshot_local_ba(map: &Map, kf: KfId, cam: &StereoCamera, scales: &Scales) -> BaJob {
     let mut local: Vec<KfId> = vec![kf];
     local.extend(map.keyframes[kf].ordered.iter().map(|(k, _)| *k).filter(|&k| !map.keyframes[k].bad));
     let local_set: BTreeSet<KfId> = local.iter().copied().collect();
@@ -366,14 +489,16 @@ fn local_bundle_adjustment(map: &mut Map, kf: KfId, cam: &StereoCamera, scales: 
     }
     let mut pose_index: BTreeMap<KfId, usize> = BTreeMap::new();
     let mut problem = BaProblem::default();
+    let mut pose_ids = Vec::new();
     for (&k, is_fixed) in local.iter().map(|k| (k, false)).chain(fixed.iter().map(|k| (k, true))) {
         pose_index.insert(k, problem.poses.len());
+        pose_ids.push(k);
         problem.poses.push(map.keyframes[k].camera_from_world);
         problem.fixed.push(is_fixed || k == 0);
     }
-    let point_list: Vec<PointId> = points.into_iter().collect();
+    let point_ids: Vec<PointId> = points.into_iter().collect();
     let mut edge_keys: Vec<(PointId, KfId)> = Vec::new();
-    for (pi, &p) in point_list.iter().enumerate() {
+    for (pi, &p) in point_ids.iter().enumerate() {
         problem.points.push(map.points[p].position);
         for (&k, &idx) in &map.points[p].observations {
             let Some(&pose) = pose_index.get(&k) else { continue };
@@ -389,37 +514,54 @@ fn local_bundle_adjustment(map: &mut Map, kf: KfId, cam: &StereoCamera, scales: 
         }
     }
     problem.excluded = vec![false; problem.edges.len()];
-    let first = problem.solve(cam, 5, true, &|| false);
-    let threshold = |e: &BaEdge| if e.obs.is_stereo() { CHI2_STEREO } else { CHI2_MONO };
-    for k in 0..problem.edges.len() {
-        let x2 = problem.edge_chi2(cam, k);
-        if x2.is_nan() || x2 > threshold(&problem.edges[k]) {
-            problem.excluded[k] = true;
+    BaJob { kf, problem, cam: *cam, pose_ids, point_ids, edge_keys, iterations: 0 }
+}
+
+/// §6.5 steps 3–4, on the snapshot alone (no map): 5 robust iterations, outliers excluded, 10 plain ones.
+pub fn solve_local_ba(mut job: BaJob) -> BaJob {
+    let cam = job.cam;
+    let first = job.problem.solve(&cam, 5, true, &|| false);
+    for k in 0..job.problem.edges.len() {
+        let x2 = job.problem.edge_chi2(&cam, k);
+        let e = &job.problem.edges[k];
+        if x2.is_nan() || x2 > if e.obs.is_stereo() { CHI2_STEREO } else { CHI2_MONO } {
+            job.problem.excluded[k] = true;
         }
     }
-    let second = problem.solve(cam, 10, false, &|| false);
-    report.ba_iterations = first.iterations + second.iterations;
-    report.ba_keyframes = local.len();
-    report.ba_points = point_list.len();
-    for (k, &(p, kf)) in edge_keys.iter().enumerate() {
-        let x2 = problem.edge_chi2(cam, k);
-        if x2.is_nan() || x2 > threshold(&problem.edges[k]) {
+    let second = job.problem.solve(&cam, 10, false, &|| false);
+    job.iterations = first.iterations + second.iterations;
+    job
+}
+
+/// §6.5 step 5: writes a solved snapshot back into the map. What changed in the map since the snapshot wins:
+/// culled keyframes and bad points are skipped, observations already erased stay erased. Poses and positions are
+/// replaced (the map's owner applies results in keyframe order, so nothing newer is overwritten).
+fn apply_local_ba(map: &mut Map, job: &BaJob, scales: &Scales, report: &mut MapperReport) {
+    let cam = job.cam;
+    for (k, &(p, kf)) in job.edge_keys.iter().enumerate() {
+        let x2 = job.problem.edge_chi2(&cam, k);
+        let e = &job.problem.edges[k];
+        if (x2.is_nan() || x2 > if e.obs.is_stereo() { CHI2_STEREO } else { CHI2_MONO })
+            && map.points[p].observations.contains_key(&kf)
+        {
             map.erase_observation(p, kf);
         }
     }
-    for &k in &local {
-        let i = pose_index[&k];
-        if !problem.fixed[i] {
-            map.keyframes[k].camera_from_world = problem.poses[i];
+    for (i, &k) in job.pose_ids.iter().enumerate() {
+        if !job.problem.fixed[i] && !map.keyframes[k].bad {
+            map.keyframes[k].camera_from_world = job.problem.poses[i];
             report.moved.push(k);
         }
     }
-    for (pi, &p) in point_list.iter().enumerate() {
+    for (pi, &p) in job.point_ids.iter().enumerate() {
         if !map.points[p].bad {
-            map.points[p].position = problem.points[pi];
+            map.points[p].position = job.problem.points[pi];
             map.update_normal_and_depth(p, scales);
         }
     }
+    report.ba_iterations = job.iterations;
+    report.ba_keyframes = job.pose_ids.iter().zip(&job.problem.fixed).filter(|(_, f)| !**f).count();
+    report.ba_points = job.point_ids.len();
 }
 
 /// Keyframes younger than this (in keyframe ids) are never culled.

@@ -710,6 +710,14 @@ impl Tracker {
         good >= 50
     }
 
+    /// Waits for the local bundle adjustment still running and applies it (call before reading the final map or
+    /// trajectory).
+    pub fn finish(&mut self) -> MapperReport {
+        let mut report = MapperReport::default();
+        self.mapper.finish_ba(&mut self.map, &self.scales, &mut report);
+        report
+    }
+
     /// The trajectory so far: (t_ns, world_from_camera, lost) per frame, from each frame's reference keyframe as
     /// it is now (so bundle adjustment's corrections reach every frame).
     pub fn trajectory(&self) -> Vec<(u64, Isometry3<f64>, bool)> {

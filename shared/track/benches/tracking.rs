@@ -1,0 +1,59 @@
+#![allow(clippy::expect_used)] // benchmark code: a panic is the failure report
+//! Criterion benchmark: tracking CPU per frame at 640×480 with 1000 features (ORB on both images, stereo
+//! matching, pose, local map, keyframes with their inline local mapping), single thread. Input: the first 40
+//! frames of the synthetic colon flight (`bdis-slam synth`, default rig), rendered into a temporary folder, or
+//! the folder in `BDIS_BENCH_SEQUENCE`. One iteration tracks all 40 frames with a new tracker; the figure per
+//! frame is the time divided by 40.
+//!
+//! cargo bench -p bdis-track --bench tracking
+
+use bdis_track::{StereoCamera, Tracker, TrackerSettings};
+use criterion::{Criterion, criterion_group, criterion_main};
+
+const FRAMES: usize = 40;
+
+fn grey(path: &std::path::Path) -> Vec<u8> {
+    let img = image::open(path).expect("frame").to_rgb8();
+    img.pixels()
+        .map(|p| ((u32::from(p[0]) * 4899 + u32::from(p[1]) * 9617 + u32::from(p[2]) * 1868 + 8192) >> 14) as u8)
+        .collect()
+}
+
+fn bench(c: &mut Criterion) {
+    let dir = match std::env::var_os("BDIS_BENCH_SEQUENCE") {
+        Some(d) => std::path::PathBuf::from(d),
+        None => {
+            let dir = std::env::temp_dir().join(format!("bdis-bench-tracking-{}", std::process::id()));
+            let request = bdis_synth::SceneRequest { frames: FRAMES, ..Default::default() };
+            bdis_synth::write_scene(&dir, &bdis_synth::StereoRig::default(), &request, |_| {}).expect("render");
+            dir
+        }
+    };
+    let settings = bdis_core::Settings::load(&dir.join("settings.yaml")).expect("settings");
+    let cam = StereoCamera::from_settings(&settings.camera, 640, 480);
+    let ts = TrackerSettings {
+        th_depth: settings.th_depth,
+        fps: settings.fps,
+        orb: bdis_orb::OrbParams { n_features: 1000, ..bdis_orb::OrbParams::from_settings(&settings.orb) },
+    };
+    let frames: Vec<(Vec<u8>, Vec<u8>)> = (1..=FRAMES)
+        .map(|n| (grey(&dir.join(format!("left/{n}.png"))), grey(&dir.join(format!("right/{n}.png")))))
+        .collect();
+    let mut group = c.benchmark_group("tracking-640x480");
+    group.sample_size(10);
+    group.bench_function(format!("{FRAMES}-frames"), |b| {
+        b.iter(|| {
+            let mut tracker = Tracker::new(cam, ts).expect("settings");
+            for (i, (l, r)) in frames.iter().enumerate() {
+                tracker.track(i as u64 * 33_333_333, l, r).expect("frame");
+            }
+        })
+    });
+    group.finish();
+    if std::env::var_os("BDIS_BENCH_SEQUENCE").is_none() {
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+}
+
+criterion_group!(benches, bench);
+criterion_main!(benches);
