@@ -245,7 +245,8 @@ fn run(args: Args) -> Result<()> {
                     t_receive_ns,
                     t_done_ns: t_publish_ns,
                 },
-                cpu_ns,
+                // The tracker takes every frame: nothing dropped (a slow tracker slows on-demand acquisition).
+                0,
             );
         }
     }

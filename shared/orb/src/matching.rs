@@ -12,7 +12,7 @@ pub const GRID_ROWS: usize = 48;
 /// A frame's keypoints binned into 64 × 48 cells over the image bounds (a counting sort: one list of keypoint
 /// indices, cell by cell). Cells are found with floor, so keypoints in the last half column or row are kept
 /// (ORB-SLAM2 rounds and silently drops them, §10.1 #5).
-#[derive(Debug, Clone)]
+#[derive(Debug)]
 pub struct FeatureGrid {
     min_x: f32,
     min_y: f32,
@@ -23,6 +23,29 @@ pub struct FeatureGrid {
     starts: Vec<u32>,
     indices: Vec<u32>,
     cell_of: Vec<u32>,
+}
+
+impl Clone for FeatureGrid {
+    fn clone(&self) -> Self {
+        Self {
+            min_x: self.min_x,
+            min_y: self.min_y,
+            inv_cell_w: self.inv_cell_w,
+            inv_cell_h: self.inv_cell_h,
+            starts: self.starts.clone(),
+            indices: self.indices.clone(),
+            cell_of: self.cell_of.clone(),
+        }
+    }
+
+    /// Reuses this grid's buffers (a frame copied every frame must not allocate).
+    fn clone_from(&mut self, other: &Self) {
+        (self.min_x, self.min_y, self.inv_cell_w, self.inv_cell_h) =
+            (other.min_x, other.min_y, other.inv_cell_w, other.inv_cell_h);
+        self.starts.clone_from(&other.starts);
+        self.indices.clone_from(&other.indices);
+        self.cell_of.clone_from(&other.cell_of);
+    }
 }
 
 impl FeatureGrid {

@@ -47,13 +47,29 @@ impl StereoFeatures {
 /// Reusable state of the stereo matcher.
 #[derive(Debug, Default)]
 pub struct StereoMatcher {
-    rows: Vec<Vec<u32>>,
+    /// The row table as one list (a counting sort): row r's right keypoints are
+    /// `row_entries[row_start[r]..row_start[r + 1]]`, in keypoint order. Its size depends only on the number of
+    /// keypoints, so once it has held a frame's worth it does not grow with the image content.
+    row_start: Vec<u32>,
+    row_entries: Vec<u32>,
+    row_span: Vec<(u32, u32)>,
     sads: Vec<(u32, usize)>,
 }
 
 impl StereoMatcher {
     pub fn new() -> Self {
         Self::default()
+    }
+
+    /// A matcher whose buffers already hold `max_keypoints` right keypoints spanning up to 16 rows each (the
+    /// band of octave 7 at scale 1.2), so that no frame of that size allocates.
+    pub fn with_capacity(max_keypoints: usize) -> Self {
+        Self {
+            row_start: Vec::new(),
+            row_entries: Vec::with_capacity(16 * max_keypoints),
+            row_span: Vec::with_capacity(max_keypoints),
+            sads: Vec::with_capacity(max_keypoints),
+        }
     }
 
     /// Matches `left` to `right` features. `scales[o]` = s^o; `bf` = fx·baseline; the disparity search covers
@@ -76,26 +92,47 @@ impl StereoMatcher {
         out.depth.clear();
         out.depth.resize(n, None);
         let height = left_levels.first().map_or(0, |l| l.h);
-        if self.rows.len() != height {
-            self.rows.resize_with(height, Vec::new);
-        }
-        for r in &mut self.rows {
-            r.clear();
-        }
         // Each right keypoint goes to every row within 2·s^octave of its y.
-        for (j, kp) in right.keypoints.iter().enumerate() {
+        self.row_start.clear();
+        self.row_start.resize(height + 1, 0);
+        self.row_span.clear();
+        for kp in &right.keypoints {
             let r = 2.0 * scales[kp.octave as usize] as f32;
             let (lo, hi) =
                 ((kp.y - r).floor().max(0.0) as usize, ((kp.y + r).ceil() as usize).min(height.saturating_sub(1)));
-            for row in &mut self.rows[lo..=hi] {
-                row.push(j as u32);
+            self.row_span.push((lo as u32, hi as u32));
+            for row in lo..=hi {
+                self.row_start[row + 1] += 1;
             }
+        }
+        for row in 0..height {
+            self.row_start[row + 1] += self.row_start[row];
+        }
+        self.row_entries.clear();
+        self.row_entries.resize(self.row_start[height] as usize, 0);
+        // Fill with a cursor per row (row_start shifted by one row meanwhile, restored after).
+        for (j, &(lo, hi)) in self.row_span.iter().enumerate() {
+            for row in lo as usize..=hi as usize {
+                let slot = &mut self.row_start[row];
+                self.row_entries[*slot as usize] = j as u32;
+                *slot += 1;
+            }
+        }
+        for row in (1..=height).rev() {
+            self.row_start[row] = self.row_start[row - 1];
+        }
+        if let Some(first) = self.row_start.first_mut() {
+            *first = 0;
         }
         let max_d = fx;
         self.sads.clear();
         for (i, kp) in left.keypoints.iter().enumerate() {
             let (u_l, v_l) = (kp.x, kp.y);
-            let Some(candidates) = self.rows.get(v_l as usize) else { continue };
+            let row = v_l as usize;
+            if row >= height {
+                continue;
+            }
+            let candidates = &self.row_entries[self.row_start[row] as usize..self.row_start[row + 1] as usize];
             let o_l = i32::from(kp.octave);
             let min_u = u_l - max_d;
             let mut best = (100u32, usize::MAX);

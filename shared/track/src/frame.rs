@@ -122,7 +122,7 @@ impl FrameBuilder {
             cam,
             left,
             right,
-            matcher: StereoMatcher::new(),
+            matcher: StereoMatcher::with_capacity(2 * params.n_features as usize),
             left_features: Features::default(),
             right_features: Features::default(),
             stereo: StereoFeatures::default(),

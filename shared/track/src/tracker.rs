@@ -9,7 +9,7 @@ use crate::optim::{Observation, PoseOptimizer};
 use crate::search::{Searcher, TH_HIGH, TH_LOW, frustum_check};
 use bdis_orb::{OrbError, OrbParams, hamming};
 use nalgebra::{Isometry3, Matrix3, Point3, Translation3, UnitQuaternion};
-use std::collections::{BTreeMap, BTreeSet};
+use std::collections::BTreeSet;
 
 /// Frames after a relocalisation during which no keyframe is made.
 pub const RELOCALISATION_HOLDOFF_FRAMES: u64 = 5;
@@ -79,6 +79,10 @@ pub struct Tracker {
     last_reloc_frame: Option<u64>,
     local_kfs: Vec<KfId>,
     local_points: Vec<PointId>,
+    /// Per keyframe id: votes of the current frame's points, and the frame that last included it locally.
+    kf_votes: Vec<u32>,
+    kf_stamp: Vec<u64>,
+    voters: Vec<KfId>,
     searcher: Searcher,
     optimizer: PoseOptimizer,
     opt_points: Vec<Point3<f64>>,
@@ -110,15 +114,21 @@ impl Tracker {
             reference_kf: None,
             last_kf_frame: 0,
             last_reloc_frame: None,
-            local_kfs: Vec::new(),
-            local_points: Vec::new(),
+            // Capacities of a large local map, so that a warmed-up frame does not grow them (they still grow,
+            // amortised, past these sizes).
+            local_kfs: Vec::with_capacity(128),
+            local_points: Vec::with_capacity(1 << 15),
+            kf_votes: Vec::with_capacity(1 << 12),
+            kf_stamp: Vec::with_capacity(1 << 12),
+            voters: Vec::with_capacity(1 << 10),
             searcher: Searcher::default(),
             optimizer: PoseOptimizer::default(),
-            opt_points: Vec::new(),
-            opt_obs: Vec::new(),
-            opt_index: Vec::new(),
-            opt_outlier: Vec::new(),
-            records: Vec::new(),
+            opt_points: Vec::with_capacity(1 << 12),
+            opt_obs: Vec::with_capacity(1 << 12),
+            opt_index: Vec::with_capacity(1 << 12),
+            opt_outlier: Vec::with_capacity(1 << 12),
+            // An hour at 30 fps before the trajectory record grows.
+            records: Vec::with_capacity(1 << 17),
             last_from_reference: None,
             ransac_state: 0x005e_ed0f_7ac4,
         })
@@ -142,9 +152,7 @@ impl Tracker {
 
     /// Tracks one grey stereo pair.
     pub fn track(&mut self, t_ns: u64, left: &[u8], right: &[u8]) -> Result<FrameResult, TrackError> {
-        let mut frame = std::mem::replace(&mut self.current, Frame::empty(&self.cam));
-        self.builder.build(t_ns, left, right, &mut frame)?;
-        self.current = frame;
+        self.builder.build(t_ns, left, right, &mut self.current)?;
         let mut result = FrameResult {
             frame_id: self.current.id,
             t_ns,
@@ -242,8 +250,10 @@ impl Tracker {
         }
         self.reference_kf = Some(kf);
         self.last_kf_frame = self.current.id;
-        self.local_kfs = vec![kf];
-        self.local_points = self.map.keyframes[kf].points.iter().flatten().copied().collect();
+        self.local_kfs.clear();
+        self.local_kfs.push(kf);
+        self.local_points.clear();
+        self.local_points.extend(self.map.keyframes[kf].points.iter().flatten().copied());
         self.state = TrackingState::Ok;
         result.new_keyframe = Some(kf);
         result.inliers = self.local_points.len();
@@ -406,8 +416,14 @@ impl Tracker {
         inliers >= needed
     }
 
+    /// The local keyframes (§5.6 step 1), with buffers indexed by keyframe id that only grow with the map.
     fn update_local_keyframes(&mut self) {
-        let mut votes: BTreeMap<KfId, u32> = BTreeMap::new();
+        let n = self.map.keyframes.len();
+        if self.kf_votes.len() < n {
+            self.kf_votes.resize(n, 0);
+            self.kf_stamp.resize(n, u64::MAX);
+        }
+        self.voters.clear();
         for i in 0..self.current.len() {
             let Some(p) = self.current.points[i] else { continue };
             if self.map.points[p].bad {
@@ -415,41 +431,55 @@ impl Tracker {
                 continue;
             }
             for &k in self.map.points[p].observations.keys() {
-                *votes.entry(k).or_default() += 1;
+                if self.kf_votes[k] == 0 {
+                    self.voters.push(k);
+                }
+                self.kf_votes[k] += 1;
             }
         }
-        if votes.is_empty() {
+        if self.voters.is_empty() {
             return;
         }
-        let mut local: Vec<KfId> = votes.keys().copied().filter(|&k| !self.map.keyframes[k].bad).collect();
-        let mut included: BTreeSet<KfId> = local.iter().copied().collect();
-        let original = local.clone();
+        self.voters.sort_unstable();
+        let stamp = self.current.id;
+        let (map, local, marks) = (&self.map, &mut self.local_kfs, &mut self.kf_stamp);
+        local.clear();
+        for &k in &self.voters {
+            if !map.keyframes[k].bad {
+                local.push(k);
+                marks[k] = stamp;
+            }
+        }
         // Neighbours of the voters (the intended behaviour: adding a parent does not end the walk, §10.1 #7).
-        for k in original {
+        let voters = local.len();
+        for idx in 0..voters {
             if local.len() > 80 {
                 break;
             }
-            let kf = &self.map.keyframes[k];
-            let extra = kf
-                .best_covisibles(10)
-                .find(|n| !included.contains(n) && !self.map.keyframes[*n].bad)
-                .into_iter()
-                .chain(kf.children.iter().copied().find(|c| !included.contains(c) && !self.map.keyframes[*c].bad))
-                .chain(kf.parent.filter(|p| !included.contains(p) && !self.map.keyframes[*p].bad));
-            for n in extra.collect::<Vec<_>>() {
-                if included.insert(n) {
-                    local.push(n);
+            let kf = &map.keyframes[local[idx]];
+            let fresh = |k: &KfId| marks[*k] != stamp && !map.keyframes[*k].bad;
+            let covisible = kf.best_covisibles(10).find(|k| fresh(k));
+            let child = kf.children.iter().copied().find(|k| fresh(k));
+            let parent = kf.parent.filter(|k| fresh(k));
+            for k in [covisible, child, parent].into_iter().flatten() {
+                if marks[k] != stamp {
+                    marks[k] = stamp;
+                    local.push(k);
                 }
             }
         }
-        if let Some((&best, _)) = votes
+        let votes = &self.kf_votes;
+        if let Some(&best) = self
+            .voters
             .iter()
-            .filter(|(k, _)| !self.map.keyframes[**k].bad)
-            .max_by_key(|(k, v)| (**v, std::cmp::Reverse(**k)))
+            .filter(|&&k| !self.map.keyframes[k].bad)
+            .max_by_key(|&&k| (votes[k], std::cmp::Reverse(k)))
         {
             self.reference_kf = Some(best);
         }
-        self.local_kfs = local;
+        for &k in &self.voters {
+            self.kf_votes[k] = 0;
+        }
     }
 
     fn update_local_points(&mut self) {
