@@ -94,7 +94,15 @@ fn main() -> ExitCode {
         Command::Probe(args) => probe_cmd::probe(args).map(|()| ExitCode::SUCCESS),
         Command::Demo(args) => demo(args),
         Command::Stereo(args) => stereo_cmd::stereo(args).map(|()| ExitCode::SUCCESS),
-        Command::Eval(command) => eval_cmd::eval(command).map(|()| ExitCode::SUCCESS),
+        Command::Eval(command) => {
+            // A report piped into `head` ends quietly, as other command-line tools do, instead of panicking on the
+            // closed pipe (eval starts no process and holds no shared memory, so dying on SIGPIPE loses nothing).
+            // SAFETY: restoring the default disposition of SIGPIPE before any thread exists.
+            unsafe {
+                libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+            }
+            eval_cmd::eval(command).map(|()| ExitCode::SUCCESS)
+        }
         Command::Synth(args) => synth_cmd::synth(args).map(|()| ExitCode::SUCCESS),
     };
     match result {
@@ -355,11 +363,15 @@ fn demo(args: DemoArgs) -> Result<ExitCode> {
         ),
         Err(e) => println!("  tracking    no trajectory to evaluate ({e:#})"),
     }
-    if let Some(t) = find("tracking").and_then(|p| p.processing_us) {
+    let tracking: Option<serde_json::Value> =
+        std::fs::read_to_string(run_dir.join("tracking.json")).ok().and_then(|t| serde_json::from_str(&t).ok());
+    if let Some(t) = &tracking {
+        let ms = |key: &str| t[key].as_f64().unwrap_or(f64::NAN);
         println!(
-            "  tracking    per frame p50 {:.1} ms, p99 {:.1} ms (ORB, stereo matching, pose, local map)",
-            t.p50 / 1000.0,
-            t.p99 / 1000.0
+            "  tracking    CPU per frame p50 {:.1} ms (ORB on both images, stereo matching, pose, local map), per keyframe {:.1} ms; {} frames lost",
+            ms("frame_cpu_ms_p50"),
+            ms("keyframe_cpu_ms_p50"),
+            t["lost"]
         );
     }
     if let Some(d) = &depth {
