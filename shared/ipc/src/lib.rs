@@ -324,32 +324,29 @@ impl Ipc {
     }
 
     pub fn poses(&self) -> Result<PosesService, IpcError> {
-        let name = Self::service_name(Topic::Poses)?;
-        Self::with_retry("open the poses service", || {
-            self.node
-                .service_builder(&name)
-                .publish_subscribe::<PoseRecord>()
-                .max_publishers(2)
-                .max_subscribers(qos::POSES_MAX_SUBSCRIBERS)
-                .max_nodes(qos::MAX_NODES)
-                .subscriber_max_buffer_size(qos::POSES_BUFFER)
-                .subscriber_max_borrowed_samples(2)
-                .history_size(0)
-                .enable_safe_overflow(true)
-                .open_or_create()
-        })
+        self.record_service::<PoseRecord>(Topic::Poses, qos::POSES_BUFFER)
     }
 
     pub fn corrections(&self) -> Result<CorrectionsService, IpcError> {
-        let name = Self::service_name(Topic::Corrections)?;
-        Self::with_retry("open the corrections service", || {
+        self.record_service::<KeyframePose>(Topic::Corrections, qos::CORRECTIONS_BUFFER)
+    }
+
+    /// A topic of small fixed-size records (poses, corrections): two publishers, a few subscribers, `buffer`
+    /// records per subscriber.
+    fn record_service<T: std::fmt::Debug + ZeroCopySend + 'static>(
+        &self,
+        topic: Topic,
+        buffer: usize,
+    ) -> Result<PubSubFactory<ipc::Service, T, ()>, IpcError> {
+        let name = Self::service_name(topic)?;
+        Self::with_retry(&format!("open the {} service", topic.short_name()), || {
             self.node
                 .service_builder(&name)
-                .publish_subscribe::<KeyframePose>()
+                .publish_subscribe::<T>()
                 .max_publishers(2)
                 .max_subscribers(qos::POSES_MAX_SUBSCRIBERS)
                 .max_nodes(qos::MAX_NODES)
-                .subscriber_max_buffer_size(qos::CORRECTIONS_BUFFER)
+                .subscriber_max_buffer_size(buffer)
                 .subscriber_max_borrowed_samples(2)
                 .history_size(0)
                 .enable_safe_overflow(true)

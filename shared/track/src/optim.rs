@@ -75,6 +75,11 @@ pub fn chi2(cam: &StereoCamera, pose: &CameraFromWorld, x_w: &Point3<f64>, obs: 
     e.norm_squared() * obs.inv_sigma2
 }
 
+/// The cost of an edge with squared error `chi2`: Huber with width `delta` when `robust`, else χ² itself.
+fn robust_cost(chi2: f64, delta: f64, robust: bool) -> f64 {
+    if !robust || chi2.sqrt() <= delta { chi2 } else { 2.0 * delta * chi2.sqrt() - delta * delta }
+}
+
 /// Huber weight of an edge with squared error `chi2` and width `delta`.
 fn huber_weight(chi2: f64, delta: f64) -> f64 {
     let e = chi2.sqrt();
@@ -151,7 +156,7 @@ impl PoseOptimizer {
                     }
                     let x2 = chi2(cam, t, &points[i], &observations[i]);
                     let delta = if observations[i].is_stereo() { HUBER_STEREO_POSE } else { HUBER_MONO };
-                    c += if !robust || x2.sqrt() <= delta { x2 } else { 2.0 * delta * x2.sqrt() - delta * delta };
+                    c += robust_cost(x2, delta, robust);
                 }
                 c
             };
@@ -260,8 +265,7 @@ impl BaProblem {
         if !x2.is_finite() {
             return 1e12;
         }
-        let delta = if e.obs.is_stereo() { HUBER_STEREO_BA } else { HUBER_MONO };
-        if !robust || x2.sqrt() <= delta { x2 } else { 2.0 * delta * x2.sqrt() - delta * delta }
+        robust_cost(x2, if e.obs.is_stereo() { HUBER_STEREO_BA } else { HUBER_MONO }, robust)
     }
 
     fn cost(&self, cam: &StereoCamera, poses: &[CameraFromWorld], points: &[Point3<f64>], robust: bool) -> f64 {
