@@ -302,13 +302,7 @@ impl Ipc {
         service: &FramesService,
         max_frame_bytes: usize,
     ) -> Result<Publisher<ipc::Service, [u8], FrameHeader>, IpcError> {
-        service
-            .publisher_builder()
-            .initial_max_slice_len(max_frame_bytes)
-            .allocation_strategy(AllocationStrategy::Static)
-            .max_loaned_samples(1)
-            .create()
-            .map_err(iox("create the frames publisher"))
+        slice_publisher(service, max_frame_bytes, "create the frames publisher")
     }
 
     /// A frames subscriber with the service's full buffer (loses nothing at the rate it keeps up with).
@@ -372,19 +366,13 @@ impl Ipc {
         })
     }
 
-    /// A keyframe publisher for frames of up to `max_frame_bytes`.
+    /// A keyframe publisher for frames of up to `max_frame_bytes` (as [`Ipc::frame_publisher`]).
     pub fn keyframe_publisher(
         &self,
         service: &KeyframesService,
         max_frame_bytes: usize,
     ) -> Result<Publisher<ipc::Service, [u8], KeyframeHeader>, IpcError> {
-        service
-            .publisher_builder()
-            .initial_max_slice_len(max_frame_bytes)
-            .allocation_strategy(AllocationStrategy::Static)
-            .max_loaned_samples(1)
-            .create()
-            .map_err(iox("create the keyframes publisher"))
+        slice_publisher(service, max_frame_bytes, "create the keyframes publisher")
     }
 
     pub fn keyframe_subscriber(
@@ -425,13 +413,7 @@ impl Ipc {
         service: &DepthService,
         max_bytes: usize,
     ) -> Result<Publisher<ipc::Service, [u8], DepthHeader>, IpcError> {
-        service
-            .publisher_builder()
-            .initial_max_slice_len(max_bytes)
-            .allocation_strategy(AllocationStrategy::Static)
-            .max_loaned_samples(1)
-            .create()
-            .map_err(iox("create the depth publisher"))
+        slice_publisher(service, max_bytes, "create the depth publisher")
     }
 
     pub fn depth_subscriber(
@@ -453,6 +435,21 @@ impl Ipc {
     pub fn cleanup_dead_nodes(&self) -> usize {
         self.node.try_cleanup_dead_nodes().cleanups as usize
     }
+}
+
+/// A publisher of `[u8]` samples up to `max_bytes` with one loan outstanding and a segment sized once.
+fn slice_publisher<H: Debug + ZeroCopySend>(
+    service: &PubSubFactory<ipc::Service, [u8], H>,
+    max_bytes: usize,
+    what: &'static str,
+) -> Result<Publisher<ipc::Service, [u8], H>, IpcError> {
+    service
+        .publisher_builder()
+        .initial_max_slice_len(max_bytes)
+        .allocation_strategy(AllocationStrategy::Static)
+        .max_loaned_samples(1)
+        .create()
+        .map_err(iox(what))
 }
 
 /// Notifies with one of the [`event_id`]s.
