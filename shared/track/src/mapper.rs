@@ -222,8 +222,15 @@ impl LocalMapper {
             let r12 = t12.rotation.to_rotation_matrix().into_inner();
             let f12 = k_inv.transpose() * skew(&t12.translation.vector) * r12 * k_inv;
             let free1: Vec<usize> = (0..k1.keypoints.len()).filter(|&i| k1.points[i].is_none()).collect();
-            let free2: Vec<usize> = (0..k2.keypoints.len()).filter(|&i| k2.points[i].is_none()).collect();
-            let mut taken2 = BTreeSet::new();
+            // The free keypoints of kf2 with their position and their epipolar band (3.84·σ², squared px).
+            let free2: Vec<(usize, f64, f64, f64)> = (0..k2.keypoints.len())
+                .filter(|&j| k2.points[j].is_none())
+                .map(|j| {
+                    let kp = &k2.keypoints[j];
+                    (j, f64::from(kp.x), f64::from(kp.y), 3.84 / scales.inv_sigma2[usize::from(kp.octave)])
+                })
+                .collect();
+            let mut taken2 = vec![false; k2.keypoints.len()];
             let mut pairs = Vec::new();
             for &i in &free1 {
                 let kp1 = &k1.keypoints[i];
@@ -231,22 +238,20 @@ impl LocalMapper {
                 let line = f12.transpose() * x1;
                 let norm2 = line.x * line.x + line.y * line.y;
                 let mut best = (TH_LOW + 1, usize::MAX);
-                for &j in &free2 {
-                    if taken2.contains(&j) {
+                // The epipolar band first: it is a few multiplications and rejects almost every candidate, the
+                // descriptor distance then runs on the few near the line (same choice as the other order).
+                for &(j, x2, y2, band) in &free2 {
+                    let num = line.x * x2 + line.y * y2 + line.z;
+                    if num * num >= band * norm2 || taken2[j] {
                         continue;
                     }
                     let d = hamming(&k1.descriptors[i], &k2.descriptors[j]);
-                    if d >= best.0 {
-                        continue;
-                    }
-                    let kp2 = &k2.keypoints[j];
-                    let num = line.x * f64::from(kp2.x) + line.y * f64::from(kp2.y) + line.z;
-                    if num * num / norm2 < 3.84 / scales.inv_sigma2[usize::from(kp2.octave)] {
+                    if d < best.0 {
                         best = (d, j);
                     }
                 }
                 if best.1 != usize::MAX {
-                    taken2.insert(best.1);
+                    taken2[best.1] = true;
                     pairs.push((i, best.1));
                 }
             }
