@@ -1,0 +1,482 @@
+//! `bdis-mosaic`: the dense map of BDIS-SLAM (the paper's §2.3 and Algorithm 1), pure compute.
+//!
+//! Each depth keyframe is lifted to coloured points on a sparse pixel grid (every `depth_gap_px`-th row and
+//! column). The points are stored **in their keyframe's own camera frame** with the keyframe's current
+//! `world_from_camera`, so a pose correction from bundle adjustment moves all of a keyframe's points by changing
+//! one pose (the original froze them in world coordinates at insertion).
+//!
+//! The mosaic rule: a new keyframe replaces the earlier points it sees again. Unlike the original, which erased
+//! every earlier point that projected onto a valid new pixel, an earlier point is removed only when it agrees with
+//! the new surface or lies in front of it (a depth test whose tolerance grows with the depth uncertainty of both
+//! views); a point behind the new surface is occluded, not contradicted, and stays. Only keyframes whose point
+//! bounds intersect the new view's frustum are visited, so the cost of a new keyframe depends on how much of the
+//! map it overlaps, not on the size of the map.
+//!
+//! Optional (the paper's future work): instead of plain replacement, an agreeing earlier point is folded into the
+//! new point of the same grid cell, weighted by confidence ([`Fusion::Weighted`]).
+
+mod render;
+mod store;
+
+use std::collections::BTreeMap;
+
+use nalgebra::{Isometry3, Matrix3, Point3, Vector3};
+use serde::{Deserialize, Serialize};
+
+pub use render::{PreviewView, render_preview};
+pub use store::{MOSAIC_FORMAT, load, save};
+
+#[derive(Debug, thiserror::Error)]
+pub enum MosaicError {
+    #[error("keyframe {kf_id}: {what} has {actual} values for {width}×{height} pixels")]
+    WrongSize { kf_id: u64, what: &'static str, actual: usize, width: u32, height: u32 },
+    #[error("keyframe {kf_id}: intrinsics: {what}")]
+    BadIntrinsics { kf_id: u64, what: String },
+    #[error("keyframe {kf_id}: world_from_camera is not a finite rigid pose")]
+    BadPose { kf_id: u64 },
+    #[error("{path}: {what}")]
+    File { path: String, what: String },
+}
+
+/// Pinhole intrinsics of a rectified stereo keyframe, pixels; `bf` = fx · baseline (depth = bf / disparity).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Intrinsics {
+    pub fx: f64,
+    pub fy: f64,
+    pub cx: f64,
+    pub cy: f64,
+    pub bf: f64,
+    pub width: u32,
+    pub height: u32,
+}
+
+/// One depth keyframe as the stereo service publishes it; the slices are read in place.
+#[derive(Debug, Clone, Copy)]
+pub struct DepthKeyframe<'a> {
+    pub kf_id: u64,
+    pub t_capture_ns: u64,
+    pub world_from_camera: Isometry3<f64>,
+    pub intrinsics: Intrinsics,
+    /// Pixels, positive; NaN or ≤ 0 = no answer. Row-major, width × height.
+    pub disparity: &'a [f32],
+    /// In [0, 1].
+    pub confidence: &'a [f32],
+    /// RGB, 3 bytes per pixel.
+    pub rgb: &'a [u8],
+}
+
+/// How an earlier point that agrees with the new surface is treated.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+pub enum Fusion {
+    /// Algorithm 1: the newest keyframe's point replaces it.
+    #[default]
+    Replace,
+    /// Its depth (along the new ray) is averaged into the new point of the same grid cell, weighted by
+    /// confidence; the colour stays the newest (blending colours blurs texture, the paper's argument).
+    Weighted,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct MosaicParams {
+    /// Lift every `depth_gap_px`-th row and column (the original's `depth_gap`, 5 → 1/25 of the pixels).
+    pub depth_gap_px: usize,
+    /// Pixels whose three colour channels are all below this are skipped (dark, unlit: 40 in the original).
+    pub min_colour: u8,
+    /// Pixels whose BDIS confidence is below this are skipped.
+    pub min_confidence: f32,
+    /// Pixels whose disparity is below this are skipped: depth error grows as depth² / bf, so the far part of a
+    /// view is left to keyframes that come closer. The original had no limit on new points and culled within
+    /// 8 px of disparity.
+    pub min_disparity_px: f32,
+    /// Depth test: an earlier point is replaced when it lies less than `tolerance` behind the new surface, with
+    /// tolerance = `depth_tolerance_mm` + `disparity_tolerance_px` · (z_new² + z_old²) / bf (the depth
+    /// uncertainty of a disparity error in either view). Farther behind, it is occluded and stays.
+    pub depth_tolerance_mm: f64,
+    pub disparity_tolerance_px: f64,
+    pub fusion: Fusion,
+    /// With [`Fusion::Weighted`], a point's accumulated weight stops growing here, so the map keeps following
+    /// newer views.
+    pub max_weight: f32,
+}
+
+impl Default for MosaicParams {
+    fn default() -> Self {
+        Self {
+            depth_gap_px: 5,
+            min_colour: 40,
+            min_confidence: 0.0,
+            min_disparity_px: 8.0,
+            depth_tolerance_mm: 0.5,
+            disparity_tolerance_px: 1.0,
+            fusion: Fusion::Replace,
+            max_weight: 8.0,
+        }
+    }
+}
+
+/// A map point in its keyframe's camera frame (millimetres).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct MosaicPoint {
+    pub xyz: [f32; 3],
+    pub rgb: [u8; 3],
+    /// BDIS confidence of the pixel it came from, in [0, 1].
+    pub confidence: f32,
+    /// Accumulated fusion weight (the confidence when it was made; more after [`Fusion::Weighted`]).
+    pub weight: f32,
+}
+
+/// One keyframe's points and the pose that places them.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct KeyframeCloud {
+    pub kf_id: u64,
+    pub t_capture_ns: u64,
+    pub world_from_camera: Isometry3<f64>,
+    pub intrinsics: Intrinsics,
+    pub points: Vec<MosaicPoint>,
+    /// Axis-aligned bounds of `points` in the keyframe's frame (empty when min > max).
+    pub bounds_min: [f32; 3],
+    pub bounds_max: [f32; 3],
+}
+
+impl KeyframeCloud {
+    fn update_bounds(&mut self) {
+        let (mut lo, mut hi) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
+        for p in &self.points {
+            for k in 0..3 {
+                lo[k] = lo[k].min(p.xyz[k]);
+                hi[k] = hi[k].max(p.xyz[k]);
+            }
+        }
+        self.bounds_min = lo;
+        self.bounds_max = hi;
+    }
+
+    /// Centre and radius of a sphere around the points, in world coordinates.
+    fn bounding_sphere_world(&self) -> Option<(Point3<f64>, f64)> {
+        if self.points.is_empty() {
+            return None;
+        }
+        let lo = Vector3::from(self.bounds_min.map(f64::from));
+        let hi = Vector3::from(self.bounds_max.map(f64::from));
+        let centre = Point3::from((lo + hi) * 0.5);
+        Some((self.world_from_camera * centre, (hi - lo).norm() * 0.5))
+    }
+}
+
+/// What one keyframe did to the map.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+pub struct InsertReport {
+    /// This keyframe id was already in the map (a replacement stereo instance sent it again): nothing changed.
+    pub duplicate: bool,
+    pub added: usize,
+    /// Earlier points replaced (or folded into new points) because the new view saw their surface.
+    pub removed: usize,
+    /// Earlier points that projected onto the new valid depth but lay behind it, so were kept.
+    pub kept_occluded: usize,
+    /// Earlier keyframes whose bounds intersected the new view (their points were tested).
+    pub overlapping_keyframes: usize,
+    /// Earlier points tested against the new view.
+    pub tested: usize,
+}
+
+/// The whole map: keyframe clouds by id, and the newest pose correction of every keyframe seen so far (a
+/// correction may arrive before the keyframe's depth does).
+#[derive(Debug, Clone)]
+pub struct Mosaic {
+    pub params: MosaicParams,
+    keyframes: BTreeMap<u64, KeyframeCloud>,
+    corrections: BTreeMap<u64, Isometry3<f64>>,
+    /// Reused per keyframe: the new view's valid depth per pixel (NaN = none), and the fusion accumulators per
+    /// grid cell.
+    depth_scratch: Vec<f32>,
+    fuse_weight: Vec<f32>,
+    fuse_weighted_z: Vec<f32>,
+}
+
+fn check_pose(kf_id: u64, pose: &Isometry3<f64>) -> Result<(), MosaicError> {
+    let q = pose.rotation.quaternion();
+    let finite = pose.translation.vector.iter().chain(q.coords.iter()).all(|v| v.is_finite());
+    if !finite || (q.norm() - 1.0).abs() > 1e-6 {
+        return Err(MosaicError::BadPose { kf_id });
+    }
+    Ok(())
+}
+
+impl Mosaic {
+    pub fn new(params: MosaicParams) -> Self {
+        Self {
+            params,
+            keyframes: BTreeMap::new(),
+            corrections: BTreeMap::new(),
+            depth_scratch: Vec::new(),
+            fuse_weight: Vec::new(),
+            fuse_weighted_z: Vec::new(),
+        }
+    }
+
+    pub fn keyframes(&self) -> impl Iterator<Item = &KeyframeCloud> {
+        self.keyframes.values()
+    }
+
+    pub fn keyframe(&self, kf_id: u64) -> Option<&KeyframeCloud> {
+        self.keyframes.get(&kf_id)
+    }
+
+    pub fn n_keyframes(&self) -> usize {
+        self.keyframes.len()
+    }
+
+    pub fn n_points(&self) -> usize {
+        self.keyframes.values().map(|k| k.points.len()).sum()
+    }
+
+    /// A keyframe's pose was corrected (bundle adjustment): its points move with it. Kept for a keyframe whose
+    /// depth has not arrived yet. Returns whether points moved.
+    pub fn correct_pose(&mut self, kf_id: u64, world_from_camera: Isometry3<f64>) -> Result<bool, MosaicError> {
+        check_pose(kf_id, &world_from_camera)?;
+        self.corrections.insert(kf_id, world_from_camera);
+        Ok(match self.keyframes.get_mut(&kf_id) {
+            Some(kf) => {
+                kf.world_from_camera = world_from_camera;
+                true
+            }
+            None => false,
+        })
+    }
+
+    /// Adds a depth keyframe: removes the earlier points its surface replaces, then lifts its own points.
+    pub fn insert(&mut self, kf: &DepthKeyframe) -> Result<InsertReport, MosaicError> {
+        let Intrinsics { fx, fy, cx, cy, bf, width, height } = kf.intrinsics;
+        let (w, h) = (width as usize, height as usize);
+        let n = w * h;
+        let size_error = |what, actual| MosaicError::WrongSize { kf_id: kf.kf_id, what, actual, width, height };
+        if kf.disparity.len() != n {
+            return Err(size_error("disparity", kf.disparity.len()));
+        }
+        if kf.confidence.len() != n {
+            return Err(size_error("confidence", kf.confidence.len()));
+        }
+        if kf.rgb.len() != 3 * n {
+            return Err(size_error("rgb", kf.rgb.len()));
+        }
+        for (name, v) in [("fx", fx), ("fy", fy), ("bf", bf)] {
+            if !(v.is_finite() && v > 0.0) {
+                return Err(MosaicError::BadIntrinsics { kf_id: kf.kf_id, what: format!("{name} = {v}") });
+            }
+        }
+        if !(cx.is_finite() && cy.is_finite()) {
+            return Err(MosaicError::BadIntrinsics { kf_id: kf.kf_id, what: "cx, cy not finite".into() });
+        }
+        if self.keyframes.contains_key(&kf.kf_id) {
+            return Ok(InsertReport { duplicate: true, ..Default::default() });
+        }
+        // A correction that arrived before the depth is newer than the pose the keyframe was published with.
+        let world_from_camera = self.corrections.get(&kf.kf_id).copied().unwrap_or(kf.world_from_camera);
+        check_pose(kf.kf_id, &world_from_camera)?;
+        let p = self.params;
+        let gap = p.depth_gap_px.max(1);
+
+        // The new view's usable depth, per pixel.
+        self.depth_scratch.clear();
+        self.depth_scratch.resize(n, f32::NAN);
+        let min_disparity = p.min_disparity_px.max(f32::MIN_POSITIVE);
+        for i in 0..n {
+            let d = kf.disparity[i];
+            let rgb = &kf.rgb[3 * i..3 * i + 3];
+            let lit = rgb.iter().any(|&c| c >= p.min_colour);
+            if d.is_finite() && d >= min_disparity && kf.confidence[i] >= p.min_confidence && lit {
+                self.depth_scratch[i] = (bf / f64::from(d)) as f32;
+            }
+        }
+        let (gw, gh) = (w.div_ceil(gap), h.div_ceil(gap));
+        let fuse = p.fusion == Fusion::Weighted;
+        if fuse {
+            self.fuse_weight.clear();
+            self.fuse_weight.resize(gw * gh, 0.0);
+            self.fuse_weighted_z.clear();
+            self.fuse_weighted_z.resize(gw * gh, 0.0);
+        }
+
+        let mut report = InsertReport::default();
+        let camera_from_world = world_from_camera.inverse();
+        let frustum = Frustum::new(&kf.intrinsics);
+        let bf32 = bf as f32;
+        for old in self.keyframes.values_mut() {
+            let Some((centre_world, radius)) = old.bounding_sphere_world() else { continue };
+            if !frustum.may_contain(&(camera_from_world * centre_world), radius) {
+                continue;
+            }
+            report.overlapping_keyframes += 1;
+            report.tested += old.points.len();
+            let new_from_old = camera_from_world * old.world_from_camera;
+            let rotation: Matrix3<f32> = new_from_old.rotation.to_rotation_matrix().matrix().cast();
+            let translation: Vector3<f32> = new_from_old.translation.vector.cast();
+            let (fxf, fyf, cxf, cyf) = (fx as f32, fy as f32, cx as f32, cy as f32);
+            let (abs_tol, disp_tol) = (p.depth_tolerance_mm as f32, p.disparity_tolerance_px as f32);
+            let depth = &self.depth_scratch;
+            let (fuse_weight, fuse_weighted_z) = (&mut self.fuse_weight, &mut self.fuse_weighted_z);
+            let before = old.points.len();
+            let mut kept_occluded = 0usize;
+            old.points.retain(|pt| {
+                let q = rotation * Vector3::from(pt.xyz) + translation;
+                if q.z <= 0.0 {
+                    return true;
+                }
+                let u = (fxf * q.x / q.z + cxf).round();
+                let v = (fyf * q.y / q.z + cyf).round();
+                if !(u >= 0.0 && v >= 0.0 && (u as usize) < w && (v as usize) < h) {
+                    return true;
+                }
+                let (u, v) = (u as usize, v as usize);
+                let z_new = depth[v * w + u];
+                if !z_new.is_finite() {
+                    return true;
+                }
+                let z_old_own = pt.xyz[2];
+                let tolerance = abs_tol + disp_tol * (z_new * z_new + z_old_own * z_old_own) / bf32;
+                if q.z > z_new + tolerance {
+                    kept_occluded += 1;
+                    return true;
+                }
+                if fuse && (q.z - z_new).abs() <= tolerance {
+                    // The grid cell whose new point this earlier point is folded into.
+                    let cell = ((v + gap / 2) / gap).min(gh - 1) * gw + ((u + gap / 2) / gap).min(gw - 1);
+                    fuse_weight[cell] += pt.weight;
+                    fuse_weighted_z[cell] += pt.weight * q.z;
+                }
+                false
+            });
+            report.kept_occluded += kept_occluded;
+            let removed = before - old.points.len();
+            report.removed += removed;
+            if removed > 0 {
+                old.update_bounds();
+            }
+        }
+        // Lift the new points: pixel centres at integer coordinates, fy for rows (the original used fx).
+        let mut cloud = KeyframeCloud {
+            kf_id: kf.kf_id,
+            t_capture_ns: kf.t_capture_ns,
+            world_from_camera,
+            intrinsics: kf.intrinsics,
+            points: Vec::with_capacity(gw * gh),
+            bounds_min: [0.0; 3],
+            bounds_max: [0.0; 3],
+        };
+        for v in (0..h).step_by(gap) {
+            for u in (0..w).step_by(gap) {
+                let i = v * w + u;
+                let mut z = self.depth_scratch[i];
+                if !z.is_finite() {
+                    continue;
+                }
+                let confidence = kf.confidence[i];
+                let mut weight = confidence.max(1e-3);
+                if fuse {
+                    let cell = (v / gap) * gw + u / gap;
+                    let w_old = self.fuse_weight[cell];
+                    if w_old > 0.0 {
+                        z = (weight * z + self.fuse_weighted_z[cell]) / (weight + w_old);
+                        weight = (weight + w_old).min(p.max_weight);
+                    }
+                }
+                let x = (u as f64 - cx) * f64::from(z) / fx;
+                let y = (v as f64 - cy) * f64::from(z) / fy;
+                cloud.points.push(MosaicPoint {
+                    xyz: [x as f32, y as f32, z],
+                    rgb: [kf.rgb[3 * i], kf.rgb[3 * i + 1], kf.rgb[3 * i + 2]],
+                    confidence,
+                    weight,
+                });
+            }
+        }
+        report.added = cloud.points.len();
+        cloud.update_bounds();
+        // Kept even when empty (all dark, or all replaced later): the id stays known, so a keyframe sent again is
+        // recognised as a duplicate; an empty cloud costs one bounds check per new keyframe.
+        self.keyframes.insert(kf.kf_id, cloud);
+        Ok(report)
+    }
+
+    /// Every point in world coordinates, with its keyframe id and confidence, ready for PLY.
+    pub fn world_cloud(&self) -> bdis_core::formats::ply::PointCloud {
+        let n = self.n_points();
+        let mut positions = Vec::with_capacity(n);
+        let mut colors = Vec::with_capacity(n);
+        let (mut kf_ids, mut confidence) = (Vec::with_capacity(n), Vec::with_capacity(n));
+        self.for_each_world_point(|xyz, pt, kf| {
+            positions.push(xyz);
+            colors.push(pt.rgb);
+            // A float property: exact for ids below 2^24 (16 million keyframes).
+            kf_ids.push(kf as f32);
+            confidence.push(pt.confidence);
+        });
+        bdis_core::formats::ply::PointCloud {
+            positions,
+            colors: Some(colors),
+            scalars: vec![("keyframe_id".into(), kf_ids), ("confidence".into(), confidence)],
+            faces: Vec::new(),
+        }
+    }
+
+    /// Calls `f(world xyz, point, keyframe id)` for every point.
+    pub fn for_each_world_point(&self, mut f: impl FnMut([f32; 3], &MosaicPoint, u64)) {
+        for kf in self.keyframes.values() {
+            let rotation: Matrix3<f64> = *kf.world_from_camera.rotation.to_rotation_matrix().matrix();
+            let translation = kf.world_from_camera.translation.vector;
+            for pt in &kf.points {
+                let q = rotation * Vector3::from(pt.xyz.map(f64::from)) + translation;
+                f([q.x as f32, q.y as f32, q.z as f32], pt, kf.kf_id);
+            }
+        }
+    }
+
+    /// Restores a saved map (see [`load`]).
+    pub fn from_parts(
+        params: MosaicParams,
+        keyframes: Vec<KeyframeCloud>,
+        corrections: Vec<(u64, Isometry3<f64>)>,
+    ) -> Self {
+        let mut m = Self::new(params);
+        m.keyframes = keyframes.into_iter().map(|k| (k.kf_id, k)).collect();
+        m.corrections = corrections.into_iter().collect();
+        m
+    }
+
+    pub fn corrections(&self) -> impl Iterator<Item = (u64, &Isometry3<f64>)> {
+        self.corrections.iter().map(|(k, p)| (*k, p))
+    }
+}
+
+/// The new view's frustum as four side planes through the camera centre plus z > 0, for a sphere test.
+#[derive(Debug, Clone, Copy)]
+struct Frustum {
+    /// Inward unit normals of the left, right, top, bottom planes (camera frame).
+    normals: [Vector3<f64>; 4],
+}
+
+impl Frustum {
+    fn new(k: &Intrinsics) -> Self {
+        // Image borders at -0.5 and size - 0.5 (pixel centres at integers): x/z from (−0.5 − cx)/fx to
+        // (w − 0.5 − cx)/fx.
+        let left = (-0.5 - k.cx) / k.fx;
+        let right = (f64::from(k.width) - 0.5 - k.cx) / k.fx;
+        let top = (-0.5 - k.cy) / k.fy;
+        let bottom = (f64::from(k.height) - 0.5 - k.cy) / k.fy;
+        Self {
+            normals: [
+                Vector3::new(1.0, 0.0, -left).normalize(),
+                Vector3::new(-1.0, 0.0, right).normalize(),
+                Vector3::new(0.0, 1.0, -top).normalize(),
+                Vector3::new(0.0, -1.0, bottom).normalize(),
+            ],
+        }
+    }
+
+    fn may_contain(&self, centre: &Point3<f64>, radius: f64) -> bool {
+        centre.z + radius > 0.0 && self.normals.iter().all(|n| n.dot(&centre.coords) >= -radius)
+    }
+}
+
+#[cfg(test)]
+mod tests;

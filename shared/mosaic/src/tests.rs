@@ -1,0 +1,287 @@
+use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
+
+use super::*;
+
+const W: u32 = 160;
+const H: u32 = 120;
+
+fn intrinsics() -> Intrinsics {
+    Intrinsics { fx: 130.0, fy: 130.0, cx: 79.5, cy: 59.5, bf: 650.0, width: W, height: H }
+}
+
+/// A keyframe's images from a depth function of the pixel (None = no disparity).
+struct Views {
+    disparity: Vec<f32>,
+    confidence: Vec<f32>,
+    rgb: Vec<u8>,
+}
+
+fn views(depth: impl Fn(usize, usize) -> Option<f32>, colour: [u8; 3]) -> Views {
+    let k = intrinsics();
+    let n = (W * H) as usize;
+    let mut v = Views { disparity: vec![f32::NAN; n], confidence: vec![0.8; n], rgb: colour.repeat(n) };
+    for y in 0..H as usize {
+        for x in 0..W as usize {
+            if let Some(z) = depth(x, y) {
+                v.disparity[y * W as usize + x] = (k.bf / f64::from(z)) as f32;
+            }
+        }
+    }
+    v
+}
+
+fn keyframe(kf_id: u64, pose: Isometry3<f64>, v: &Views) -> DepthKeyframe<'_> {
+    DepthKeyframe {
+        kf_id,
+        t_capture_ns: kf_id * 1000,
+        world_from_camera: pose,
+        intrinsics: intrinsics(),
+        disparity: &v.disparity,
+        confidence: &v.confidence,
+        rgb: &v.rgb,
+    }
+}
+
+fn world_points_of(m: &Mosaic, kf: u64) -> Vec<[f32; 3]> {
+    let mut out = Vec::new();
+    m.for_each_world_point(|p, _, k| {
+        if k == kf {
+            out.push(p);
+        }
+    });
+    out
+}
+
+#[test]
+fn a_plane_lifts_to_its_grid_at_the_right_places() {
+    let mut m = Mosaic::new(MosaicParams::default());
+    let v = views(|_, _| Some(50.0), [200, 100, 50]);
+    let report = m.insert(&keyframe(0, Isometry3::identity(), &v)).unwrap();
+    let expected = W.div_ceil(5) * H.div_ceil(5);
+    assert_eq!(report.added, expected as usize);
+    let k = intrinsics();
+    let kf = m.keyframe(0).unwrap();
+    for p in &kf.points {
+        assert!((p.xyz[2] - 50.0).abs() < 1e-3);
+        // Back-projection: the point lands on a grid pixel.
+        let u = k.fx * f64::from(p.xyz[0]) / 50.0 + k.cx;
+        let v = k.fy * f64::from(p.xyz[1]) / 50.0 + k.cy;
+        assert!((u - u.round()).abs() < 1e-3 && (u.round() as u32).is_multiple_of(5), "u = {u}");
+        assert!((v - v.round()).abs() < 1e-3 && (v.round() as u32).is_multiple_of(5), "v = {v}");
+        assert_eq!(p.rgb, [200, 100, 50]);
+    }
+}
+
+#[test]
+fn dark_unmatched_far_and_unconfident_pixels_are_skipped() {
+    let params = MosaicParams { min_confidence: 0.5, ..MosaicParams::default() };
+    let mut m = Mosaic::new(params);
+    // Left third: no disparity; middle third: disparity below 8 px (depth beyond bf / 8); right third: fine.
+    let mut v = views(
+        |x, _| {
+            if x < 50 {
+                None
+            } else if x < 100 {
+                Some(100.0)
+            } else {
+                Some(40.0)
+            }
+        },
+        [90, 90, 90],
+    );
+    // One dark grid pixel, one with low confidence, both in the good third.
+    let dark = 10 * W as usize + 120;
+    v.rgb[3 * dark..3 * dark + 3].copy_from_slice(&[39, 39, 39]);
+    v.confidence[20 * W as usize + 130] = 0.2;
+    let report = m.insert(&keyframe(0, Isometry3::identity(), &v)).unwrap();
+    let columns = (100..W).step_by(5).count();
+    assert_eq!(report.added, columns * H.div_ceil(5) as usize - 2);
+}
+
+#[test]
+fn a_corrected_pose_moves_the_points_already_added() {
+    let mut m = Mosaic::new(MosaicParams::default());
+    let v = views(|x, y| Some(40.0 + 0.05 * x as f32 + 0.02 * y as f32), [120, 80, 60]);
+    let pose =
+        Isometry3::from_parts(Translation3::new(1.0, 2.0, 3.0), UnitQuaternion::from_euler_angles(0.1, 0.2, 0.3));
+    m.insert(&keyframe(7, pose, &v)).unwrap();
+    let before = world_points_of(&m, 7);
+    // Bundle adjustment moves the keyframe by 10 mm along x and turns it a little.
+    let correction =
+        Isometry3::from_parts(Translation3::new(10.0, 0.0, 0.0), UnitQuaternion::from_euler_angles(0.0, 0.0, 0.05));
+    let corrected = correction * pose;
+    assert!(m.correct_pose(7, corrected).unwrap());
+    let after = world_points_of(&m, 7);
+    assert_eq!(before.len(), after.len());
+    for (b, a) in before.iter().zip(&after) {
+        let expected = correction * nalgebra::Point3::from(Vector3::from(b.map(f64::from)));
+        let moved = Vector3::from(a.map(f64::from));
+        assert!((expected.coords - moved).norm() < 1e-3, "{expected} vs {moved}");
+    }
+}
+
+#[test]
+fn a_correction_that_arrives_before_the_depth_is_used_at_insertion() {
+    let mut m = Mosaic::new(MosaicParams::default());
+    let corrected = Isometry3::translation(0.0, 0.0, 5.0);
+    assert!(!m.correct_pose(3, corrected).unwrap());
+    let v = views(|_, _| Some(30.0), [100, 100, 100]);
+    m.insert(&keyframe(3, Isometry3::identity(), &v)).unwrap();
+    assert!(world_points_of(&m, 3).iter().all(|p| (p[2] - 35.0).abs() < 1e-3));
+}
+
+#[test]
+fn the_same_surface_seen_again_replaces_the_earlier_points() {
+    let mut m = Mosaic::new(MosaicParams::default());
+    let v0 = views(|_, _| Some(50.0), [100, 100, 100]);
+    // The second view, 0.3 mm off (within the depth tolerance), shifted sideways by 2 mm.
+    let v1 = views(|_, _| Some(50.3), [150, 150, 150]);
+    m.insert(&keyframe(0, Isometry3::identity(), &v0)).unwrap();
+    let r = m.insert(&keyframe(1, Isometry3::translation(2.0, 0.0, 0.0), &v1)).unwrap();
+    assert_eq!(r.overlapping_keyframes, 1);
+    assert_eq!(r.kept_occluded, 0);
+    // Everything keyframe 0 saw inside keyframe 1's view is replaced; the strip 1's view misses stays.
+    let left = m.keyframe(0).unwrap();
+    assert!(r.removed > 0 && !left.points.is_empty());
+    let k = intrinsics();
+    let left_edge_x = (-0.5 - k.cx) / k.fx * 50.3 + 2.0;
+    assert!(left.points.iter().all(|p| f64::from(p.xyz[0]) < left_edge_x + 0.5), "only the strip outside view 1 stays");
+    assert_eq!(m.n_points(), left.points.len() + r.added);
+}
+
+#[test]
+fn a_surface_behind_an_occluder_is_not_erased() {
+    let mut m = Mosaic::new(MosaicParams::default());
+    // Keyframe 0 sees the back wall at 60 mm everywhere.
+    let wall = views(|_, _| Some(60.0), [100, 100, 100]);
+    m.insert(&keyframe(0, Isometry3::identity(), &wall)).unwrap();
+    let wall_points = m.n_points();
+    // Keyframe 1, from the same place, sees an instrument at 25 mm covering the image's centre, the wall
+    // around it.
+    let occluded = |x: usize, y: usize| (40..120).contains(&x) && (30..90).contains(&y);
+    let with_tool = views(|x, y| Some(if occluded(x, y) { 25.0 } else { 60.0 }), [200, 200, 200]);
+    let r = m.insert(&keyframe(1, Isometry3::identity(), &with_tool)).unwrap();
+    // The wall behind the instrument is kept; the wall seen again around it is replaced.
+    let behind = (40..120).step_by(5).count() * (30..90).step_by(5).count();
+    assert_eq!(r.kept_occluded, behind);
+    assert_eq!(m.keyframe(0).unwrap().points.len(), behind);
+    assert!(m.keyframe(0).unwrap().points.iter().all(|p| (p.xyz[2] - 60.0).abs() < 1e-3));
+    assert_eq!(r.removed, wall_points - behind);
+    // The original's rule (no depth test) would have erased the wall behind the instrument too: with a huge
+    // tolerance the depth test degenerates into it.
+    let mut original = Mosaic::new(MosaicParams { depth_tolerance_mm: 1e9, ..MosaicParams::default() });
+    original.insert(&keyframe(0, Isometry3::identity(), &wall)).unwrap();
+    original.insert(&keyframe(1, Isometry3::identity(), &with_tool)).unwrap();
+    assert!(original.keyframe(0).unwrap().points.is_empty());
+}
+
+#[test]
+fn points_in_front_of_the_new_surface_are_removed() {
+    // Keyframe 0 saw something at 25 mm (a passing instrument, or a wrong match); keyframe 1 sees through it to
+    // the wall at 60 mm: the earlier points float in free space and go.
+    let mut m = Mosaic::new(MosaicParams::default());
+    let blob = views(|x, y| ((40..120).contains(&x) && (30..90).contains(&y)).then_some(25.0), [200, 200, 200]);
+    m.insert(&keyframe(0, Isometry3::identity(), &blob)).unwrap();
+    let wall = views(|_, _| Some(60.0), [100, 100, 100]);
+    let r = m.insert(&keyframe(1, Isometry3::identity(), &wall)).unwrap();
+    assert!(m.keyframe(0).unwrap().points.is_empty());
+    assert_eq!(r.kept_occluded, 0);
+}
+
+#[test]
+fn keyframes_that_do_not_overlap_are_not_visited() {
+    let mut m = Mosaic::new(MosaicParams::default());
+    let v = views(|_, _| Some(50.0), [100, 100, 100]);
+    m.insert(&keyframe(0, Isometry3::identity(), &v)).unwrap();
+    // 500 mm to the side, and one looking the other way: neither sees keyframe 0's patch.
+    let aside = m.insert(&keyframe(1, Isometry3::translation(500.0, 0.0, 0.0), &v)).unwrap();
+    assert_eq!((aside.overlapping_keyframes, aside.tested, aside.removed), (0, 0, 0));
+    let turned = Isometry3::from_parts(
+        Translation3::identity(),
+        UnitQuaternion::from_euler_angles(0.0, std::f64::consts::PI, 0.0),
+    );
+    let back = m.insert(&keyframe(2, turned, &v)).unwrap();
+    assert_eq!((back.overlapping_keyframes, back.removed), (0, 0));
+    assert_eq!(m.n_points(), 3 * back.added);
+}
+
+#[test]
+fn a_keyframe_sent_twice_is_added_once() {
+    let mut m = Mosaic::new(MosaicParams::default());
+    let v = views(|_, _| Some(50.0), [100, 100, 100]);
+    m.insert(&keyframe(4, Isometry3::identity(), &v)).unwrap();
+    let n = m.n_points();
+    let again = m.insert(&keyframe(4, Isometry3::identity(), &v)).unwrap();
+    assert!(again.duplicate);
+    assert_eq!(m.n_points(), n);
+}
+
+#[test]
+fn weighted_fusion_averages_agreeing_depths() {
+    let params = MosaicParams { fusion: Fusion::Weighted, ..MosaicParams::default() };
+    let mut m = Mosaic::new(params);
+    let a = views(|_, _| Some(50.4), [100, 100, 100]);
+    let b = views(|_, _| Some(49.6), [100, 100, 100]);
+    m.insert(&keyframe(0, Isometry3::identity(), &a)).unwrap();
+    let r = m.insert(&keyframe(1, Isometry3::identity(), &b)).unwrap();
+    assert_eq!(r.removed, r.added);
+    let fused = m.keyframe(1).unwrap();
+    // Equal confidences: the mean. (50.4 and 49.6 through disparity round-trips in f32.)
+    assert!(fused.points.iter().all(|p| (p.xyz[2] - 50.0).abs() < 2e-3), "{:?}", fused.points[0]);
+    assert!(fused.points.iter().all(|p| (p.weight - 1.6).abs() < 1e-4));
+    // Replacement keeps the newest depth instead.
+    let mut plain = Mosaic::new(MosaicParams::default());
+    plain.insert(&keyframe(0, Isometry3::identity(), &a)).unwrap();
+    plain.insert(&keyframe(1, Isometry3::identity(), &b)).unwrap();
+    assert!(plain.keyframe(1).unwrap().points.iter().all(|p| (p.xyz[2] - 49.6).abs() < 2e-3));
+}
+
+#[test]
+fn wrong_sizes_and_bad_poses_are_errors_not_panics() {
+    let mut m = Mosaic::new(MosaicParams::default());
+    let v = views(|_, _| Some(50.0), [100, 100, 100]);
+    let mut kf = keyframe(0, Isometry3::identity(), &v);
+    kf.disparity = &v.disparity[1..];
+    assert!(matches!(m.insert(&kf), Err(MosaicError::WrongSize { what: "disparity", .. })));
+    let mut kf = keyframe(0, Isometry3::identity(), &v);
+    kf.intrinsics.bf = 0.0;
+    assert!(matches!(m.insert(&kf), Err(MosaicError::BadIntrinsics { .. })));
+    let mut kf = keyframe(0, Isometry3::identity(), &v);
+    kf.world_from_camera.translation.vector.x = f64::NAN;
+    assert!(matches!(m.insert(&kf), Err(MosaicError::BadPose { .. })));
+    assert_eq!(m.n_keyframes(), 0);
+}
+
+#[test]
+fn a_saved_map_loads_back_identical_and_a_foreign_file_is_refused() {
+    let dir = std::env::temp_dir().join(format!("bdis-mosaic-test-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let mut m = Mosaic::new(MosaicParams { fusion: Fusion::Weighted, ..MosaicParams::default() });
+    let v = views(|x, _| Some(40.0 + x as f32 * 0.1), [10, 200, 90]);
+    m.insert(&keyframe(0, Isometry3::translation(1.0, 2.0, 3.0), &v)).unwrap();
+    m.correct_pose(9, Isometry3::translation(0.0, 1.0, 0.0)).unwrap();
+    let path = dir.join("map.bin");
+    save(&m, &path).unwrap();
+    let back = load(&path).unwrap();
+    assert_eq!(back.params, m.params);
+    assert_eq!(back.keyframes().collect::<Vec<_>>(), m.keyframes().collect::<Vec<_>>());
+    assert_eq!(back.corrections().count(), 1);
+    std::fs::write(&path, b"ply\nformat ascii 1.0\n").unwrap();
+    let err = load(&path).unwrap_err().to_string();
+    assert!(err.contains("map.bin") && err.contains(MOSAIC_FORMAT), "{err}");
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+#[test]
+fn the_preview_shows_the_surface() {
+    let mut m = Mosaic::new(MosaicParams::default());
+    let v = views(|x, y| Some(40.0 + 0.02 * (x + y) as f32), [180, 60, 60]);
+    m.insert(&keyframe(0, Isometry3::identity(), &v)).unwrap();
+    let (image, view) = render_preview(&m, 320).unwrap();
+    let covered = image.pixels().filter(|p| p.0 == [180, 60, 60]).count();
+    let total = (image.width() * image.height()) as usize;
+    // The plane fills the frame (minus the margin), seen along its normal (about the camera's axis).
+    assert!(covered as f64 > 0.7 * total as f64, "{covered} of {total}");
+    assert!(view.looking_along[2] > 0.9, "{:?}", view.looking_along);
+    assert!(render_preview(&Mosaic::new(MosaicParams::default()), 320).is_none());
+}
