@@ -129,26 +129,8 @@ pub fn eval(command: EvalCommand) -> Result<()> {
             }
         }
         EvalCommand::Map(a) => {
-            let mesh =
-                bdis_eval::map::Mesh::from_cloud(&ply::read(&a.mesh)?).with_context(|| a.mesh.display().to_string())?;
-            let map = ply::read(&a.map)?;
-            let mut points: Vec<Point3<f64>> =
-                map.positions.iter().map(|p| Point3::new(f64::from(p[0]), f64::from(p[1]), f64::from(p[2]))).collect();
-            if let (Some(est), Some(gt)) = (&a.align_est, &a.align_gt) {
-                let (est, gt) = (trajectory::read_tum(est)?, trajectory::read_tum(gt)?);
-                let pairs = bdis_eval::traj::associate(&gt, &est, 0.01);
-                let src: Vec<Point3<f64>> =
-                    pairs.iter().map(|&(_, j)| Point3::from(est[j].world_from_camera.translation.vector)).collect();
-                let dst: Vec<Point3<f64>> =
-                    pairs.iter().map(|&(i, _)| Point3::from(gt[i].world_from_camera.translation.vector)).collect();
-                let gt_from_est = bdis_eval::traj::umeyama_se3(&src, &dst).context("--align-est / --align-gt")?;
-                for p in &mut points {
-                    *p = gt_from_est * *p;
-                }
-            }
-            let index = bdis_eval::map::MeshIndex::new(mesh)?;
-            let score = bdis_eval::map::score_map(&points, &index, a.outlier_mm, a.coverage_mm)
-                .with_context(|| a.map.display().to_string())?;
+            let align = a.align_est.as_deref().zip(a.align_gt.as_deref());
+            let score = score_map_file(&a.mesh, &a.map, align, a.outlier_mm, a.coverage_mm)?;
             if a.json {
                 println!("{}", serde_json::to_string_pretty(&score)?);
             } else {
@@ -226,6 +208,37 @@ pub fn eval(command: EvalCommand) -> Result<()> {
         }
     }
     Ok(())
+}
+
+/// The paper's map metric for a PLY map against a mesh; with `align = (estimated, ground-truth trajectory)`, the
+/// map is first moved into the ground truth's frame by the trajectories' SE(3) alignment.
+pub fn score_map_file(
+    mesh_path: &Path,
+    map_path: &Path,
+    align: Option<(&Path, &Path)>,
+    outlier_mm: f64,
+    coverage_mm: f64,
+) -> Result<bdis_eval::map::MapScore> {
+    let mesh =
+        bdis_eval::map::Mesh::from_cloud(&ply::read(mesh_path)?).with_context(|| mesh_path.display().to_string())?;
+    let map = ply::read(map_path)?;
+    let mut points: Vec<Point3<f64>> =
+        map.positions.iter().map(|p| Point3::new(f64::from(p[0]), f64::from(p[1]), f64::from(p[2]))).collect();
+    if let Some((est, gt)) = align {
+        let (est, gt) = (trajectory::read_tum(est)?, trajectory::read_tum(gt)?);
+        let pairs = bdis_eval::traj::associate(&gt, &est, 0.01);
+        let src: Vec<Point3<f64>> =
+            pairs.iter().map(|&(_, j)| Point3::from(est[j].world_from_camera.translation.vector)).collect();
+        let dst: Vec<Point3<f64>> =
+            pairs.iter().map(|&(i, _)| Point3::from(gt[i].world_from_camera.translation.vector)).collect();
+        let gt_from_est = bdis_eval::traj::umeyama_se3(&src, &dst).context("--align-est / --align-gt")?;
+        for p in &mut points {
+            *p = gt_from_est * *p;
+        }
+    }
+    let index = bdis_eval::map::MeshIndex::new(mesh)?;
+    Ok(bdis_eval::map::score_map(&points, &index, outlier_mm, coverage_mm)
+        .with_context(|| map_path.display().to_string())?)
 }
 
 fn check_size(gt: pfm::PfmImage, est: &pfm::PfmImage, path: &Path) -> Result<pfm::PfmImage> {

@@ -53,12 +53,12 @@ fn params_of(args: &StereoArgs) -> Result<Params> {
     Ok(params)
 }
 
-fn view(g: &image::GrayImage) -> GrayImage<'_> {
+pub(crate) fn view(g: &image::GrayImage) -> GrayImage<'_> {
     GrayImage { width: g.width() as usize, height: g.height() as usize, data: g.as_raw() }
 }
 
 /// Decodes an image to grey (BT.601, as acquisition does) and RGB.
-fn load(path: &Path) -> Result<(image::GrayImage, image::RgbImage)> {
+pub(crate) fn load(path: &Path) -> Result<(image::GrayImage, image::RgbImage)> {
     let rgb = image::open(path).with_context(|| format!("{}: cannot read the image", path.display()))?.to_rgb8();
     let gray = image::GrayImage::from_fn(rgb.width(), rgb.height(), |x, y| {
         let p = rgb.get_pixel(x, y);

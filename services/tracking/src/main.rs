@@ -101,6 +101,7 @@ fn run(args: Args) -> Result<()> {
         .map_err(|e| iox("attach the frames listener")(&e))?;
 
     let mut generation = 0u64;
+    let mut finished = false;
     let mut last_seq: Option<u64> = None;
     let (mut n_frames, mut n_keyframes, mut n_lost, mut n_relocalised) = (0u64, 0u64, 0u64, 0u64);
     // Per-frame CPU (frames without a new keyframe) and per-keyframe CPU (tracking plus local mapping), ms.
@@ -127,6 +128,11 @@ fn run(args: Args) -> Result<()> {
             let t_receive_ns = monotonic_ns();
             let header = *sample.user_header();
             if header.is_end_of_stream() {
+                // The last bundle adjustment's corrections go out before the end of the stream, so the mosaic,
+                // which stops at the end of the depth stream, has applied them when it writes the map.
+                let last = tracker.finish();
+                publish_corrections(&correction_publisher, &correction_events, &tracker, &last, &mut generation)?;
+                finished = true;
                 let mut end = keyframe_publisher
                     .loan_slice_uninit(0)
                     .map_err(|e| anyhow!("loan the end-of-stream keyframe: {e:?}"))?;
@@ -250,9 +256,12 @@ fn run(args: Args) -> Result<()> {
             );
         }
     }
-    // The last keyframe's bundle adjustment, then the trajectories from the final keyframe poses.
-    let last = tracker.finish();
-    publish_corrections(&correction_publisher, &correction_events, &tracker, &last, &mut generation)?;
+    // The last keyframe's bundle adjustment (unless the end of the stream did it), then the trajectories from
+    // the final keyframe poses.
+    if !finished {
+        let last = tracker.finish();
+        publish_corrections(&correction_publisher, &correction_events, &tracker, &last, &mut generation)?;
+    }
     write_trajectories(&tracker, &out_dir)?;
     let median = |v: &mut Vec<f64>| {
         v.sort_by(f64::total_cmp);

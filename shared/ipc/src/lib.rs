@@ -23,6 +23,7 @@ use iceoryx2::service::port_factory::publish_subscribe::PortFactory as PubSubFac
 pub mod clock;
 pub mod depth;
 pub mod frame;
+pub mod map;
 pub mod process;
 pub mod shm;
 pub mod telemetry;
@@ -31,6 +32,7 @@ pub mod track;
 pub use clock::monotonic_ns;
 pub use depth::{DepthHeader, DepthView};
 pub use frame::{FrameHeader, FrameLayout, FrameView};
+pub use map::{MapPoint, MapQuery, MapSnapshotHeader};
 pub use telemetry::{TelemetryKind, TelemetryPublisher, TelemetryRecord};
 pub use track::{KeyframeHeader, KeyframePose, PoseRecord};
 
@@ -52,6 +54,10 @@ pub mod event_id {
     /// A consumer started and is ready for a frame; frames an earlier instance may have died with are sent
     /// again (on-demand pacing).
     pub const JOINED: usize = 5;
+    /// A client sent a map snapshot request.
+    pub const MAP_REQUEST: usize = 6;
+    /// The map's owner answered a snapshot request.
+    pub const MAP_RESPONSE: usize = 7;
     pub const MAX: usize = 7;
 }
 

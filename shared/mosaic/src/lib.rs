@@ -24,7 +24,7 @@ use nalgebra::{Isometry3, Matrix3, Point3, Vector3};
 use serde::{Deserialize, Serialize};
 
 pub use render::{PreviewView, render_preview};
-pub use store::{MOSAIC_FORMAT, load, save};
+pub use store::{MOSAIC_FORMAT, Outputs, load, save, write_outputs};
 
 #[derive(Debug, thiserror::Error)]
 pub enum MosaicError {
@@ -82,7 +82,10 @@ pub struct MosaicParams {
     pub depth_gap_px: usize,
     /// Pixels whose three colour channels are all below this are skipped (dark, unlit: 40 in the original).
     pub min_colour: u8,
-    /// Pixels whose BDIS confidence is below this are skipped.
+    /// Pixels whose BDIS confidence is below this are skipped. Measured on the synthetic colon and abdomen with
+    /// ground-truth depth: the depth outliers (> 5 mm) have confidence 0.25–0.3 (median 0.25, inliers 0.34–0.56),
+    /// and 0.3 removes 91 % (colon) and 85 % (abdomen) of them. This matters more than in one depth map: an
+    /// outlier far behind the surface passes every later depth test as "occluded" and stays.
     pub min_confidence: f32,
     /// Pixels whose disparity is below this are skipped: depth error grows as depth² / bf, so the far part of a
     /// view is left to keyframes that come closer. The original had no limit on new points and culled within
@@ -104,13 +107,72 @@ impl Default for MosaicParams {
         Self {
             depth_gap_px: 5,
             min_colour: 40,
-            min_confidence: 0.0,
+            min_confidence: 0.3,
             min_disparity_px: 8.0,
             depth_tolerance_mm: 0.5,
             disparity_tolerance_px: 1.0,
             fusion: Fusion::Replace,
             max_weight: 8.0,
         }
+    }
+}
+
+impl MosaicParams {
+    /// The names `--map-param NAME=VALUE` accepts.
+    pub const NAMES: [&str; 8] = [
+        "depth_gap_px",
+        "min_colour",
+        "min_confidence",
+        "min_disparity_px",
+        "depth_tolerance_mm",
+        "disparity_tolerance_px",
+        "fusion",
+        "max_weight",
+    ];
+
+    /// Sets one parameter from text (`fusion` is `replace` or `weighted`).
+    pub fn set(&mut self, name: &str, value: &str) -> Result<(), String> {
+        fn num<T: std::str::FromStr>(name: &str, value: &str) -> Result<T, String> {
+            value.trim().parse().map_err(|_| format!("{name}: `{value}` is not a number of the right kind"))
+        }
+        fn non_negative(name: &str, v: f64) -> Result<f64, String> {
+            if v.is_finite() && v >= 0.0 { Ok(v) } else { Err(format!("{name}: {v} must be finite and ≥ 0")) }
+        }
+        match name {
+            "depth_gap_px" => {
+                let v: usize = num(name, value)?;
+                if v == 0 {
+                    return Err("depth_gap_px: must be ≥ 1".into());
+                }
+                self.depth_gap_px = v;
+            }
+            "min_colour" => self.min_colour = num(name, value)?,
+            "min_confidence" => self.min_confidence = non_negative(name, num(name, value)?)? as f32,
+            "min_disparity_px" => self.min_disparity_px = non_negative(name, num(name, value)?)? as f32,
+            "depth_tolerance_mm" => self.depth_tolerance_mm = non_negative(name, num(name, value)?)?,
+            "disparity_tolerance_px" => self.disparity_tolerance_px = non_negative(name, num(name, value)?)?,
+            "max_weight" => self.max_weight = non_negative(name, num(name, value)?)? as f32,
+            "fusion" => {
+                self.fusion = match value.trim() {
+                    "replace" => Fusion::Replace,
+                    "weighted" => Fusion::Weighted,
+                    other => return Err(format!("fusion: `{other}` is not `replace` or `weighted`")),
+                }
+            }
+            other => return Err(format!("`{other}` is not a map parameter ({})", Self::NAMES.join(", "))),
+        }
+        Ok(())
+    }
+
+    /// Applies `NAME=VALUE` assignments in order.
+    pub fn apply_overrides(&mut self, assignments: &[String]) -> Result<(), String> {
+        for a in assignments {
+            let Some((name, value)) = a.split_once('=') else {
+                return Err(format!("`{a}`: expected NAME=VALUE"));
+            };
+            self.set(name.trim(), value)?;
+        }
+        Ok(())
     }
 }
 

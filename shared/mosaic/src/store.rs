@@ -53,3 +53,30 @@ pub fn load(path: &Path) -> Result<Mosaic, MosaicError> {
     }
     Ok(Mosaic::from_parts(file.params, file.keyframes, file.corrections))
 }
+
+/// What [`write_outputs`] wrote.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Outputs {
+    pub ply: std::path::PathBuf,
+    pub bin: std::path::PathBuf,
+    /// None for an empty map (nothing to show).
+    pub png: Option<std::path::PathBuf>,
+}
+
+/// The map's files in `dir`: `map.ply` (binary; x y z, colour, keyframe_id, confidence), `map.bin` (for
+/// [`load`]) and the `map.png` preview `preview_width` pixels wide.
+pub fn write_outputs(mosaic: &Mosaic, dir: &Path, preview_width: u32) -> Result<Outputs, MosaicError> {
+    let ply = dir.join("map.ply");
+    bdis_core::formats::ply::write(&ply, &mosaic.world_cloud()).map_err(|e| file_error(&ply, e.to_string()))?;
+    let bin = dir.join("map.bin");
+    save(mosaic, &bin)?;
+    let png = dir.join("map.png");
+    let png = match crate::render_preview(mosaic, preview_width) {
+        Some((image, _)) => {
+            image.save(&png).map_err(|e| file_error(&png, format!("cannot write the preview: {e}")))?;
+            Some(png)
+        }
+        None => None,
+    };
+    Ok(Outputs { ply, bin, png })
+}

@@ -285,3 +285,14 @@ fn the_preview_shows_the_surface() {
     assert!(view.looking_along[2] > 0.9, "{:?}", view.looking_along);
     assert!(render_preview(&Mosaic::new(MosaicParams::default()), 320).is_none());
 }
+
+#[test]
+fn parameters_are_set_by_name_and_bad_values_say_which() {
+    let mut p = MosaicParams::default();
+    p.apply_overrides(&["depth_gap_px=3".into(), "fusion=weighted".into(), "min_disparity_px = 12".into()]).unwrap();
+    assert_eq!((p.depth_gap_px, p.fusion, p.min_disparity_px), (3, Fusion::Weighted, 12.0));
+    assert!(p.apply_overrides(&["depth_gap_px=0".into()]).unwrap_err().contains("depth_gap_px"));
+    assert!(p.apply_overrides(&["fusion=blend".into()]).unwrap_err().contains("fusion"));
+    assert!(p.apply_overrides(&["gap=3".into()]).unwrap_err().contains("depth_gap_px"));
+    assert!(p.apply_overrides(&["min_confidence=-1".into()]).unwrap_err().contains("min_confidence"));
+}
