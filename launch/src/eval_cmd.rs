@@ -237,8 +237,7 @@ pub fn score_map_file(
         }
     }
     let index = bdis_eval::map::MeshIndex::new(mesh)?;
-    Ok(bdis_eval::map::score_map(&points, &index, outlier_mm, coverage_mm)
-        .with_context(|| map_path.display().to_string())?)
+    bdis_eval::map::score_map(&points, &index, outlier_mm, coverage_mm).with_context(|| map_path.display().to_string())
 }
 
 fn check_size(gt: pfm::PfmImage, est: &pfm::PfmImage, path: &Path) -> Result<pfm::PfmImage> {

@@ -9,6 +9,7 @@ use clap::{Parser, Subcommand};
 
 mod eval_cmd;
 mod map_cmd;
+mod snapshot_cmd;
 mod probe_cmd;
 mod stereo_cmd;
 mod synth_cmd;
@@ -34,6 +35,8 @@ enum Command {
     Stereo(stereo_cmd::StereoArgs),
     /// Build the dense map offline from a sequence and a trajectory (BDIS + mosaic): map.ply, map.png, map.bin.
     Map(map_cmd::MapArgs),
+    /// Ask a running mosaic service for its current map and write it as PLY (what a viewer does).
+    Snapshot(snapshot_cmd::SnapshotArgs),
     /// Write a synthetic stereo endoscopy sequence with exact ground truth (poses, depth, disparity, mesh).
     Synth(synth_cmd::SynthArgs),
     /// Score results against ground truth: trajectories, maps, disparity.
@@ -103,6 +106,7 @@ fn main() -> ExitCode {
         Command::Demo(args) => demo(args),
         Command::Stereo(args) => stereo_cmd::stereo(args).map(|()| ExitCode::SUCCESS),
         Command::Map(args) => map_cmd::map(args).map(|()| ExitCode::SUCCESS),
+        Command::Snapshot(args) => snapshot_cmd::snapshot(args).map(|()| ExitCode::SUCCESS),
         Command::Eval(command) => {
             // A report piped into `head` ends quietly, as other command-line tools do, instead of panicking on the
             // closed pipe (eval starts no process and holds no shared memory, so dying on SIGPIPE loses nothing).

@@ -115,6 +115,7 @@ fn run(args: Args) -> Result<()> {
         waitset.attach_notification(&snapshot_requests).map_err(|e| iox("attach the snapshot listener")(&e))?;
 
     let mut counters = Counters::default();
+    let mut pending = PendingCorrections::default();
     let mut end_of_stream = false;
     telemetry.ready();
     tracing::info!("mosaic ready ({} keyframes, {} points)", mosaic.n_keyframes(), mosaic.n_points());
@@ -130,11 +131,11 @@ fn run(args: Args) -> Result<()> {
         let _ = bdis_ipc::drain_events(&depth_events);
         let _ = bdis_ipc::drain_events(&correction_events);
         let _ = bdis_ipc::drain_events(&snapshot_requests);
-        // Corrections first: a keyframe's correction may have been sent before its depth arrives.
-        if let Err(e) = apply_corrections(&correction_subscriber, &mut mosaic, &mut counters) {
+        // Corrections first: those a keyframe was made after were sent before it.
+        if let Err(e) = pending.receive(&correction_subscriber) {
             break Some(e);
         }
-        match take_depth(&depth_subscriber, &mut mosaic, &mut counters, &mut telemetry) {
+        match take_depth(&depth_subscriber, &correction_subscriber, &mut mosaic, &mut pending, &mut counters, &mut telemetry) {
             Ok(eos) => end_of_stream = eos,
             Err(e) => break Some(e),
         }
@@ -159,9 +160,10 @@ fn run(args: Args) -> Result<()> {
     };
     // Corrections sent before the end of the stream (the tracker's last bundle adjustment) are applied before
     // the map is written; the map so far is written even when something failed.
-    if let Err(e) = apply_corrections(&correction_subscriber, &mut mosaic, &mut counters) {
+    if let Err(e) = pending.receive(&correction_subscriber) {
         tracing::warn!("{e:#}");
     }
+    pending.apply_up_to(u64::MAX, &mut mosaic, &mut counters);
     let written = write_results(&mosaic, &counters, &out_dir, args.preview_width, end_of_stream);
     match (failure, written) {
         (None, Ok(())) => {
@@ -175,24 +177,39 @@ fn run(args: Args) -> Result<()> {
     }
 }
 
-fn apply_corrections(
-    subscriber: &iceoryx2::port::subscriber::Subscriber<ipc::Service, bdis_ipc::KeyframePose, ()>,
-    mosaic: &mut Mosaic,
-    counters: &mut Counters,
-) -> Result<()> {
-    loop {
-        let sample = match subscriber.receive() {
-            Ok(Some(s)) => s,
-            Ok(None) => return Ok(()),
-            Err(e) => bail!("receive a pose correction: {e:?}"),
-        };
-        let record = *sample.payload();
-        match pose_from_array(&record.world_from_camera) {
-            Some(pose) => match mosaic.correct_pose(record.kf_id, pose) {
-                Ok(_) => counters.corrections += 1,
-                Err(e) => tracing::warn!("correction ignored: {e}"),
-            },
-            None => tracing::warn!("correction of keyframe {} ignored: not a rigid pose", record.kf_id),
+/// Pose corrections received but not applied yet. A depth keyframe says which correction generation the tracker
+/// had reached when it made the keyframe; applying exactly those before inserting it makes the map's removal
+/// decisions, and so the map, the same in every run, whatever the timing between the two topics.
+#[derive(Debug, Default)]
+struct PendingCorrections {
+    queue: std::collections::VecDeque<bdis_ipc::KeyframePose>,
+}
+
+impl PendingCorrections {
+    fn receive(
+        &mut self,
+        subscriber: &iceoryx2::port::subscriber::Subscriber<ipc::Service, bdis_ipc::KeyframePose, ()>,
+    ) -> Result<()> {
+        loop {
+            match subscriber.receive() {
+                Ok(Some(sample)) => self.queue.push_back(*sample.payload()),
+                Ok(None) => return Ok(()),
+                Err(e) => bail!("receive a pose correction: {e:?}"),
+            }
+        }
+    }
+
+    /// Applies the corrections up to `generation` (all of them with `u64::MAX`).
+    fn apply_up_to(&mut self, generation: u64, mosaic: &mut Mosaic, counters: &mut Counters) {
+        while self.queue.front().is_some_and(|c| c.generation <= generation) {
+            let Some(record) = self.queue.pop_front() else { break };
+            match pose_from_array(&record.world_from_camera) {
+                Some(pose) => match mosaic.correct_pose(record.kf_id, pose) {
+                    Ok(_) => counters.corrections += 1,
+                    Err(e) => tracing::warn!("correction ignored: {e}"),
+                },
+                None => tracing::warn!("correction of keyframe {} ignored: not a rigid pose", record.kf_id),
+            }
         }
     }
 }
@@ -200,7 +217,9 @@ fn apply_corrections(
 /// Takes every depth keyframe waiting; returns whether the end of the stream came.
 fn take_depth(
     subscriber: &iceoryx2::port::subscriber::Subscriber<ipc::Service, [u8], bdis_ipc::DepthHeader>,
+    corrections: &iceoryx2::port::subscriber::Subscriber<ipc::Service, bdis_ipc::KeyframePose, ()>,
     mosaic: &mut Mosaic,
+    pending: &mut PendingCorrections,
     counters: &mut Counters,
     telemetry: &mut TelemetryPublisher,
 ) -> Result<bool> {
@@ -249,6 +268,9 @@ fn take_depth(
             confidence: view.confidence,
             rgb: view.rgb,
         };
+        // Corrections this keyframe was made after were sent before it, so they are in the queue by now.
+        pending.receive(corrections)?;
+        pending.apply_up_to(header.corrections_generation, mosaic, counters);
         let start = monotonic_ns();
         let report = match mosaic.insert(&keyframe) {
             Ok(r) => r,

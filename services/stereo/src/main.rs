@@ -315,6 +315,7 @@ fn from_keyframes(
                 cx: kh.cx,
                 cy: kh.cy,
                 bf: kh.bf,
+                corrections_generation: kh.corrections_generation,
                 ..base
             };
             let density = output.publish(&view, dh)?;

@@ -199,6 +199,7 @@ fn run(args: Args) -> Result<()> {
                     cx: camera.cx,
                     cy: camera.cy,
                     bf: camera.bf,
+                    corrections_generation: generation,
                 };
                 kf_sample.send().map_err(|e| anyhow!("send keyframe {kf}: {e:?}"))?;
                 bdis_ipc::notify(&keyframe_events, event_id::NEW_SAMPLE)?;

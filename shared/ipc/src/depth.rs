@@ -40,6 +40,9 @@ pub struct DepthHeader {
     pub flags: u32,
     /// Fraction of pixels with a disparity, in ‰.
     pub density_permille: u32,
+    /// Copied from the keyframe ([`KeyframeHeader::corrections_generation`](crate::KeyframeHeader)): the pose
+    /// corrections to apply before this keyframe, for a map that is the same in every run. 0 without a tracker.
+    pub corrections_generation: u64,
 }
 
 impl DepthHeader {

@@ -53,6 +53,10 @@ pub struct KeyframeHeader {
     pub cx: f64,
     pub cy: f64,
     pub bf: f64,
+    /// The generation of the last pose correction the tracker had sent when it sent this keyframe
+    /// ([`KeyframePose::generation`]). A consumer that applies exactly the corrections up to it before using the
+    /// keyframe sees the same poses in every run, however the two topics interleave.
+    pub corrections_generation: u64,
 }
 
 /// A keyframe's corrected pose (`bdis.v1.KeyframePose`), fixed size.
