@@ -13,18 +13,6 @@ use bdis_core::geometry::StampedPose;
 use common::*;
 use nalgebra::{Isometry3, Vector3};
 
-fn python_with_numpy() -> Option<String> {
-    let ok = Command::new("python3").args(["-c", "import numpy"]).output().is_ok_and(|o| o.status.success());
-    if ok {
-        Some("python3".into())
-    } else {
-        // CI installs numpy (.ci/run); elsewhere the Rust half of this test still runs.
-        assert!(std::env::var_os("CI").is_none(), "CI must have python3 with numpy");
-        eprintln!("skipped the Python half: python3 with numpy is not available");
-        None
-    }
-}
-
 #[test]
 fn pfm_ply_tum_kitti_round_trip_through_us_and_numpy() {
     let tmp = TempDir::new("interop");

@@ -1,7 +1,8 @@
 #![allow(clippy::unwrap_used, clippy::expect_used)] // test code: a panic is the failure report
-//! Tracking through the real processes (acquisition → tracking → stereo → probe over iceoryx2) on the project's
-//! synthetic colon: accuracy against the renderer's ground truth, determinism, and recovery after the view is
-//! lost (black frames).
+//! The whole pipeline through the real processes (acquisition → tracking → stereo → mosaic, plus the depth probe,
+//! over iceoryx2) on the project's synthetic colon: trajectory and dense-map accuracy against the renderer's
+//! ground truth, determinism of both, recovery after the view is lost (black frames), a map snapshot taken over
+//! request-response while the pipeline runs, and the map file read back by an independent (numpy) reader.
 //!
 //! The sequence is rendered once at 320×240 (f = 260, 5 mm baseline), 400 frames: at 640×480 rendering alone
 //! would take ~10 minutes on the CI machine.
@@ -28,10 +29,33 @@ fn render(dir: &Path) {
     assert!(out.status.success(), "{}", text(&out.stderr));
 }
 
-/// Runs the tracking pipeline on `seq`; returns the run folder.
-fn track(tmp: &TempDir, seq: &Path, tag: &str) -> PathBuf {
+/// Runs the tracking pipeline on `seq`; returns the run folder. With `snapshot`, a map snapshot is requested
+/// over request-response while it runs (retried until the mosaic service answers with points); its output line
+/// is returned too.
+fn track(tmp: &TempDir, seq: &Path, tag: &str, snapshot: bool) -> (PathBuf, Option<String>) {
     let run_dir = tmp.path().join(tag);
     let prefix = prefix(tag);
+    let snapshot_thread = snapshot.then(|| {
+        let (prefix, out) = (prefix.clone(), tmp.path().join(format!("{tag}-snapshot.ply")));
+        std::thread::spawn(move || {
+            let start = std::time::Instant::now();
+            while start.elapsed() < Duration::from_secs(300) {
+                let o = Command::new(bdis_slam())
+                    .args(["snapshot", "--ipc-prefix", &prefix, "--timeout", "5", "--out"])
+                    .arg(&out)
+                    .output()
+                    .unwrap();
+                let line = text(&o.stdout);
+                // "<file>: N of M map points …": done once the map has points.
+                if o.status.success() && !line.contains(": 0 of") {
+                    return Some(line);
+                }
+                // The pipeline is still starting (no mosaic service yet) or the map is still empty.
+                std::thread::sleep(Duration::from_millis(100));
+            }
+            None
+        })
+    });
     let out = run_with_timeout(
         Command::new(bdis_slam())
             .args(["run", "--track", "--sequence"])
@@ -43,12 +67,49 @@ fn track(tmp: &TempDir, seq: &Path, tag: &str) -> PathBuf {
         Duration::from_secs(600),
     );
     assert!(out.status.success(), "{tag}: {}\n{}", text(&out.stdout), text(&out.stderr));
+    let snapshot = snapshot_thread.and_then(|t| t.join().unwrap());
     assert_no_leftovers(&prefix);
-    run_dir
+    (run_dir, snapshot)
+}
+
+fn json_file(path: &Path) -> serde_json::Value {
+    serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap()
 }
 
 fn summary(run_dir: &Path) -> serde_json::Value {
-    serde_json::from_str(&std::fs::read_to_string(run_dir.join("tracking.json")).unwrap()).unwrap()
+    json_file(&run_dir.join("tracking.json"))
+}
+
+/// The map scored against the renderer's mesh (`bdis-slam eval map`), moved into the ground truth's frame by
+/// the alignment of the keyframe trajectory (the poses that place the map's points).
+fn map_score(seq: &Path, run_dir: &Path) -> serde_json::Value {
+    let out = run_with_timeout(
+        Command::new(bdis_slam())
+            .args(["eval", "map", "--json", "--mesh"])
+            .arg(seq.join("gt/mesh.ply"))
+            .arg("--map")
+            .arg(run_dir.join("map.ply"))
+            .arg("--align-est")
+            .arg(run_dir.join("keyframes.tum"))
+            .arg("--align-gt")
+            .arg(seq.join("gt/poses.tum")),
+        Duration::from_secs(300),
+    );
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    serde_json::from_slice(&out.stdout).unwrap()
+}
+
+/// The 4×4 `gt_from_estimate` (row-major) that aligns the run's keyframe trajectory with the ground truth.
+fn keyframe_alignment(seq: &Path, run_dir: &Path) -> Vec<f64> {
+    let gt = read_tum(&seq.join("gt/poses.tum")).unwrap();
+    let est = read_tum(&run_dir.join("keyframes.tum")).unwrap();
+    let pairs = bdis_eval::traj::associate(&gt, &est, 0.01);
+    let src: Vec<_> =
+        pairs.iter().map(|&(_, j)| nalgebra::Point3::from(est[j].world_from_camera.translation.vector)).collect();
+    let dst: Vec<_> =
+        pairs.iter().map(|&(i, _)| nalgebra::Point3::from(gt[i].world_from_camera.translation.vector)).collect();
+    let m = bdis_eval::traj::umeyama_se3(&src, &dst).unwrap().to_homogeneous();
+    (0..4).flat_map(|r| (0..4).map(move |c| m[(r, c)])).collect()
 }
 
 /// ATE RMSE (mm) of a run's trajectory, and the ground-truth path length.
@@ -76,8 +137,8 @@ fn tracks_the_synthetic_colon_deterministically_and_recovers_after_black_frames(
     render(&seq);
 
     // Clean run, twice: no loss, bounded error, byte-identical trajectories.
-    let a = track(&tmp, &seq, "track-a");
-    let b = track(&tmp, &seq, "track-b");
+    let (a, _) = track(&tmp, &seq, "track-a", false);
+    let (b, _) = track(&tmp, &seq, "track-b", false);
     let sa = summary(&a);
     assert_eq!(sa["frames"], FRAMES as u64);
     assert_eq!(sa["lost"], 0, "{sa}");
@@ -99,6 +160,53 @@ fn tracks_the_synthetic_colon_deterministically_and_recovers_after_black_frames(
     assert_eq!(depth.keyframe_ids.len() as u64, sa["keyframes_created"].as_u64().unwrap());
     assert!(keyframes.len() >= 10);
 
+    // The dense map: every keyframe in it, the tracker's last corrections applied, the same map twice.
+    let ma = json_file(&a.join("mosaic.json"));
+    assert_eq!(ma["end_of_stream"], true, "{ma}");
+    assert_eq!(ma["keyframes_inserted"], sa["keyframes_created"], "{ma}");
+    assert_eq!(ma["keyframes_missing"], 0, "{ma}");
+    assert_eq!(ma["duplicates"], 0, "{ma}");
+    assert!(ma["corrections_applied"].as_u64().unwrap() > 0, "bundle adjustment moved keyframes: {ma}");
+    assert_eq!(
+        std::fs::read(a.join("map.ply")).unwrap(),
+        std::fs::read(b.join("map.ply")).unwrap(),
+        "the same run twice gives the same map"
+    );
+    let score = map_score(&seq, &a);
+    eprintln!("map: {score}");
+    // The paper's bounds (mean 0.296 mm, median 0.215 mm) hold at 640×480 (BENCHMARKS.md); at this resolution
+    // a pixel of disparity is twice the depth, and mean 0.60 / median 0.43 mm was measured. The bound catches
+    // regressions.
+    assert!(score["inliers"]["mean"].as_f64().unwrap() < 1.0, "{score}");
+    assert!(score["inliers"]["median"].as_f64().unwrap() < 0.7, "{score}");
+    assert!(score["outlier_fraction"].as_f64().unwrap() < 0.03, "{score}");
+    assert!(score["points"].as_u64().unwrap() > 10_000, "{score}");
+    // Something to look at: the preview shows the surface (not just background).
+    let png = image::open(a.join("map.png")).unwrap().to_rgb8();
+    let drawn = png.pixels().filter(|p| p.0 != [24, 24, 28]).count();
+    assert!(drawn * 10 > (png.width() * png.height()) as usize, "map.png: {drawn} pixels drawn");
+    // An independent reader (numpy) opens map.ply, finds the properties and the point count, and its own
+    // nearest-vertex distance to the mesh agrees.
+    if let Some(python) = python_with_numpy() {
+        let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/interop/read_map.py");
+        let transform = serde_json::to_string(&keyframe_alignment(&seq, &a)).unwrap();
+        let out = run_with_timeout(
+            Command::new(python).arg(&script).arg(a.join("map.ply")).arg(seq.join("gt/mesh.ply")).arg(transform),
+            Duration::from_secs(120),
+        );
+        assert!(out.status.success(), "{}", text(&out.stderr));
+        let read: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+        eprintln!("numpy reader: {read}");
+        assert_eq!(read["points"], ma["points"]);
+        // Keyframes whose every point a later view replaced have none left in the file.
+        let with_points = read["keyframes"].as_u64().unwrap();
+        assert!(with_points <= sa["keyframes_created"].as_u64().unwrap() && with_points >= 10, "{read}");
+        // Distance to the nearest vertex (0.5 mm spacing) bounds the distance to the surface from above.
+        let median = read["nearest_vertex_median_mm"].as_f64().unwrap();
+        let surface_median = score["inliers"]["median"].as_f64().unwrap();
+        assert!(median >= 0.8 * surface_median && median <= surface_median + 0.5, "{read} vs {score}");
+    }
+
     // Ten black frames in the middle: the tracker reports lost, relocalises when the view returns, and the
     // trajectory stays within twice the clean error.
     let dark = tmp.path().join("colon-dark");
@@ -118,7 +226,12 @@ fn tracks_the_synthetic_colon_deterministically_and_recovers_after_black_frames(
     }
     std::fs::create_dir_all(dark.join("gt")).unwrap();
     std::fs::copy(seq.join("gt/poses.tum"), dark.join("gt/poses.tum")).unwrap();
-    let c = track(&tmp, &dark, "track-dark");
+    // This run also takes a snapshot of the live map over request-response.
+    let (c, snapshot) = track(&tmp, &dark, "track-dark", true);
+    let snapshot = snapshot.expect("a snapshot of the map while the pipeline ran");
+    eprintln!("snapshot: {snapshot}");
+    let snapshot_cloud = bdis_core::formats::ply::read(&tmp.path().join("track-dark-snapshot.ply")).unwrap();
+    assert!(!snapshot_cloud.is_empty());
     let sc = summary(&c);
     let (rmse_dark, _) = ate(&dark, &c);
     eprintln!("with 10 black frames: ATE RMSE {rmse_dark:.3} mm; {sc}");

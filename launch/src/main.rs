@@ -9,8 +9,8 @@ use clap::{Parser, Subcommand};
 
 mod eval_cmd;
 mod map_cmd;
-mod snapshot_cmd;
 mod probe_cmd;
+mod snapshot_cmd;
 mod stereo_cmd;
 mod synth_cmd;
 

@@ -135,7 +135,14 @@ fn run(args: Args) -> Result<()> {
         if let Err(e) = pending.receive(&correction_subscriber) {
             break Some(e);
         }
-        match take_depth(&depth_subscriber, &correction_subscriber, &mut mosaic, &mut pending, &mut counters, &mut telemetry) {
+        match take_depth(
+            &depth_subscriber,
+            &correction_subscriber,
+            &mut mosaic,
+            &mut pending,
+            &mut counters,
+            &mut telemetry,
+        ) {
             Ok(eos) => end_of_stream = eos,
             Err(e) => break Some(e),
         }

@@ -1,1 +1,113 @@
-fn main() {}
+//! The mosaic update per keyframe at 640×480 (depth_gap 5: ~12 k points per keyframe), into maps of 10 and 100
+//! keyframes' worth of points. The camera slides along a textured wall 50 mm away, 5 mm per keyframe, so each new
+//! view overlaps the last dozen keyframes, as in a colonoscopy sweep. The update should not grow with the map
+//! (only overlapping keyframes are visited); beside it, the original's rule (every point of the map transformed
+//! and projected for every keyframe) for contrast.
+//!
+//! `cargo bench -p bdis-mosaic --bench mosaic`
+
+use std::hint::black_box;
+
+use bdis_mosaic::{DepthKeyframe, Intrinsics, Mosaic, MosaicParams};
+use criterion::{BatchSize, Criterion, criterion_group, criterion_main};
+use nalgebra::{Isometry3, Vector3};
+
+const W: u32 = 640;
+const H: u32 = 480;
+const STEP_MM: f64 = 5.0;
+
+fn intrinsics() -> Intrinsics {
+    Intrinsics { fx: 520.0, fy: 520.0, cx: 319.5, cy: 239.5, bf: 2600.0, width: W, height: H }
+}
+
+/// The wall's depth seen from camera `k` (at x = k · STEP_MM): 50 mm with a gentle relief in world x.
+struct View {
+    disparity: Vec<f32>,
+    confidence: Vec<f32>,
+    rgb: Vec<u8>,
+}
+
+fn view(k: u64) -> View {
+    let K = intrinsics();
+    let n = (W * H) as usize;
+    let mut v = View { disparity: vec![f32::NAN; n], confidence: vec![0.8; n], rgb: vec![0; 3 * n] };
+    for y in 0..H as usize {
+        for x in 0..W as usize {
+            // Intersect the ray with the wall z = 50 + 2 sin(world x / 7): a few fixed-point steps.
+            let (rx, ry) = ((x as f64 - K.cx) / K.fx, (y as f64 - K.cy) / K.fy);
+            let mut z = 50.0;
+            for _ in 0..4 {
+                let wx = k as f64 * STEP_MM + rx * z;
+                z = 50.0 + 2.0 * (wx / 7.0).sin() + 0.5 * (ry * z / 5.0).cos();
+            }
+            let i = y * W as usize + x;
+            v.disparity[i] = (K.bf / z) as f32;
+            let shade = (120.0 + 60.0 * ((x ^ y) as f64 * 0.05).sin()) as u8;
+            v.rgb[3 * i..3 * i + 3].copy_from_slice(&[shade, shade / 2, shade / 3]);
+        }
+    }
+    v
+}
+
+fn keyframe(k: u64, v: &View) -> DepthKeyframe<'_> {
+    DepthKeyframe {
+        kf_id: k,
+        t_capture_ns: k,
+        world_from_camera: Isometry3::translation(k as f64 * STEP_MM, 0.0, 0.0),
+        intrinsics: intrinsics(),
+        disparity: &v.disparity,
+        confidence: &v.confidence,
+        rgb: &v.rgb,
+    }
+}
+
+fn map_of(n: u64) -> Mosaic {
+    let mut m = Mosaic::new(MosaicParams::default());
+    for k in 0..n {
+        let v = view(k);
+        m.insert(&keyframe(k, &v)).expect("a valid keyframe");
+    }
+    m
+}
+
+/// The original's culling loop: every point of the map into the new camera and onto its image.
+fn every_point_projected(m: &Mosaic, camera_from_world: &Isometry3<f64>) -> usize {
+    let K = intrinsics();
+    let mut inside = 0;
+    m.for_each_world_point(|xyz, _, _| {
+        let p = camera_from_world * nalgebra::Point3::from(Vector3::from(xyz.map(f64::from)));
+        if p.z > 0.0 {
+            let (u, v) = (K.fx * p.x / p.z + K.cx, K.fy * p.y / p.z + K.cy);
+            inside += usize::from(u >= 0.0 && v >= 0.0 && u < f64::from(W) && v < f64::from(H));
+        }
+    });
+    inside
+}
+
+fn bench(c: &mut Criterion) {
+    let mut group = c.benchmark_group("mosaic_update_640x480");
+    for n in [10u64, 100] {
+        let map = map_of(n);
+        let next = view(n);
+        eprintln!("map of {n} keyframes: {} points", map.n_points());
+        group.bench_function(format!("into_{n}_keyframes"), |b| {
+            b.iter_batched(
+                || map.clone(),
+                |mut m| black_box(m.insert(&keyframe(n, &next)).expect("a valid keyframe")),
+                BatchSize::LargeInput,
+            )
+        });
+        let camera_from_world = Isometry3::translation(n as f64 * STEP_MM, 0.0, 0.0).inverse();
+        group.bench_function(format!("original_rule_scan_{n}_keyframes"), |b| {
+            b.iter(|| black_box(every_point_projected(&map, &camera_from_world)))
+        });
+    }
+    group.finish();
+}
+
+criterion_group! {
+    name = benches;
+    config = Criterion::default().sample_size(30);
+    targets = bench
+}
+criterion_main!(benches);
