@@ -105,15 +105,14 @@ fn main() -> ExitCode {
         Command::Probe(args) => probe_cmd::probe(args).map(|()| ExitCode::SUCCESS),
         Command::Demo(args) => demo(args),
         Command::Stereo(args) => stereo_cmd::stereo(args).map(|()| ExitCode::SUCCESS),
-        Command::Map(args) => map_cmd::map(args).map(|()| ExitCode::SUCCESS),
+        Command::Map(args) => {
+            // Its files are written before the summary line is printed.
+            quiet_on_closed_pipe();
+            map_cmd::map(args).map(|()| ExitCode::SUCCESS)
+        }
         Command::Snapshot(args) => snapshot_cmd::snapshot(args).map(|()| ExitCode::SUCCESS),
         Command::Eval(command) => {
-            // A report piped into `head` ends quietly, as other command-line tools do, instead of panicking on the
-            // closed pipe (eval starts no process and holds no shared memory, so dying on SIGPIPE loses nothing).
-            // SAFETY: restoring the default disposition of SIGPIPE before any thread exists.
-            unsafe {
-                libc::signal(libc::SIGPIPE, libc::SIG_DFL);
-            }
+            quiet_on_closed_pipe();
             eval_cmd::eval(command).map(|()| ExitCode::SUCCESS)
         }
         Command::Synth(args) => synth_cmd::synth(args).map(|()| ExitCode::SUCCESS),
@@ -267,6 +266,15 @@ fn run(args: RunArgs) -> Result<ExitCode> {
     };
     let (code, _) = execute_and_report(&launch, &launch_path, &run_dir, args.ipc_prefix.clone())?;
     Ok(code)
+}
+
+/// A report piped into `head` ends quietly, as other command-line tools do, instead of panicking on the closed
+/// pipe. Only for commands that start no process and hold no shared memory, so dying on SIGPIPE loses nothing.
+fn quiet_on_closed_pipe() {
+    // SAFETY: restoring the default disposition of SIGPIPE before any thread exists.
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+    }
 }
 
 fn make_run_dir(out: Option<&Path>, name: &str) -> Result<PathBuf> {

@@ -96,6 +96,11 @@ pub struct MosaicParams {
     /// uncertainty of a disparity error in either view). Farther behind, it is occluded and stays.
     pub depth_tolerance_mm: f64,
     pub disparity_tolerance_px: f64,
+    /// An earlier point that agrees with the new surface is kept, and the new view adds no point in that grid
+    /// cell, when the earlier keyframe saw it from less than this fraction of the new view's depth: depth error
+    /// grows with depth², so the closer look is the better one (a scope backing out of the colon no longer
+    /// overwrites close views with distant ones). 0 = the newest view always wins (Algorithm 1).
+    pub keep_closer_ratio: f32,
     pub fusion: Fusion,
     /// With [`Fusion::Weighted`], a point's accumulated weight stops growing here, so the map keeps following
     /// newer views.
@@ -111,6 +116,7 @@ impl Default for MosaicParams {
             min_disparity_px: 8.0,
             depth_tolerance_mm: 0.5,
             disparity_tolerance_px: 1.0,
+            keep_closer_ratio: 0.8,
             fusion: Fusion::Replace,
             max_weight: 8.0,
         }
@@ -119,13 +125,14 @@ impl Default for MosaicParams {
 
 impl MosaicParams {
     /// The names `--map-param NAME=VALUE` accepts.
-    pub const NAMES: [&str; 8] = [
+    pub const NAMES: [&str; 9] = [
         "depth_gap_px",
         "min_colour",
         "min_confidence",
         "min_disparity_px",
         "depth_tolerance_mm",
         "disparity_tolerance_px",
+        "keep_closer_ratio",
         "fusion",
         "max_weight",
     ];
@@ -151,6 +158,7 @@ impl MosaicParams {
             "min_disparity_px" => self.min_disparity_px = non_negative(name, num(name, value)?)? as f32,
             "depth_tolerance_mm" => self.depth_tolerance_mm = non_negative(name, num(name, value)?)?,
             "disparity_tolerance_px" => self.disparity_tolerance_px = non_negative(name, num(name, value)?)?,
+            "keep_closer_ratio" => self.keep_closer_ratio = non_negative(name, num(name, value)?)? as f32,
             "max_weight" => self.max_weight = non_negative(name, num(name, value)?)? as f32,
             "fusion" => {
                 self.fusion = match value.trim() {
@@ -235,6 +243,9 @@ pub struct InsertReport {
     pub removed: usize,
     /// Earlier points that projected onto the new valid depth but lay behind it, so were kept.
     pub kept_occluded: usize,
+    /// Earlier points that agreed with the new surface but had been seen from closer, so were kept (and the new
+    /// view added nothing in their cells).
+    pub kept_closer: usize,
     /// Earlier keyframes whose bounds intersected the new view (their points were tested).
     pub overlapping_keyframes: usize,
     /// Earlier points tested against the new view.
@@ -253,6 +264,8 @@ pub struct Mosaic {
     depth_scratch: Vec<f32>,
     fuse_weight: Vec<f32>,
     fuse_weighted_z: Vec<f32>,
+    /// Grid cells of the new view where an earlier, closer point was kept: no new point there.
+    covered: Vec<bool>,
 }
 
 fn check_pose(kf_id: u64, pose: &Isometry3<f64>) -> Result<(), MosaicError> {
@@ -273,6 +286,7 @@ impl Mosaic {
             depth_scratch: Vec::new(),
             fuse_weight: Vec::new(),
             fuse_weighted_z: Vec::new(),
+            covered: Vec::new(),
         }
     }
 
@@ -352,6 +366,8 @@ impl Mosaic {
         }
         let (gw, gh) = (w.div_ceil(gap), h.div_ceil(gap));
         let fuse = p.fusion == Fusion::Weighted;
+        self.covered.clear();
+        self.covered.resize(gw * gh, false);
         if fuse {
             self.fuse_weight.clear();
             self.fuse_weight.resize(gw * gh, 0.0);
@@ -377,6 +393,9 @@ impl Mosaic {
             let (abs_tol, disp_tol) = (p.depth_tolerance_mm as f32, p.disparity_tolerance_px as f32);
             let depth = &self.depth_scratch;
             let (fuse_weight, fuse_weighted_z) = (&mut self.fuse_weight, &mut self.fuse_weighted_z);
+            let covered = &mut self.covered;
+            let keep_closer = p.keep_closer_ratio;
+            let mut kept_closer = 0usize;
             let before = old.points.len();
             let mut kept_occluded = 0usize;
             old.points.retain(|pt| {
@@ -400,15 +419,22 @@ impl Mosaic {
                     kept_occluded += 1;
                     return true;
                 }
-                if fuse && (q.z - z_new).abs() <= tolerance {
-                    // The grid cell whose new point this earlier point is folded into.
-                    let cell = ((v + gap / 2) / gap).min(gh - 1) * gw + ((u + gap / 2) / gap).min(gw - 1);
+                // The grid cell of the new view this earlier point falls in.
+                let cell = ((v + gap / 2) / gap).min(gh - 1) * gw + ((u + gap / 2) / gap).min(gw - 1);
+                let agrees = (q.z - z_new).abs() <= tolerance;
+                if agrees && z_old_own < keep_closer * z_new {
+                    covered[cell] = true;
+                    kept_closer += 1;
+                    return true;
+                }
+                if fuse && agrees {
                     fuse_weight[cell] += pt.weight;
                     fuse_weighted_z[cell] += pt.weight * q.z;
                 }
                 false
             });
             report.kept_occluded += kept_occluded;
+            report.kept_closer += kept_closer;
             let removed = before - old.points.len();
             report.removed += removed;
             if removed > 0 {
@@ -429,7 +455,7 @@ impl Mosaic {
             for u in (0..w).step_by(gap) {
                 let i = v * w + u;
                 let mut z = self.depth_scratch[i];
-                if !z.is_finite() {
+                if !z.is_finite() || self.covered[(v / gap) * gw + u / gap] {
                     continue;
                 }
                 let confidence = kf.confidence[i];

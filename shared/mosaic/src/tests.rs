@@ -296,3 +296,32 @@ fn parameters_are_set_by_name_and_bad_values_say_which() {
     assert!(p.apply_overrides(&["gap=3".into()]).unwrap_err().contains("depth_gap_px"));
     assert!(p.apply_overrides(&["min_confidence=-1".into()]).unwrap_err().contains("min_confidence"));
 }
+
+#[test]
+fn a_closer_earlier_view_is_not_overwritten_by_a_distant_one() {
+    // Keyframe 0 sees the wall from 30 mm; keyframe 1 backs off to 50 mm (depth error ×2.8) and sees it again.
+    let near = views(|_, _| Some(30.0), [100, 100, 100]);
+    let far = views(|_, _| Some(50.0), [150, 150, 150]);
+    let mut m = Mosaic::new(MosaicParams::default());
+    m.insert(&keyframe(0, Isometry3::identity(), &near)).unwrap();
+    let n0 = m.n_points();
+    let r = m.insert(&keyframe(1, Isometry3::translation(0.0, 0.0, -20.0), &far)).unwrap();
+    assert_eq!((r.removed, r.kept_closer), (0, n0), "{r:?}");
+    // Keyframe 1 adds only around keyframe 0's patch (its wider view of the wall), nothing on top of it.
+    let k = intrinsics();
+    let (half_w, half_h) = (f64::from(W) / 2.0 / k.fx * 30.0 - 1.0, f64::from(H) / 2.0 / k.fy * 30.0 - 1.0);
+    let new_points = &m.keyframe(1).unwrap().points;
+    let on_top =
+        new_points.iter().filter(|p| f64::from(p.xyz[0]).abs() < half_w && f64::from(p.xyz[1]).abs() < half_h).count();
+    assert_eq!(on_top, 0);
+    assert!(new_points.len() > 400, "the wider view adds the wall around: {}", new_points.len());
+    // The other way round, the closer view replaces the distant one (and with the ratio at 0, always the newest).
+    let mut m = Mosaic::new(MosaicParams::default());
+    m.insert(&keyframe(0, Isometry3::translation(0.0, 0.0, -20.0), &far)).unwrap();
+    let r = m.insert(&keyframe(1, Isometry3::identity(), &near)).unwrap();
+    assert!(r.removed > 0 && r.kept_closer == 0, "{r:?}");
+    let mut m = Mosaic::new(MosaicParams { keep_closer_ratio: 0.0, ..MosaicParams::default() });
+    m.insert(&keyframe(0, Isometry3::identity(), &near)).unwrap();
+    let r = m.insert(&keyframe(1, Isometry3::translation(0.0, 0.0, -20.0), &far)).unwrap();
+    assert_eq!((r.removed, r.kept_closer), (n0, 0));
+}
