@@ -428,8 +428,9 @@ fn demo(args: DemoArgs) -> Result<ExitCode> {
             m["corrections_applied"],
             m["update_ms_p50"].as_f64().unwrap_or(f64::NAN)
         );
-        // The map against the renderer's mesh, brought into its frame by the trajectory's alignment.
-        let trajectory = run_dir.join("trajectory.tum");
+        // The map against the renderer's mesh, brought into its frame by the alignment of the keyframe trajectory
+        // (the poses that place the map's points).
+        let trajectory = run_dir.join("keyframes.tum");
         let gt_poses = sequence.join("gt/poses.tum");
         match eval_cmd::score_map_file(
             &sequence.join("gt/mesh.ply"),

@@ -6,6 +6,8 @@
 //!
 //! `cargo bench -p bdis-mosaic --bench mosaic`
 
+#![allow(clippy::expect_used)] // a benchmark on generated data: a failure is a bug to see at once
+
 use std::hint::black_box;
 
 use bdis_mosaic::{DepthKeyframe, Intrinsics, Mosaic, MosaicParams};
@@ -28,20 +30,20 @@ struct View {
 }
 
 fn view(k: u64) -> View {
-    let K = intrinsics();
+    let cam = intrinsics();
     let n = (W * H) as usize;
     let mut v = View { disparity: vec![f32::NAN; n], confidence: vec![0.8; n], rgb: vec![0; 3 * n] };
     for y in 0..H as usize {
         for x in 0..W as usize {
             // Intersect the ray with the wall z = 50 + 2 sin(world x / 7): a few fixed-point steps.
-            let (rx, ry) = ((x as f64 - K.cx) / K.fx, (y as f64 - K.cy) / K.fy);
+            let (rx, ry) = ((x as f64 - cam.cx) / cam.fx, (y as f64 - cam.cy) / cam.fy);
             let mut z = 50.0;
             for _ in 0..4 {
                 let wx = k as f64 * STEP_MM + rx * z;
                 z = 50.0 + 2.0 * (wx / 7.0).sin() + 0.5 * (ry * z / 5.0).cos();
             }
             let i = y * W as usize + x;
-            v.disparity[i] = (K.bf / z) as f32;
+            v.disparity[i] = (cam.bf / z) as f32;
             let shade = (120.0 + 60.0 * ((x ^ y) as f64 * 0.05).sin()) as u8;
             v.rgb[3 * i..3 * i + 3].copy_from_slice(&[shade, shade / 2, shade / 3]);
         }
@@ -72,12 +74,12 @@ fn map_of(n: u64) -> Mosaic {
 
 /// The original's culling loop: every point of the map into the new camera and onto its image.
 fn every_point_projected(m: &Mosaic, camera_from_world: &Isometry3<f64>) -> usize {
-    let K = intrinsics();
+    let cam = intrinsics();
     let mut inside = 0;
     m.for_each_world_point(|xyz, _, _| {
         let p = camera_from_world * nalgebra::Point3::from(Vector3::from(xyz.map(f64::from)));
         if p.z > 0.0 {
-            let (u, v) = (K.fx * p.x / p.z + K.cx, K.fy * p.y / p.z + K.cy);
+            let (u, v) = (cam.fx * p.x / p.z + cam.cx, cam.fy * p.y / p.z + cam.cy);
             inside += usize::from(u >= 0.0 && v >= 0.0 && u < f64::from(W) && v < f64::from(H));
         }
     });
@@ -89,11 +91,21 @@ fn bench(c: &mut Criterion) {
     for n in [10u64, 100] {
         let map = map_of(n);
         let next = view(n);
-        eprintln!("map of {n} keyframes: {} points", map.n_points());
+        let report = map.clone().insert(&keyframe(n, &next)).expect("a valid keyframe");
+        eprintln!(
+            "map of {n} keyframes: {} points; the next keyframe visits {} keyframes, tests {} points",
+            map.n_points(),
+            report.overlapping_keyframes,
+            report.tested
+        );
         group.bench_function(format!("into_{n}_keyframes"), |b| {
             b.iter_batched(
                 || map.clone(),
-                |mut m| black_box(m.insert(&keyframe(n, &next)).expect("a valid keyframe")),
+                // The map is returned so that dropping it is not timed.
+                |mut m| {
+                    black_box(m.insert(&keyframe(n, &next)).expect("a valid keyframe"));
+                    m
+                },
                 BatchSize::LargeInput,
             )
         });
