@@ -301,16 +301,36 @@ fn publish_corrections(
         return Ok(());
     }
     *generation += 1;
-    for &k in &report.moved {
-        let pose = tracker.map.keyframes[k].camera_from_world.inverse();
+    let send = |k: usize, culled: u32| -> Result<()> {
+        let pose = tracker.map.keyframe_pose(k).inverse();
         let record = KeyframePose {
             kf_id: k as u64,
             world_from_camera: pose_to_array(&pose),
             generation: *generation,
-            culled: 0,
+            culled,
             reserved: 0,
         };
         publisher.send_copy(record).map_err(|e| anyhow!("send a correction: {e:?}"))?;
+        Ok(())
+    };
+    for &k in &report.moved {
+        send(k, 0)?;
+    }
+    // A culled keyframe's pose follows its parent's (the mosaic keeps its dense points): it moved too when the
+    // first live keyframe up its parent chain did.
+    let moved: std::collections::BTreeSet<usize> = report.moved.iter().copied().collect();
+    let keyframes = &tracker.map.keyframes;
+    for k in (0..keyframes.len()).filter(|&k| keyframes[k].bad) {
+        let mut ancestor = keyframes[k].parent;
+        for _ in 0..keyframes.len() {
+            match ancestor {
+                Some(a) if keyframes[a].bad => ancestor = keyframes[a].parent,
+                _ => break,
+            }
+        }
+        if ancestor.is_some_and(|a| moved.contains(&a)) {
+            send(k, 1)?;
+        }
     }
     bdis_ipc::notify(events, event_id::NEW_SAMPLE)?;
     Ok(())
