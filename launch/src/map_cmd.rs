@@ -26,13 +26,14 @@ pub struct MapArgs {
     /// `--every`-th frame.
     #[arg(long)]
     keyframes: Option<PathBuf>,
+    /// Without --keyframes: every N-th frame is a keyframe.
     #[arg(long, default_value_t = 7, conflicts_with = "keyframes")]
     every: usize,
     /// Output folder: map.ply, map.png, map.bin.
     #[arg(long)]
     out: PathBuf,
     /// Override a map parameter, e.g. `--map-param fusion=weighted` (repeatable; names: depth_gap_px,
-    /// min_colour, min_confidence, min_disparity_px, depth_tolerance_mm, disparity_tolerance_px, fusion,
+    /// min_colour, min_confidence, min_disparity_px, depth_tolerance_mm, disparity_tolerance_px, keep_closer_ratio, fusion,
     /// max_weight).
     #[arg(long = "map-param", value_name = "NAME=VALUE")]
     map_params: Vec<String>,

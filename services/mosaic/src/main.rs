@@ -31,7 +31,7 @@ struct Args {
     #[arg(long)]
     load: Option<PathBuf>,
     /// Override a map parameter, e.g. `--map-param fusion=weighted` (repeatable; names: depth_gap_px,
-    /// min_colour, min_confidence, min_disparity_px, depth_tolerance_mm, disparity_tolerance_px, fusion,
+    /// min_colour, min_confidence, min_disparity_px, depth_tolerance_mm, disparity_tolerance_px, keep_closer_ratio, fusion,
     /// max_weight).
     #[arg(long = "map-param", value_name = "NAME=VALUE")]
     map_params: Vec<String>,

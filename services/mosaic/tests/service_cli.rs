@@ -123,4 +123,7 @@ fn help_names_the_outputs() {
     assert!(out.status.success());
     let text = String::from_utf8_lossy(&out.stdout);
     assert!(text.contains("--load") && text.contains("map.ply") && text.contains("--map-param"), "{text}");
+    for name in MosaicParams::NAMES {
+        assert!(text.contains(name), "--help names every map parameter; `{name}` is missing");
+    }
 }
