@@ -99,8 +99,10 @@ fn run(args: Args) -> Result<()> {
         corrections.subscriber_builder().create().map_err(|e| iox("create the corrections subscriber")(&e))?;
     let correction_events = ipc.listener(&ipc.events(Topic::Corrections)?)?;
     let snapshots = ipc.map_snapshot()?;
-    // Room for a typical map (200 k points, 4 MB); the segment grows by powers of two beyond.
-    let server = bdis_ipc::map::map_server(&snapshots, 200_000)?;
+    // Room for 32 k points (640 kB) to start with; the segment grows by powers of two with the map. The pool
+    // holds a response for each request that can be in flight, so a large start would reserve (virtually) that
+    // many times the size in /dev/shm.
+    let server = bdis_ipc::map::map_server(&snapshots, 32_768)?;
     let snapshot_service_events = ipc.map_snapshot_events()?;
     let snapshot_requests = ipc.listener(&snapshot_service_events)?;
     let snapshot_responses = ipc.notifier(&snapshot_service_events)?;

@@ -125,12 +125,26 @@ mod tests {
         let mut h = DepthHeader { kf_id: 3, ..Default::default() };
         h.set_layout(4, 2);
         assert_eq!(DepthHeader::payload_len(4, 2), 88);
-        // An 8-aligned buffer, as the service's payload alignment guarantees.
+        // An 8-aligned buffer, as the payload in a sample is (see the next test).
         let storage = [0u64; 11];
         // SAFETY: u64 storage viewed as bytes, for the test.
         let payload = unsafe { std::slice::from_raw_parts(storage.as_ptr().cast::<u8>(), 88) };
         let v = DepthView::new(&h, payload).unwrap();
         assert_eq!((v.disparity.len(), v.confidence.len(), v.rgb.len()), (8, 8, 24));
         assert!(matches!(DepthView::new(&h, &payload[..87]), Err(DepthLayoutError::PayloadTooShort { .. })));
+    }
+
+    #[test]
+    #[allow(clippy::unwrap_used)]
+    fn a_loaned_payload_is_8_aligned_without_a_payload_alignment_override() {
+        let prefix = format!("bipcdal{}_", std::process::id());
+        let ipc = crate::Ipc::open("depth-align", &prefix).unwrap();
+        let service = ipc.depth().unwrap();
+        let bytes = DepthHeader::payload_len(64, 48);
+        let publisher = ipc.depth_publisher(&service, bytes).unwrap();
+        for _ in 0..3 {
+            let loan = publisher.loan_slice_uninit(bytes).unwrap();
+            assert_eq!(loan.payload().as_ptr() as usize % 8, 0);
+        }
     }
 }

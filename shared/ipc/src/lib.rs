@@ -394,14 +394,15 @@ impl Ipc {
 
     pub fn depth(&self) -> Result<DepthService, IpcError> {
         let name = Self::service_name(Topic::Depth)?;
-        let alignment =
-            Alignment::new(8).ok_or_else(|| IpcError::Contract { topic: "depth", detail: "alignment 8".into() })?;
+        // No `payload_alignment`: iceoryx2 0.10 pads every *element* of a slice to the payload alignment
+        // (`chunk_layout`: align(size, alignment) × elements), so alignment 8 on `[u8]` reserved 8× the bytes —
+        // 513 MB of /dev/shm for 640×480 depth instead of 64 MB. The float arrays are aligned anyway: the payload
+        // follows the 8-aligned `DepthHeader`, whose size is a multiple of 8, and `DepthView` checks it.
         Self::with_retry("open the depth service", || {
             self.node
                 .service_builder(&name)
                 .publish_subscribe::<[u8]>()
                 .user_header::<DepthHeader>()
-                .payload_alignment(alignment)
                 .max_publishers(qos::DEPTH_MAX_PUBLISHERS)
                 .max_subscribers(qos::DEPTH_MAX_SUBSCRIBERS)
                 .max_nodes(qos::MAX_NODES)
