@@ -86,6 +86,9 @@ fn streams_every_hamlyn6_frame_in_order_and_reads_it_in_place() {
     }
     assert!(run_dir.join("logs/acquisition.log").is_file() && run_dir.join("logs/probe.log").is_file());
     assert!(run_dir.join("launch.toml").is_file());
+    // The same figures drawn: a bar for the hop.
+    let plot = std::fs::read_to_string(run_dir.join("latency.svg")).unwrap();
+    assert!(plot.starts_with("<svg") && plot.contains("acquisition→probe (frames)"), "{plot}");
     assert_no_leftovers(&prefix);
 }
 

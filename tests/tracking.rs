@@ -48,6 +48,17 @@ fn track(tmp: &TempDir, seq: &Path, tag: &str, snapshot: bool) -> (PathBuf, Opti
                 let line = text(&o.stdout);
                 // "<file>: N of M map points …": done once the map has points.
                 if o.status.success() && !line.contains(": 0 of") {
+                    // Patients' images live in these files while the pipeline runs: owner-only.
+                    let shm: Vec<_> = std::fs::read_dir("/dev/shm")
+                        .unwrap()
+                        .flatten()
+                        .filter(|e| e.file_name().to_string_lossy().starts_with(prefix.as_str()))
+                        .collect();
+                    assert!(!shm.is_empty(), "the run's shared memory is under /dev/shm/{prefix}*");
+                    for e in shm {
+                        let mode = std::os::unix::fs::PermissionsExt::mode(&e.metadata().unwrap().permissions());
+                        assert_eq!(mode & 0o077, 0, "{:?} is readable by others: {mode:o}", e.path());
+                    }
                     return Some(line);
                 }
                 // The pipeline is still starting (no mosaic service yet) or the map is still empty.

@@ -325,6 +325,9 @@ fn execute_and_report(
     let latency_path = run_dir.join("latency.json");
     std::fs::write(&latency_path, serde_json::to_string_pretty(&json)?)
         .with_context(|| format!("{}: cannot write", latency_path.display()))?;
+    let plot_path = run_dir.join("latency.svg");
+    std::fs::write(&plot_path, result.latency.svg())
+        .with_context(|| format!("{}: cannot write", plot_path.display()))?;
 
     println!();
     print!("{}", result.latency.table());
@@ -468,11 +471,11 @@ fn demo(args: DemoArgs) -> Result<ExitCode> {
         preview.display()
     );
     println!(
-        "              {} (open in any point-cloud viewer), {} and {} (trajectory), {}",
+        "              {} (open in any point-cloud viewer), {} and {} (trajectory), {} (latency, drawn)",
         run_dir.join("map.ply").display(),
         run_dir.join("trajectory.tum").display(),
         run_dir.join("keyframes.tum").display(),
-        run_dir.join("latency.json").display()
+        run_dir.join("latency.svg").display()
     );
     Ok(code)
 }
