@@ -367,7 +367,9 @@ impl LatencyReport {
         let processing: Vec<ChartRow> = self
             .processes
             .iter()
-            .filter_map(|p| p.processing_us.as_ref().map(|q| ChartRow { label: format!("{} ({} msgs)", p.name, p.messages), p: q }))
+            .filter_map(|p| {
+                p.processing_us.as_ref().map(|q| ChartRow { label: format!("{} ({} msgs)", p.name, p.messages), p: q })
+            })
             .collect();
         let age: Vec<ChartRow> = self
             .processes
@@ -466,7 +468,12 @@ mod tests {
         };
         let report = LatencyReport {
             processes: vec![process("fast", 50.0), process("slow<&>", 20_000.0)],
-            hops: vec![HopReport { from: "fast".into(), to: "slow<&>".into(), topic: "frames".into(), latency_us: p(80.0) }],
+            hops: vec![HopReport {
+                from: "fast".into(),
+                to: "slow<&>".into(),
+                topic: "frames".into(),
+                latency_us: p(80.0),
+            }],
             telemetry_records_lost: 0,
         };
         let svg = report.svg();
