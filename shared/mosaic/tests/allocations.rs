@@ -1,0 +1,78 @@
+#![allow(clippy::unwrap_used, clippy::expect_used)] // test code: a panic is the failure report
+//! A warmed-up keyframe update allocates only the new keyframe's own storage: the per-pixel depth image, the
+//! fusion accumulators and the covered-cell flags are buffers the map reuses; removal works in place.
+
+use std::alloc::{GlobalAlloc, Layout, System};
+use std::cell::Cell;
+
+use bdis_mosaic::{DepthKeyframe, Fusion, Intrinsics, Mosaic, MosaicParams};
+use nalgebra::Isometry3;
+
+struct Counting;
+thread_local! {
+    static ALLOCATIONS: Cell<usize> = const { Cell::new(0) };
+    static BYTES: Cell<usize> = const { Cell::new(0) };
+}
+
+fn count(bytes: usize) {
+    let _ = ALLOCATIONS.try_with(|c| c.set(c.get() + 1));
+    let _ = BYTES.try_with(|c| c.set(c.get() + bytes));
+}
+
+unsafe impl GlobalAlloc for Counting {
+    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
+        count(layout.size());
+        unsafe { System.alloc(layout) }
+    }
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
+        unsafe { System.dealloc(ptr, layout) }
+    }
+    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
+        count(new_size);
+        unsafe { System.realloc(ptr, layout, new_size) }
+    }
+}
+
+#[global_allocator]
+static GLOBAL: Counting = Counting;
+
+const W: u32 = 320;
+const H: u32 = 240;
+
+#[test]
+fn a_warmed_up_keyframe_allocates_only_its_own_points() {
+    let k = Intrinsics { fx: 260.0, fy: 260.0, cx: 159.5, cy: 119.5, bf: 1300.0, width: W, height: H };
+    let n = (W * H) as usize;
+    let disparity: Vec<f32> = (0..n).map(|i| 30.0 + (i % W as usize) as f32 * 0.02).collect();
+    let confidence = vec![0.8f32; n];
+    let rgb = vec![120u8; 3 * n];
+    for fusion in [Fusion::Replace, Fusion::Weighted] {
+        let mut map = Mosaic::new(MosaicParams { fusion, ..MosaicParams::default() });
+        let keyframe = |id: u64| DepthKeyframe {
+            kf_id: id,
+            t_capture_ns: id,
+            // Sliding sideways 3 mm per keyframe: each view overlaps the previous ones and replaces points.
+            world_from_camera: Isometry3::translation(3.0 * id as f64, 0.0, 0.0),
+            intrinsics: k,
+            disparity: &disparity,
+            confidence: &confidence,
+            rgb: &rgb,
+        };
+        for id in 0..5 {
+            map.insert(&keyframe(id)).unwrap();
+        }
+        for id in 5..10 {
+            let (a0, b0) = (ALLOCATIONS.with(Cell::get), BYTES.with(Cell::get));
+            let report = map.insert(&keyframe(id)).unwrap();
+            let (allocations, bytes) = (ALLOCATIONS.with(Cell::get) - a0, BYTES.with(Cell::get) - b0);
+            assert!(report.removed > 0 && report.added > 0, "{report:?}");
+            // The new keyframe's point vector, and at most one node of the keyframe index.
+            assert!(allocations <= 2, "{fusion:?}, keyframe {id}: {allocations} allocations");
+            let points_bytes = (W.div_ceil(5) * H.div_ceil(5)) as usize * size_of::<bdis_mosaic::MosaicPoint>();
+            assert!(
+                bytes <= points_bytes + 4096,
+                "{fusion:?}, keyframe {id}: {bytes} bytes for {points_bytes} of points"
+            );
+        }
+    }
+}
