@@ -119,6 +119,8 @@ fn run(args: Args) -> Result<()> {
     let mut counters = Counters::default();
     let mut pending = PendingCorrections::default();
     let mut end_of_stream = false;
+    // Keyframes inserted when map.bin was last saved.
+    let mut checkpointed = 0u64;
     telemetry.ready();
     tracing::info!("mosaic ready ({} keyframes, {} points)", mosaic.n_keyframes(), mosaic.n_points());
     let failure = loop {
@@ -152,15 +154,14 @@ fn run(args: Args) -> Result<()> {
             Ok(n) => counters.snapshots += n,
             Err(e) => break Some(e),
         }
-        if args.save_every > 0
-            && counters.inserted > 0
-            && counters.inserted.is_multiple_of(args.save_every)
-            && counters.update_ms.len() as u64 == counters.inserted
-        {
-            // A checkpoint: everything made so far survives a crash of this process.
+        if args.save_every > 0 && counters.inserted >= checkpointed + args.save_every && !end_of_stream {
+            // A checkpoint: everything made so far survives a crash of this process. (At the end of the stream
+            // the map is written whole below.)
+            // A failed checkpoint is reported and tried again N keyframes later, not at every wake-up.
             if let Err(e) = bdis_mosaic::save(&mosaic, &out_dir.join("map.bin")) {
                 tracing::warn!("checkpoint: {e}");
             }
+            checkpointed = counters.inserted;
         }
         if end_of_stream {
             tracing::info!("end of stream after {} keyframes", counters.inserted);
