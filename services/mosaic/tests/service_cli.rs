@@ -80,9 +80,10 @@ fn a_saved_map_is_resumed_and_written_out_when_the_service_is_stopped() {
 
     let out = dir.join("run");
     std::fs::create_dir_all(&out).unwrap();
+    let run_prefix = format!("bmosres{}_", std::process::id());
     let mut child = Command::new(env!("CARGO_BIN_EXE_bdis-mosaic"))
         .args(["--load", saved.to_str().unwrap(), "--out", out.to_str().unwrap()])
-        .env("BDIS_IPC_PREFIX", format!("bmosres{}_", std::process::id()))
+        .env("BDIS_IPC_PREFIX", &run_prefix)
         .env("RUST_LOG", "info")
         .stderr(Stdio::piped())
         .spawn()
@@ -103,6 +104,12 @@ fn a_saved_map_is_resumed_and_written_out_when_the_service_is_stopped() {
     let mut rest = String::new();
     std::io::Read::read_to_string(&mut log, &mut rest).unwrap();
     let status = child.wait().unwrap();
+    // iceoryx2 keeps the run's global management file after the last node (the launcher removes it after a run).
+    for e in std::fs::read_dir("/dev/shm").into_iter().flatten().flatten() {
+        if e.file_name().to_string_lossy().starts_with(run_prefix.as_str()) {
+            let _ = std::fs::remove_file(e.path());
+        }
+    }
     assert!(status.success(), "{status}: {seen}{rest}");
 
     let cloud = bdis_core::formats::ply::read(&out.join("map.ply")).unwrap();

@@ -146,5 +146,7 @@ mod tests {
             let loan = publisher.loan_slice_uninit(bytes).unwrap();
             assert_eq!(loan.payload().as_ptr() as usize % 8, 0);
         }
+        drop((publisher, service, ipc));
+        crate::tests::remove_run_files(&prefix);
     }
 }

@@ -205,6 +205,7 @@ impl Ipc {
             .config(&config)
             .create::<ipc::Service>()
             .map_err(iox(format!("create iceoryx2 node `{node_name}` (prefix `{prefix}`)")))?;
+        restrict_global_management(prefix);
         Ok(Self { node, prefix: prefix.to_string() })
     }
 
@@ -459,6 +460,25 @@ fn slice_publisher<H: Debug + ZeroCopySend>(
         .map_err(iox(what))
 }
 
+/// iceoryx2 0.10 creates the run's global management segment (`/dev/shm/<prefix>…global_mgmt`, 16 bytes) with
+/// mode 0666 — readable and writable by every user — while every other file of the run, frames included, is 0600.
+/// A run is one user's processes, so it is narrowed to 0600: other users can neither read nor disturb a run.
+/// Best effort (a file of another user is left alone); the first node of a run (the launcher's) does it.
+fn restrict_global_management(prefix: &str) {
+    use std::os::unix::fs::PermissionsExt;
+    let Ok(entries) = std::fs::read_dir("/dev/shm") else { return };
+    for entry in entries.flatten() {
+        let name = entry.file_name();
+        let name = name.to_string_lossy();
+        if name.starts_with(prefix)
+            && name.ends_with("global_mgmt")
+            && entry.metadata().is_ok_and(|m| m.permissions().mode() & 0o077 != 0)
+        {
+            let _ = std::fs::set_permissions(entry.path(), std::fs::Permissions::from_mode(0o600));
+        }
+    }
+}
+
 /// Notifies with one of the [`event_id`]s.
 pub fn notify(notifier: &Notifier<ipc::Service>, id: usize) -> Result<usize, IpcError> {
     notifier.notify_with_custom_event_id(EventId::new(id)).map_err(iox("notify"))
@@ -520,5 +540,38 @@ mod tests {
             assert_eq!(Topic::parse(t.service_name()), Some(t));
         }
         assert_eq!(Topic::parse("nope"), None);
+    }
+
+    #[test]
+    #[allow(clippy::unwrap_used)]
+    fn no_file_of_a_run_is_accessible_by_other_users() {
+        use std::os::unix::fs::PermissionsExt;
+        let prefix = format!("bipcperm{}_", std::process::id());
+        let ipc = Ipc::open("perm-test", &prefix).unwrap();
+        let frames = ipc.frames().unwrap();
+        let _publisher = ipc.frame_publisher(&frames, 1024).unwrap();
+        let _events = ipc.events(Topic::Frames).unwrap();
+        let files: Vec<_> = std::fs::read_dir("/dev/shm")
+            .unwrap()
+            .flatten()
+            .filter(|e| e.file_name().to_string_lossy().starts_with(prefix.as_str()))
+            .collect();
+        assert!(files.iter().any(|e| e.file_name().to_string_lossy().ends_with("global_mgmt")), "{files:?}");
+        for e in &files {
+            let mode = e.metadata().unwrap().permissions().mode();
+            assert_eq!(mode & 0o077, 0, "{:?}: mode {mode:o}", e.path());
+        }
+        drop(ipc);
+        // iceoryx2 keeps the global management file after the last node; a test leaves nothing behind.
+        remove_run_files(&prefix);
+    }
+
+    /// Removes what a test run with `prefix` left in /dev/shm.
+    pub(crate) fn remove_run_files(prefix: &str) {
+        for e in std::fs::read_dir("/dev/shm").into_iter().flatten().flatten() {
+            if e.file_name().to_string_lossy().starts_with(prefix) {
+                let _ = std::fs::remove_file(e.path());
+            }
+        }
     }
 }
