@@ -30,8 +30,9 @@ fn render(dir: &Path) {
 }
 
 /// Runs the tracking pipeline on `seq`; returns the run folder. With `snapshot`, a map snapshot is requested
-/// over request-response while it runs (retried until the mosaic service answers with points); its output line
-/// is returned too.
+/// over request-response while it runs (retried until the mosaic service answers with points; its output line
+/// is returned too), the run's shared-memory files are checked to be owner-only, and `bdis-slam top` must show
+/// every service.
 fn track(tmp: &TempDir, seq: &Path, tag: &str, snapshot: bool) -> (PathBuf, Option<String>) {
     let run_dir = tmp.path().join(tag);
     let prefix = prefix(tag);
@@ -58,6 +59,17 @@ fn track(tmp: &TempDir, seq: &Path, tag: &str, snapshot: bool) -> (PathBuf, Opti
                     for e in shm {
                         let mode = std::os::unix::fs::PermissionsExt::mode(&e.metadata().unwrap().permissions());
                         assert_eq!(mode & 0o077, 0, "{:?} is readable by others: {mode:o}", e.path());
+                    }
+                    // The live view of the same run: every service, with its rate and latency.
+                    let top = Command::new(bdis_slam())
+                        .args(["top", "--ipc-prefix", &prefix, "--iterations", "2", "--interval", "0.5"])
+                        .output()
+                        .unwrap();
+                    let view = text(&top.stdout);
+                    assert!(top.status.success(), "{}", text(&top.stderr));
+                    for service in ["acquisition", "tracking", "stereo", "mosaic", "stereo→mosaic (depth)", "running"]
+                    {
+                        assert!(view.contains(service), "`bdis-slam top` shows {service}:\n{view}");
                     }
                     return Some(line);
                 }

@@ -14,6 +14,7 @@ mod probe_cmd;
 mod snapshot_cmd;
 mod stereo_cmd;
 mod synth_cmd;
+mod top_cmd;
 
 /// bdis-slam: lightweight CPU-only dense stereo SLAM for minimally invasive surgery, as separate processes
 /// over zero-copy shared memory.
@@ -36,6 +37,8 @@ enum Command {
     Stereo(stereo_cmd::StereoArgs),
     /// Build the dense map offline from a sequence and a trajectory (BDIS + mosaic): map.ply, map.png, map.bin.
     Map(map_cmd::MapArgs),
+    /// A live view of a running pipeline: every service's rate, latency, CPU and core, redrawn in place.
+    Top(top_cmd::TopArgs),
     /// Benchmarks of the whole pipeline (`bench isolation`).
     #[command(subcommand)]
     Bench(BenchCommand),
@@ -140,6 +143,7 @@ fn main() -> ExitCode {
         }
         Command::Snapshot(args) => snapshot_cmd::snapshot(args).map(|()| ExitCode::SUCCESS),
         Command::Bench(BenchCommand::Isolation(args)) => bench_isolation(args),
+        Command::Top(args) => top_cmd::top(args).map(|()| ExitCode::SUCCESS),
         Command::Eval(command) => {
             quiet_on_closed_pipe();
             eval_cmd::eval(command).map(|()| ExitCode::SUCCESS)
