@@ -126,12 +126,7 @@ fn map_score(seq: &Path, run_dir: &Path) -> serde_json::Value {
 fn keyframe_alignment(seq: &Path, run_dir: &Path) -> Vec<f64> {
     let gt = read_tum(&seq.join("gt/poses.tum")).unwrap();
     let est = read_tum(&run_dir.join("keyframes.tum")).unwrap();
-    let pairs = bdis_eval::traj::associate(&gt, &est, 0.01);
-    let src: Vec<_> =
-        pairs.iter().map(|&(_, j)| nalgebra::Point3::from(est[j].world_from_camera.translation.vector)).collect();
-    let dst: Vec<_> =
-        pairs.iter().map(|&(i, _)| nalgebra::Point3::from(gt[i].world_from_camera.translation.vector)).collect();
-    let m = bdis_eval::traj::umeyama_se3(&src, &dst).unwrap().to_homogeneous();
+    let m = bdis_eval::traj::align_se3(&gt, &est, 0.01).unwrap().to_homogeneous();
     (0..4).flat_map(|r| (0..4).map(move |c| m[(r, c)])).collect()
 }
 

@@ -226,12 +226,7 @@ pub fn score_map_file(
         map.positions.iter().map(|p| Point3::new(f64::from(p[0]), f64::from(p[1]), f64::from(p[2]))).collect();
     if let Some((est, gt)) = align {
         let (est, gt) = (trajectory::read_tum(est)?, trajectory::read_tum(gt)?);
-        let pairs = bdis_eval::traj::associate(&gt, &est, 0.01);
-        let src: Vec<Point3<f64>> =
-            pairs.iter().map(|&(_, j)| Point3::from(est[j].world_from_camera.translation.vector)).collect();
-        let dst: Vec<Point3<f64>> =
-            pairs.iter().map(|&(i, _)| Point3::from(gt[i].world_from_camera.translation.vector)).collect();
-        let gt_from_est = bdis_eval::traj::umeyama_se3(&src, &dst).context("--align-est / --align-gt")?;
+        let gt_from_est = bdis_eval::traj::align_se3(&gt, &est, 0.01).context("--align-est / --align-gt")?;
         for p in &mut points {
             *p = gt_from_est * *p;
         }

@@ -88,23 +88,37 @@ pub struct Rpe {
     pub rotation_deg: Stats,
 }
 
-/// ATE of `est` against `gt` after SE(3) alignment (`evo_ape tum gt est -a`).
-pub fn ate(gt: &[StampedPose], est: &[StampedPose], max_dt_s: f64) -> Result<Ate, TrajError> {
+/// Camera positions of time-matched poses: (estimate, ground truth).
+type MatchedPositions = (Vec<Point3<f64>>, Vec<Point3<f64>>);
+
+/// The camera positions of the time-matched poses, at least 3 pairs.
+fn matched_positions(gt: &[StampedPose], est: &[StampedPose], max_dt_s: f64) -> Result<MatchedPositions, TrajError> {
     let pairs = associate(gt, est, max_dt_s);
     if pairs.len() < 3 {
         return Err(TrajError::TooFewPairs { pairs: pairs.len(), max_dt_s });
     }
-    let src: Vec<Point3<f64>> =
-        pairs.iter().map(|&(_, j)| Point3::from(est[j].world_from_camera.translation.vector)).collect();
-    let dst: Vec<Point3<f64>> =
-        pairs.iter().map(|&(i, _)| Point3::from(gt[i].world_from_camera.translation.vector)).collect();
+    let src = pairs.iter().map(|&(_, j)| Point3::from(est[j].world_from_camera.translation.vector)).collect();
+    let dst = pairs.iter().map(|&(i, _)| Point3::from(gt[i].world_from_camera.translation.vector)).collect();
+    Ok((src, dst))
+}
+
+/// `gt_from_est`: the SE(3) alignment of `est` onto `gt` that the ATE uses (e.g. to bring a map built with the
+/// estimated poses into the ground truth's frame).
+pub fn align_se3(gt: &[StampedPose], est: &[StampedPose], max_dt_s: f64) -> Result<Isometry3<f64>, TrajError> {
+    let (src, dst) = matched_positions(gt, est, max_dt_s)?;
+    umeyama_se3(&src, &dst)
+}
+
+/// ATE of `est` against `gt` after SE(3) alignment (`evo_ape tum gt est -a`).
+pub fn ate(gt: &[StampedPose], est: &[StampedPose], max_dt_s: f64) -> Result<Ate, TrajError> {
+    let (src, dst) = matched_positions(gt, est, max_dt_s)?;
     let gt_from_est = umeyama_se3(&src, &dst)?;
     let mut errors: Vec<f64> = src.iter().zip(&dst).map(|(s, d)| (d - gt_from_est * s).norm()).collect();
     Ok(Ate {
         translation: Stats::of(&mut errors),
         alignment_translation: gt_from_est.translation.vector.into(),
         alignment_rotation_deg: gt_from_est.rotation.angle().to_degrees(),
-        pairs: pairs.len(),
+        pairs: src.len(),
     })
 }
 
