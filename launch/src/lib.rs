@@ -5,6 +5,7 @@ pub mod latency;
 pub mod launch_file;
 pub mod preview;
 pub mod probe;
+pub mod progress;
 pub mod run;
 pub mod run_dir;
 pub mod supervisor;

@@ -1,7 +1,6 @@
 //! `bdis-slam`: the one command users type. Subcommands are thin: each parses its arguments and calls the
 //! library (`bdis_slam`) or a service library.
 
-use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
@@ -547,15 +546,7 @@ fn bench_isolation(args: IsolationArgs) -> Result<ExitCode> {
     let mut alone = full.clone();
     alone.services.retain(|s| s.name == "acquisition" || s.name == "tracking");
     let root = make_run_dir(args.out.as_deref(), "isolation")?;
-    let bar = if std::io::stderr().is_terminal() {
-        indicatif::ProgressBar::new(2 * args.pairs as u64)
-    } else {
-        indicatif::ProgressBar::hidden()
-    };
-    bar.set_style(
-        indicatif::ProgressStyle::with_template("isolation {bar:30} {pos}/{len} runs ({eta} left) {msg}")
-            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
-    );
+    let bar = bdis_slam::progress::bar(2 * args.pairs as u64, "isolation {bar:30} {pos}/{len} runs ({eta} left) {msg}");
     let mut runs: Vec<TrackerTimes> = Vec::new();
     for pair in 0..args.pairs {
         // Alternate the order (ABBA…) so a drift in the host's load does not favour one side.

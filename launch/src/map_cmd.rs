@@ -2,7 +2,6 @@
 //! the mosaic rule, then `map.ply`, `map.png` and `map.bin`. With ground-truth poses it measures the mapping
 //! alone; with a run's `keyframes.tum` (poses and keyframe choice from the tracker) it rebuilds the run's map.
 
-use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
@@ -90,15 +89,7 @@ pub fn map(args: MapArgs) -> Result<()> {
     let mut mosaic = Mosaic::new(params);
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("{}: cannot create the output folder", args.out.display()))?;
-    let bar = if std::io::stderr().is_terminal() {
-        indicatif::ProgressBar::new(chosen.len() as u64)
-    } else {
-        indicatif::ProgressBar::hidden()
-    };
-    bar.set_style(
-        indicatif::ProgressStyle::with_template("mapping {bar:40} {pos}/{len} keyframes ({eta} left)")
-            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
-    );
+    let bar = bdis_slam::progress::bar(chosen.len() as u64, "mapping {bar:40} {pos}/{len} keyframes ({eta} left)");
     let mut insert_ms = Vec::with_capacity(chosen.len());
     for (kf_id, &index) in chosen.iter().enumerate() {
         let entry = &sequence.frames[index];

@@ -355,11 +355,7 @@ fn probe_depth(args: &ProbeArgs) -> Result<()> {
 fn probe_telemetry(args: &ProbeArgs) -> Result<()> {
     let ipc = Ipc::open(&args.name, &args.ipc_prefix)?;
     let service = ipc.telemetry()?;
-    let subscriber = service
-        .subscriber_builder()
-        .buffer_size(bdis_ipc::qos::TELEMETRY_BUFFER)
-        .create()
-        .map_err(|e| iox("subscribe to telemetry")(&e))?;
+    let subscriber = ipc.telemetry_subscriber(&service)?;
     let waitset = WaitSetBuilder::new().create::<ipc::Service>().map_err(|e| iox("create a WaitSet")(&e))?;
     let _tick = waitset.attach_interval(Duration::from_secs(1)).map_err(|e| iox("attach a tick")(&e))?;
     let mut counts: std::collections::BTreeMap<String, u64> = Default::default();

@@ -1,7 +1,6 @@
 //! `bdis-slam stereo`: BDIS (or plain DIS) on one rectified pair or on every pair of a sequence, writing
 //! disparity (PFM), optionally confidence (PFM) and a colour preview (PNG).
 
-use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
@@ -127,15 +126,7 @@ pub fn stereo(args: StereoArgs) -> Result<()> {
     let sequence = bdis_acquisition::Sequence::open(sequence)?;
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("{}: cannot create the output folder", args.out.display()))?;
-    let bar = if std::io::stderr().is_terminal() {
-        indicatif::ProgressBar::new(sequence.len() as u64)
-    } else {
-        indicatif::ProgressBar::hidden()
-    };
-    bar.set_style(
-        indicatif::ProgressStyle::with_template("matching {bar:40} {pos}/{len} pairs ({eta} left)")
-            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
-    );
+    let bar = bdis_slam::progress::bar(sequence.len() as u64, "matching {bar:40} {pos}/{len} pairs ({eta} left)");
     let start = std::time::Instant::now();
     let mut density_sum = 0.0;
     for entry in &sequence.frames {

@@ -10,7 +10,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command, ExitStatus, Stdio};
 use std::time::{Duration, Instant};
 
-use bdis_ipc::{Ipc, IpcError, TELEMETRY_DRAIN_PERIOD, TelemetryRecord, Topic, qos};
+use bdis_ipc::{Ipc, IpcError, TELEMETRY_DRAIN_PERIOD, TelemetryRecord, Topic};
 use iceoryx2::port::listener::Listener;
 use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::prelude::*;
@@ -129,10 +129,7 @@ impl Supervisor {
     pub fn new(prefix: &str, run_dir: &Path) -> Result<Self, SuperviseError> {
         let ipc = Ipc::open("launcher", prefix)?;
         let service = ipc.telemetry()?;
-        let telemetry =
-            service.subscriber_builder().buffer_size(qos::TELEMETRY_BUFFER).create().map_err(|e| {
-                IpcError::Iceoryx { context: "subscribe to telemetry".into(), detail: format!("{e:?}") }
-            })?;
+        let telemetry = ipc.telemetry_subscriber(&service)?;
         let telemetry_listener = ipc.listener(&ipc.events(Topic::Telemetry)?)?;
         Ok(Self {
             ipc,

@@ -85,11 +85,7 @@ pub fn render_with_progress(
     rig: &StereoRig,
     request: &bdis_synth::SceneRequest,
 ) -> Result<WrittenSequence> {
-    let bar = indicatif::ProgressBar::new(request.frames as u64);
-    bar.set_style(
-        indicatif::ProgressStyle::with_template("rendering {bar:40} {pos}/{len} frames ({eta} left)")
-            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
-    );
+    let bar = bdis_slam::progress::bar(request.frames as u64, "rendering {bar:40} {pos}/{len} frames ({eta} left)");
     let written = bdis_synth::write_scene(out, rig, request, |_| bar.inc(1))?;
     bar.finish_and_clear();
     Ok(written)

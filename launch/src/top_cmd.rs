@@ -46,11 +46,7 @@ pub fn top(args: TopArgs) -> Result<()> {
     }
     let ipc = Ipc::open(&args.name, &args.ipc_prefix)?;
     let service = ipc.telemetry()?;
-    let subscriber = service
-        .subscriber_builder()
-        .buffer_size(bdis_ipc::qos::TELEMETRY_BUFFER)
-        .create()
-        .map_err(|e| anyhow!("subscribe to telemetry: {e:?}"))?;
+    let subscriber = ipc.telemetry_subscriber(&service)?;
     let waitset = WaitSetBuilder::new().create::<ipc::Service>().map_err(|e| anyhow!("create a WaitSet: {e:?}"))?;
     let interval = Duration::from_secs_f64(args.interval);
     let _tick = waitset.attach_interval(interval).map_err(|e| anyhow!("attach a tick: {e:?}"))?;

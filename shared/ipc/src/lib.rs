@@ -274,6 +274,14 @@ impl Ipc {
         })
     }
 
+    /// A reader of every process's telemetry records (the launcher, `probe telemetry`, `top`).
+    pub fn telemetry_subscriber(
+        &self,
+        service: &TelemetryService,
+    ) -> Result<Subscriber<ipc::Service, TelemetryRecord, ()>, IpcError> {
+        service.subscriber_builder().buffer_size(qos::TELEMETRY_BUFFER).create().map_err(iox("subscribe to telemetry"))
+    }
+
     /// The event service that wakes consumers of `topic` (same name as the topic).
     pub fn events(&self, topic: Topic) -> Result<Events, IpcError> {
         let name = Self::service_name(topic)?;
