@@ -48,28 +48,45 @@ impl Percentiles {
     }
 }
 
+/// Figures of one service over all its instances (a restart or a swap starts a new instance, same name).
 #[derive(Debug)]
 struct ProcessAcc {
+    /// The latest instance.
     pid: u32,
     input_topic: String,
     output_topic: String,
     messages: u64,
-    dropped: u64,
+    /// Per instance, its latest running count of missing input messages (summed in the report).
+    dropped_by_pid: BTreeMap<u32, u64>,
     cpu_time_ns: u64,
     processing: Histogram<u64>,
     queue_wait: Histogram<u64>,
     age: Histogram<u64>,
     first_done_ns: u64,
     last_done_ns: u64,
+    /// How the latest instance ended.
+    ended: Option<TelemetryKind>,
+    instances: u32,
+    /// The highest message id (frame sequence number or keyframe id) any instance has handled.
+    last_item: Option<u64>,
+}
+
+/// One process instance: readiness, liveness and record numbering are per process, not per service name.
+#[derive(Debug)]
+struct InstanceAcc {
     ready: bool,
     ended: Option<TelemetryKind>,
     next_record_seq: u64,
+    /// When the launcher last heard from it (any record), for the liveness deadline.
+    last_heard: std::time::Instant,
+    last_item: Option<u64>,
 }
 
 /// Collects telemetry for one run.
 #[derive(Debug, Default)]
 pub struct LatencyAggregator {
     processes: BTreeMap<String, ProcessAcc>,
+    instances: BTreeMap<u32, InstanceAcc>,
     /// (topic, consumer) → receive − publish.
     hops: BTreeMap<(String, String), Histogram<u64>>,
     records_lost: u64,
@@ -92,8 +109,11 @@ pub struct ProcessReport {
     pub queue_wait_us: Option<Percentiles>,
     /// done − capture: age of the output when it leaves the process.
     pub age_us: Option<Percentiles>,
-    /// `finished`, `failed` or `no end record` (crashed or killed).
+    /// `finished`, `failed` or `no end record` (crashed or killed), of the latest instance.
     pub ended: String,
+    /// Instances after the first (restarts and swaps).
+    #[serde(default)]
+    pub restarts: u32,
 }
 
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
@@ -104,10 +124,22 @@ pub struct HopReport {
     pub latency_us: Percentiles,
 }
 
+/// An end-to-end figure: from a frame's capture to a result (`capture → pose`, `capture → map`).
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+pub struct EndToEndReport {
+    pub path: String,
+    /// The process whose output ends the path.
+    pub process: String,
+    pub latency_us: Percentiles,
+}
+
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
 pub struct LatencyReport {
     pub processes: Vec<ProcessReport>,
     pub hops: Vec<HopReport>,
+    /// capture → pose (the tracker's pose published) and capture → map (the mosaic has taken the keyframe in).
+    #[serde(default)]
+    pub end_to_end: Vec<EndToEndReport>,
     /// Telemetry records the launcher missed (gaps in record sequence numbers): figures are then partial.
     pub telemetry_records_lost: u64,
 }
@@ -117,9 +149,39 @@ impl LatencyAggregator {
         Self::default()
     }
 
-    /// True once `process` has reported ready.
+    /// True once an instance of `process` has reported ready.
     pub fn is_ready(&self, process: &str) -> bool {
-        self.processes.get(process).is_some_and(|p| p.ready)
+        self.processes.get(process).is_some_and(|p| self.instances.get(&p.pid).is_some_and(|i| i.ready))
+    }
+
+    /// True once the process `pid` has reported ready.
+    pub fn is_pid_ready(&self, pid: u32) -> bool {
+        self.instances.get(&pid).is_some_and(|i| i.ready)
+    }
+
+    /// When the launcher last heard from process `pid`.
+    pub fn last_heard(&self, pid: u32) -> Option<std::time::Instant> {
+        self.instances.get(&pid).map(|i| i.last_heard)
+    }
+
+    /// The highest message id process `pid` has handled.
+    pub fn last_item_of_pid(&self, pid: u32) -> Option<u64> {
+        self.instances.get(&pid).and_then(|i| i.last_item)
+    }
+
+    /// The highest message id any consumer of `topic` has handled (e.g. the last keyframe id the mosaic took in).
+    pub fn last_item_consumed(&self, topic: &str) -> Option<u64> {
+        self.processes.values().filter(|p| p.input_topic == topic).filter_map(|p| p.last_item).max()
+    }
+
+    /// The topic `process` publishes, as its telemetry names it.
+    pub fn output_topic(&self, process: &str) -> Option<String> {
+        self.processes.get(process).map(|p| p.output_topic.clone()).filter(|t| !t.is_empty())
+    }
+
+    /// True when some process of the run consumes `topic`.
+    pub fn has_consumer(&self, topic: &str) -> bool {
+        self.processes.values().any(|p| p.input_topic == topic)
     }
 
     pub fn ended(&self, process: &str) -> Option<TelemetryKind> {
@@ -132,36 +194,52 @@ impl LatencyAggregator {
 
     pub fn record(&mut self, r: &TelemetryRecord) {
         let Some(kind) = r.kind() else { return };
+        let now = std::time::Instant::now();
+        let instance = self.instances.entry(r.pid).or_insert_with(|| InstanceAcc {
+            ready: false,
+            ended: None,
+            next_record_seq: r.record_seq,
+            last_heard: now,
+            last_item: None,
+        });
+        if r.record_seq > instance.next_record_seq {
+            self.records_lost += r.record_seq - instance.next_record_seq;
+        }
+        instance.next_record_seq = instance.next_record_seq.max(r.record_seq + 1);
+        instance.last_heard = now;
         let acc = self.processes.entry(r.process().to_string()).or_insert_with(|| ProcessAcc {
             pid: r.pid,
             input_topic: r.input_topic().to_string(),
             output_topic: r.output_topic().to_string(),
             messages: 0,
-            dropped: 0,
+            dropped_by_pid: BTreeMap::new(),
             cpu_time_ns: 0,
             processing: histogram(),
             queue_wait: histogram(),
             age: histogram(),
             first_done_ns: 0,
             last_done_ns: 0,
-            ready: false,
             ended: None,
-            next_record_seq: 0,
+            instances: 1,
+            last_item: None,
         });
-        if r.pid != acc.pid {
-            // A restarted instance numbers its records from 0 again.
+        if kind == TelemetryKind::Ready && r.pid != acc.pid {
+            // A new instance (restart or swap) takes over the name.
             acc.pid = r.pid;
-            acc.next_record_seq = r.record_seq;
+            acc.instances += 1;
+            acc.ended = None;
+            // A replacement may be started with other arguments (another input, say).
+            acc.input_topic = r.input_topic().to_string();
+            acc.output_topic = r.output_topic().to_string();
         }
-        if r.record_seq > acc.next_record_seq {
-            self.records_lost += r.record_seq - acc.next_record_seq;
-        }
-        acc.next_record_seq = r.record_seq + 1;
         match kind {
-            TelemetryKind::Ready => acc.ready = true,
+            TelemetryKind::Ready => instance.ready = true,
+            TelemetryKind::Heartbeat => {}
             TelemetryKind::Message => {
+                instance.last_item = Some(instance.last_item.map_or(r.frame_seq, |l| l.max(r.frame_seq)));
+                acc.last_item = Some(acc.last_item.map_or(r.frame_seq, |l| l.max(r.frame_seq)));
                 acc.messages += 1;
-                acc.dropped = r.dropped;
+                acc.dropped_by_pid.insert(r.pid, r.dropped);
                 let _ = acc.processing.record(r.processing_ns().max(1));
                 if r.t_capture_ns != 0 {
                     let _ = acc.age.record(r.age_ns().max(1));
@@ -181,8 +259,11 @@ impl LatencyAggregator {
                 acc.last_done_ns = r.t_done_ns;
             }
             TelemetryKind::Finished | TelemetryKind::Failed => {
-                acc.ended = Some(kind);
-                acc.cpu_time_ns = r.cpu_time_ns;
+                instance.ended = Some(kind);
+                if r.pid == acc.pid {
+                    acc.ended = Some(kind);
+                }
+                acc.cpu_time_ns += r.cpu_time_ns;
             }
         }
     }
@@ -199,7 +280,7 @@ impl LatencyAggregator {
                     input_topic: p.input_topic.clone(),
                     output_topic: p.output_topic.clone(),
                     messages: p.messages,
-                    dropped: p.dropped,
+                    dropped: p.dropped_by_pid.values().sum(),
                     rate_hz: if p.messages > 1 && span_s > 0.0 { (p.messages - 1) as f64 / span_s } else { 0.0 },
                     cpu_time_s: p.cpu_time_ns as f64 / 1e9,
                     processing_us: Percentiles::of(&p.processing),
@@ -211,6 +292,7 @@ impl LatencyAggregator {
                         _ => "no end record",
                     }
                     .to_string(),
+                    restarts: p.instances - 1,
                 }
             })
             .collect();
@@ -231,7 +313,27 @@ impl LatencyAggregator {
                 })
             })
             .collect();
-        LatencyReport { processes, hops, telemetry_records_lost: self.records_lost }
+        let end_to_end = self
+            .processes
+            .iter()
+            .filter_map(|(name, p)| {
+                // The tracker publishes poses and keyframes (its telemetry names the keyframes topic); the map's
+                // owner consumes depth and publishes nothing. Probes only watch.
+                let path = if p.output_topic == "keyframes" && p.input_topic == "frames" {
+                    "capture → pose"
+                } else if p.input_topic == "depth" && p.output_topic.is_empty() && !name.starts_with("probe") {
+                    "capture → map"
+                } else {
+                    return None;
+                };
+                Percentiles::of(&p.age).map(|latency_us| EndToEndReport {
+                    path: path.into(),
+                    process: name.clone(),
+                    latency_us,
+                })
+            })
+            .collect();
+        LatencyReport { processes, hops, end_to_end, telemetry_records_lost: self.records_lost }
     }
 }
 
@@ -244,18 +346,26 @@ impl LatencyReport {
         let mut out = String::new();
         let _ = writeln!(
             out,
-            "{:<14} {:>6} {:>8} {:>7} {:>18} {:>18} {:>18} {:>7}",
-            "process", "msgs", "rate Hz", "dropped", "processing ms", "queue wait ms", "output age ms", "cpu s"
+            "{:<14} {:>6} {:>8} {:>7} {:>18} {:>18} {:>18} {:>7} {:>8}",
+            "process",
+            "msgs",
+            "rate Hz",
+            "dropped",
+            "processing ms",
+            "queue wait ms",
+            "output age ms",
+            "cpu s",
+            "restarts"
         );
         let _ = writeln!(
             out,
-            "{:<14} {:>6} {:>8} {:>7} {:>18} {:>18} {:>18} {:>7}",
-            "", "", "", "", "p50 / p99", "p50 / p99", "p50 / p99", ""
+            "{:<14} {:>6} {:>8} {:>7} {:>18} {:>18} {:>18} {:>7} {:>8}",
+            "", "", "", "", "p50 / p99", "p50 / p99", "p50 / p99", "", ""
         );
         for p in &self.processes {
             let _ = writeln!(
                 out,
-                "{:<14} {:>6} {:>8.1} {:>7} {:>18} {:>18} {:>18} {:>7.2}",
+                "{:<14} {:>6} {:>8.1} {:>7} {:>18} {:>18} {:>18} {:>7.2} {:>8}",
                 p.name,
                 p.messages,
                 p.rate_hz,
@@ -263,8 +373,29 @@ impl LatencyReport {
                 ms(&p.processing_us),
                 ms(&p.queue_wait_us),
                 ms(&p.age_us),
-                p.cpu_time_s
+                p.cpu_time_s,
+                p.restarts
             );
+        }
+        if !self.end_to_end.is_empty() {
+            let _ = writeln!(out);
+            let _ = writeln!(
+                out,
+                "{:<34} {:>6} {:>9} {:>9} {:>9} {:>9}",
+                "end to end", "msgs", "p50 ms", "p90 ms", "p99 ms", "max ms"
+            );
+            for e in &self.end_to_end {
+                let _ = writeln!(
+                    out,
+                    "{:<34} {:>6} {:>9.2} {:>9.2} {:>9.2} {:>9.2}",
+                    format!("{} ({})", e.path, e.process),
+                    e.latency_us.count,
+                    e.latency_us.p50 / 1000.0,
+                    e.latency_us.p90 / 1000.0,
+                    e.latency_us.p99 / 1000.0,
+                    e.latency_us.max / 1000.0
+                );
+            }
         }
         if !self.hops.is_empty() {
             let _ = writeln!(out);
@@ -381,7 +512,15 @@ impl LatencyReport {
             .iter()
             .map(|h| ChartRow { label: format!("{}→{} ({})", h.from, h.to, h.topic), p: &h.latency_us })
             .collect();
+        let end_to_end: Vec<ChartRow> = self
+            .end_to_end
+            .iter()
+            .map(|e| ChartRow { label: format!("{} ({})", e.path, e.process), p: &e.latency_us })
+            .collect();
         let mut y = 0.0;
+        if !end_to_end.is_empty() {
+            y = chart(&mut body, "End to end: from a frame's capture to its pose and to the map", &end_to_end, y);
+        }
         y = chart(&mut body, "Processing per message (p50 bar, p99 whisker, max dot)", &processing, y);
         y = chart(&mut body, "Age of each process's output since capture", &age, y);
         y = chart(&mut body, "Transport latency per hop (publish → receive, zero copy)", &hops, y);
@@ -465,6 +604,7 @@ mod tests {
             queue_wait_us: None,
             age_us: Some(p(us * 2.0)),
             ended: "finished".into(),
+            restarts: 0,
         };
         let report = LatencyReport {
             processes: vec![process("fast", 50.0), process("slow<&>", 20_000.0)],
@@ -474,6 +614,7 @@ mod tests {
                 topic: "frames".into(),
                 latency_us: p(80.0),
             }],
+            end_to_end: Vec::new(),
             telemetry_records_lost: 0,
         };
         let svg = report.svg();

@@ -17,6 +17,21 @@
 //! core = 1
 //! ```
 //!
+//! Optional per service (all validated):
+//!
+//! ```toml
+//! liveness_s = 10          # no telemetry record (message or heartbeat) for this long: hung — stopped, then
+//!                          # handled as a failure under the restart policy
+//! handover = "keyframes"   # a replacement instance (swap, restart) starts with --standby and is activated after
+//!                          # the last keyframe its downstream already has (the stereo service)
+//! [service.restart]
+//! policy = "on-failure"    # never (default) | on-failure | always
+//! max_restarts = 5         # at most this many restarts within window_s; one more failure fails the run
+//! window_s = 60
+//! backoff_initial_s = 0.5  # delay before the k-th restart in the window: initial · 2^(k−1), at most backoff_max_s
+//! backoff_max_s = 10
+//! ```
+//!
 //! Everything is checked before anything starts: unknown keys, bad values, unknown `${VARIABLES}`, missing
 //! binaries and cores this machine does not have are errors that name the key.
 
@@ -52,6 +67,10 @@ pub struct RunSection {
     /// Between SIGTERM and SIGKILL.
     #[serde(default = "default_stop_grace")]
     pub stop_grace_s: f64,
+    /// CPU core for the launcher itself (its telemetry drain, and forking replacements during swaps and restarts),
+    /// so it stays off the tracker's core.
+    #[serde(default)]
+    pub launcher_core: Option<usize>,
 }
 
 fn default_ready_timeout() -> f64 {
@@ -71,6 +90,7 @@ impl Default for RunSection {
             ready_timeout_s: default_ready_timeout(),
             drain_timeout_s: default_drain_timeout(),
             stop_grace_s: default_stop_grace(),
+            launcher_core: None,
         }
     }
 }
@@ -90,6 +110,83 @@ pub struct ServiceSpec {
     /// Extra environment variables.
     #[serde(default)]
     pub env: BTreeMap<String, String>,
+    /// What happens when the process ends on its own.
+    #[serde(default)]
+    pub restart: RestartSpec,
+    /// Seconds without any telemetry record (a message or a heartbeat) after which the process counts as hung.
+    #[serde(default)]
+    pub liveness_s: Option<f64>,
+    /// How a replacement instance takes over (see the module documentation).
+    #[serde(default)]
+    pub handover: Option<Handover>,
+}
+
+#[derive(Debug, Clone, Copy, Serialize, Deserialize, PartialEq, Eq, Default)]
+#[serde(rename_all = "kebab-case")]
+pub enum RestartPolicy {
+    /// An ended process stays ended; a failure fails the run.
+    #[default]
+    Never,
+    /// Restarted when it fails (non-zero exit, a signal, hung).
+    OnFailure,
+    /// Restarted whenever it ends while its upstream still runs (and when it fails).
+    Always,
+}
+
+#[derive(Debug, Clone, Copy, Serialize, Deserialize, PartialEq, Eq)]
+#[serde(rename_all = "kebab-case")]
+pub enum Handover {
+    /// Keyframe consumers (stereo): start in standby, resume after the last keyframe downstream has.
+    Keyframes,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct RestartSpec {
+    #[serde(default)]
+    pub policy: RestartPolicy,
+    #[serde(default = "default_max_restarts")]
+    pub max_restarts: u32,
+    #[serde(default = "default_window")]
+    pub window_s: f64,
+    #[serde(default = "default_backoff_initial")]
+    pub backoff_initial_s: f64,
+    #[serde(default = "default_backoff_max")]
+    pub backoff_max_s: f64,
+}
+
+fn default_max_restarts() -> u32 {
+    5
+}
+fn default_window() -> f64 {
+    60.0
+}
+fn default_backoff_initial() -> f64 {
+    0.5
+}
+fn default_backoff_max() -> f64 {
+    10.0
+}
+
+impl Default for RestartSpec {
+    fn default() -> Self {
+        Self {
+            policy: RestartPolicy::Never,
+            max_restarts: default_max_restarts(),
+            window_s: default_window(),
+            backoff_initial_s: default_backoff_initial(),
+            backoff_max_s: default_backoff_max(),
+        }
+    }
+}
+
+impl RestartSpec {
+    /// The delay before a restart when `recent` restarts already happened within the window:
+    /// `backoff_initial · 2^recent`, capped at `backoff_max`.
+    pub fn backoff(&self, recent: usize) -> std::time::Duration {
+        let factor = 2f64.powi(recent.min(30) as i32);
+        std::time::Duration::from_secs_f64((self.backoff_initial_s * factor).min(self.backoff_max_s))
+    }
 }
 
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
@@ -146,6 +243,15 @@ impl LaunchFile {
             }
         }
         let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+        if let Some(core) = self.run.launcher_core
+            && core >= cores
+        {
+            return Err(invalid(
+                path,
+                "run.launcher_core",
+                format!("{core}, but this machine has cores 0..{}", cores - 1),
+            ));
+        }
         let mut names = std::collections::BTreeSet::new();
         for (i, s) in self.services.iter().enumerate() {
             let key = |k: &str| format!("service[{i}].{k}");
@@ -160,6 +266,32 @@ impl LaunchFile {
             }
             if s.binary.is_empty() {
                 return Err(invalid(path, &key("binary"), "must not be empty"));
+            }
+            let r = &s.restart;
+            for (k, v, lo) in [
+                ("restart.window_s", r.window_s, 0.0),
+                ("restart.backoff_initial_s", r.backoff_initial_s, 0.0),
+                ("restart.backoff_max_s", r.backoff_max_s, 0.0),
+            ] {
+                if !(v.is_finite() && v > lo && v <= 86_400.0) {
+                    return Err(invalid(path, &key(k), format!("must be in (0, 86400] seconds, found {v}")));
+                }
+            }
+            if r.backoff_max_s < r.backoff_initial_s {
+                return Err(invalid(
+                    path,
+                    &key("restart.backoff_max_s"),
+                    format!("{} is below backoff_initial_s = {}", r.backoff_max_s, r.backoff_initial_s),
+                ));
+            }
+            if r.max_restarts > 1000 {
+                return Err(invalid(path, &key("restart.max_restarts"), format!("{} is over 1000", r.max_restarts)));
+            }
+            if let Some(l) = s.liveness_s
+                && !(l.is_finite() && (0.5..=3600.0).contains(&l))
+            {
+                // Services send a heartbeat after 0.5 s of quiet, so a shorter deadline would kill idle ones.
+                return Err(invalid(path, &key("liveness_s"), format!("must be in [0.5, 3600] seconds, found {l}")));
             }
             if let Some(core) = s.core
                 && core >= cores
@@ -261,6 +393,36 @@ mod tests {
         assert_eq!(e, "l.toml: `service[1].name`: `acquisition` is used twice");
         let e = LaunchFile::parse(&format!("{GOOD}[run2]\n"), Path::new("l.toml")).unwrap_err().to_string();
         assert!(e.contains("unknown field `run2`"), "{e}");
+    }
+
+    #[test]
+    fn restart_policy_liveness_and_handover_are_validated() {
+        let with = |extra: &str| LaunchFile::parse(&format!("{GOOD}{extra}"), Path::new("l.toml"));
+        let f = with("liveness_s = 2.5\nhandover = \"keyframes\"\n[service.restart]\npolicy = \"on-failure\"\nmax_restarts = 3\nbackoff_initial_s = 0.1\nbackoff_max_s = 0.3\n").unwrap();
+        let probe = &f.services[1];
+        assert_eq!(probe.restart.policy, RestartPolicy::OnFailure);
+        assert_eq!((probe.restart.max_restarts, probe.restart.window_s), (3, 60.0));
+        assert_eq!((probe.liveness_s, probe.handover), (Some(2.5), Some(Handover::Keyframes)));
+        assert_eq!(f.services[0].restart, RestartSpec::default());
+        // Back-off doubles up to its cap.
+        let b: Vec<f64> = (0..4).map(|k| probe.restart.backoff(k).as_secs_f64()).collect();
+        assert!((b[0] - 0.1).abs() < 1e-9 && (b[1] - 0.2).abs() < 1e-9 && (b[2] - 0.3).abs() < 1e-9, "{b:?}");
+        let err = |extra: &str| with(extra).unwrap_err().to_string();
+        assert!(err("[service.restart]\npolicy = \"sometimes\"\n").contains("unknown variant `sometimes`"));
+        assert!(err("[service.restart]\npolicie = \"always\"\n").contains("unknown field `policie`"));
+        assert_eq!(
+            err("[service.restart]\nbackoff_initial_s = 2\nbackoff_max_s = 1\n"),
+            "l.toml: `service[1].restart.backoff_max_s`: 1 is below backoff_initial_s = 2"
+        );
+        assert_eq!(
+            err("[service.restart]\nwindow_s = -1\n"),
+            "l.toml: `service[1].restart.window_s`: must be in (0, 86400] seconds, found -1"
+        );
+        assert_eq!(
+            err("liveness_s = 0.1\n"),
+            "l.toml: `service[1].liveness_s`: must be in [0.5, 3600] seconds, found 0.1"
+        );
+        assert!(err("handover = \"frames\"\n").contains("unknown variant `frames`"));
     }
 
     #[test]

@@ -12,6 +12,7 @@ mod map_cmd;
 mod probe_cmd;
 mod snapshot_cmd;
 mod stereo_cmd;
+mod swap_cmd;
 mod synth_cmd;
 mod top_cmd;
 
@@ -41,6 +42,9 @@ enum Command {
     /// Benchmarks of the whole pipeline (`bench isolation`).
     #[command(subcommand)]
     Bench(BenchCommand),
+    /// Replace a service of a running pipeline without stopping it (make-before-break), e.g. the dense stereo
+    /// with another algorithm, parameters or binary; `--kill` drills a crash instead.
+    Swap(swap_cmd::SwapArgs),
     /// Ask a running mosaic service for its current map and write it as PLY (what a viewer does).
     Snapshot(snapshot_cmd::SnapshotArgs),
     /// Write a synthetic stereo endoscopy sequence with exact ground truth (poses, depth, disparity, mesh).
@@ -99,7 +103,8 @@ struct RunArgs {
     /// Settings file for --sequence (ORB-SLAM2 YAML or bdis-slam TOML).
     #[arg(long, requires = "sequence")]
     settings: Option<PathBuf>,
-    /// Pacing for --sequence: on-demand, recorded, or a rate such as 30hz.
+    /// Pacing for --sequence: on-demand, recorded, a rate such as 30hz (frames a slow consumer misses are
+    /// dropped, as with a live camera), or on-demand:30hz (a live camera's pace that never drops a frame).
     #[arg(long, default_value = "on-demand", requires = "sequence")]
     pacing: bdis_acquisition::Pacing,
     /// Have the probe checksum every frame's pixels (for integrity checks; costs ~1 ms per VGA frame).
@@ -141,6 +146,7 @@ fn main() -> ExitCode {
             map_cmd::map(args).map(|()| ExitCode::SUCCESS)
         }
         Command::Snapshot(args) => snapshot_cmd::snapshot(args).map(|()| ExitCode::SUCCESS),
+        Command::Swap(args) => swap_cmd::swap(args).map(|()| ExitCode::SUCCESS),
         Command::Bench(BenchCommand::Isolation(args)) => bench_isolation(args),
         Command::Top(args) => top_cmd::top(args).map(|()| ExitCode::SUCCESS),
         Command::Eval(command) => {
@@ -181,6 +187,7 @@ fn plan_for_sequence(
         bdis_acquisition::Pacing::OnDemand => "on-demand".to_string(),
         bdis_acquisition::Pacing::Recorded => "recorded".to_string(),
         bdis_acquisition::Pacing::Fixed(hz) => format!("{hz}hz"),
+        bdis_acquisition::Pacing::OnDemandAtMost(hz) => format!("on-demand:{hz}hz"),
     };
     acquisition_args.extend(["--pacing".to_string(), pacing]);
     let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
@@ -191,6 +198,9 @@ fn plan_for_sequence(
         args,
         core: Some(core % cores),
         env: Default::default(),
+        restart: Default::default(),
+        liveness_s: None,
+        handover: None,
     };
     let mut services = vec![spec("acquisition", "bdis-acquisition", acquisition_args, 0)];
     if track {
@@ -201,12 +211,15 @@ fn plan_for_sequence(
         // Acquisition and tracking share core 0; the dense stereo (and its consumer) run on core 1, so the dense
         // mapper does not slow the tracker.
         services.push(spec("tracking", "bdis-tracking", vec!["--settings".into(), settings.clone()], 0));
-        services.push(spec(
-            "stereo",
-            "bdis-stereo",
-            vec!["--settings".into(), settings, "--input".into(), "keyframes".into()],
-            1,
-        ));
+        // The stereo service is replaceable while the tracker runs (`bdis-slam swap stereo`) and restarted when
+        // it crashes: the tracker keeps its last keyframes in the topic's history, and a new instance resumes
+        // after the last keyframe the mosaic has.
+        let mut stereo =
+            spec("stereo", "bdis-stereo", vec!["--settings".into(), settings, "--input".into(), "keyframes".into()], 1);
+        stereo.handover = Some(bdis_slam::launch_file::Handover::Keyframes);
+        stereo.restart.policy = bdis_slam::launch_file::RestartPolicy::OnFailure;
+        stereo.liveness_s = Some(10.0);
+        services.push(stereo);
         let mut mosaic_args = Vec::new();
         for p in map_params {
             mosaic_args.extend(["--map-param".to_string(), p.clone()]);
@@ -219,7 +232,9 @@ fn plan_for_sequence(
             vec!["probe".into(), "depth".into(), "--preview".into(), "${RUN_DIR}/depth-preview.png".into()],
             1,
         ));
-        return Ok(LaunchFile { run: RunSection { name: Some(name), ..Default::default() }, services });
+        // The launcher's own work (forking a replacement stereo, draining telemetry) stays off the tracker's core.
+        let run = RunSection { name: Some(name), launcher_core: Some(1 % cores), ..Default::default() };
+        return Ok(LaunchFile { run, services });
     }
     match (stereo_every, &input.settings_path) {
         (Some(every), Some(settings)) => {
@@ -365,6 +380,8 @@ fn execute_and_write(
         "services": result.services,
         "processes": result.latency.processes,
         "hops": result.latency.hops,
+        "end_to_end": result.latency.end_to_end,
+        "events": result.events,
         "telemetry_records_lost": result.latency.telemetry_records_lost,
     });
     let latency_path = run_dir.join("latency.json");
@@ -379,7 +396,16 @@ fn execute_and_write(
         print!("{}", result.latency.table());
         println!();
         for s in &result.services {
-            println!("{:<14} {}{}", s.name, s.exit, s.error.as_deref().map_or(String::new(), |e| format!(" — {e}")));
+            let restarts = if s.restarts > 0 { format!(" ({} restarts/swaps)", s.restarts) } else { String::new() };
+            println!(
+                "{:<14} {}{restarts}{}",
+                s.name,
+                s.exit,
+                s.error.as_deref().map_or(String::new(), |e| format!(" — {e}"))
+            );
+        }
+        for e in &result.events {
+            println!("  {e}");
         }
         println!("run folder: {} ({:.1} s)", run_dir.display(), result.duration_s);
     }

@@ -113,6 +113,7 @@ fn probe_frames(args: &ProbeArgs) -> Result<()> {
             break;
         }
         let _ = bdis_ipc::drain_events(&listener);
+        telemetry.keepalive();
         loop {
             let sample = match subscriber.receive() {
                 Ok(Some(s)) => s,
@@ -254,6 +255,7 @@ fn probe_depth(args: &ProbeArgs) -> Result<()> {
             break;
         }
         let _ = bdis_ipc::drain_events(&listener);
+        telemetry.keepalive();
         loop {
             let sample = match subscriber.receive() {
                 Ok(Some(s)) => s,
@@ -412,6 +414,7 @@ fn probe_poses(args: &ProbeArgs) -> Result<()> {
             break;
         }
         let _ = bdis_ipc::drain_events(&listener);
+        telemetry.keepalive();
         let _ = &guard;
         while let Some(sample) = subscriber.receive().map_err(|e| iox("receive a pose")(&e))? {
             let r = *sample.payload();

@@ -1,14 +1,17 @@
 //! One run of a pipeline: start services downstream first (each after the one below it reports ready), let the
-//! stream flow to its end, stop in order, and report.
+//! stream flow to its end — restarting services that crash or hang under their policy, swapping a service when a
+//! tool asks for it — stop in order, and report.
 
+use std::collections::VecDeque;
 use std::path::Path;
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
+use bdis_ipc::control::{Activation, ControlCommand, ControlResponse};
 use serde::{Deserialize, Serialize};
 
 use crate::latency::LatencyReport;
-use crate::launch_file::{LaunchFile, ResolvedService};
-use crate::supervisor::{PumpEnd, SuperviseError, Supervisor};
+use crate::launch_file::{LaunchFile, ResolvedService, RestartPolicy};
+use crate::supervisor::{ControlCall, PumpEnd, SuperviseError, Supervisor};
 
 /// How one service ended.
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
@@ -21,6 +24,12 @@ pub struct ServiceResult {
     /// Its last error line, when it failed.
     pub error: Option<String>,
     pub log: String,
+    /// Instances started after the first: restarts after a failure and swaps.
+    #[serde(default)]
+    pub restarts: u32,
+    /// The instances it had before the last one, oldest first: `pid N: <how it ended> (<why>)`.
+    #[serde(default)]
+    pub earlier_instances: Vec<String>,
 }
 
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
@@ -31,6 +40,59 @@ pub struct RunResult {
     /// Why the run failed, in one line; `None` when every service finished normally.
     pub failure: Option<String>,
     pub duration_s: f64,
+    /// Every restart and swap, in order, one line each.
+    #[serde(default)]
+    pub events: Vec<String>,
+}
+
+/// One service of the run and its current instance.
+#[derive(Debug)]
+struct Slot {
+    service: ResolvedService,
+    /// Index into the supervisor's children of the instance now in charge.
+    current: Option<usize>,
+    /// Every instance so far, oldest first.
+    instances: Vec<usize>,
+    /// Restarts within the policy's window (for max_restarts and the back-off).
+    recent_restarts: VecDeque<Instant>,
+    restarts: u32,
+    restart_at: Option<Instant>,
+    drain_deadline: Option<Instant>,
+    /// The launcher is stopping it (drain timeout): its end is not restarted.
+    stopping: bool,
+    /// Keyframes up to this id were done by earlier instances (handover services).
+    resume_floor: Option<u64>,
+}
+
+impl Slot {
+    fn new(service: ResolvedService) -> Self {
+        Self {
+            service,
+            current: None,
+            instances: Vec::new(),
+            recent_restarts: VecDeque::new(),
+            restarts: 0,
+            restart_at: None,
+            drain_deadline: None,
+            stopping: false,
+            resume_floor: None,
+        }
+    }
+
+    fn name(&self) -> &str {
+        &self.service.spec.name
+    }
+
+    /// Running, or about to be restarted.
+    fn is_live(&self, sup: &Supervisor) -> bool {
+        self.restart_at.is_some() || self.current.is_some_and(|i| sup.children[i].is_running())
+    }
+}
+
+struct Timeouts {
+    ready: Duration,
+    drain: Duration,
+    grace: Duration,
 }
 
 /// Runs `services` (pipeline order, upstream first) with the timeouts of `launch.run`.
@@ -40,139 +102,454 @@ pub fn execute(
     prefix: &str,
     run_dir: &Path,
 ) -> Result<RunResult, SuperviseError> {
-    let started = std::time::Instant::now();
+    let started = Instant::now();
+    if let Some(core) = launch.run.launcher_core {
+        crate::supervisor::pin_this_process(core);
+    }
     let mut sup = Supervisor::new(prefix, run_dir)?;
-    let ready_timeout = Duration::from_secs_f64(launch.run.ready_timeout_s);
-    let drain_timeout = Duration::from_secs_f64(launch.run.drain_timeout_s);
-    let grace = Duration::from_secs_f64(launch.run.stop_grace_s);
+    let t = Timeouts {
+        ready: Duration::from_secs_f64(launch.run.ready_timeout_s),
+        drain: Duration::from_secs_f64(launch.run.drain_timeout_s),
+        grace: Duration::from_secs_f64(launch.run.stop_grace_s),
+    };
+    let mut slots: Vec<Slot> = services.iter().cloned().map(Slot::new).collect();
     let mut failure: Option<String> = None;
     let mut stop_requested = false;
+    let mut events: Vec<String> = Vec::new();
 
     // Downstream first: a consumer's subscription exists before its producer sends the first frame.
-    for service in services.iter().rev() {
-        let index = sup.spawn(service)?;
-        let name = service.spec.name.clone();
-        let end = sup.pump(ready_timeout, |s| s.latency.is_ready(&name) || !s.children[index].is_running())?;
-        let child = &sup.children[index];
-        match end {
-            PumpEnd::StopRequested => {
+    for k in (0..slots.len()).rev() {
+        match start_instance(&mut sup, &mut slots[k], false, &t)? {
+            Start::Ready(_) => {}
+            Start::StopRequested => {
                 stop_requested = true;
                 break;
             }
-            PumpEnd::Timeout => {
-                failure = Some(format!("{name} did not report ready within {:.0} s", ready_timeout.as_secs_f64()));
+            // A service with a restart policy gets its restarts at start too (the flow below applies the policy
+            // and the back-off to the ended instance).
+            Start::Failed(why) if slots[k].service.spec.restart.policy != RestartPolicy::Never => {
+                tracing::warn!("{why}");
+                events.push(why);
+            }
+            Start::Failed(why) => {
+                failure = Some(why);
                 break;
             }
-            PumpEnd::Done if !sup.latency.is_ready(&name) => {
-                failure = Some(format!(
-                    "{name} ended before it was ready ({}): {}",
-                    child.exit_text(),
-                    child.last_error_line().unwrap_or_default()
-                ));
-                break;
-            }
-            PumpEnd::Done => {}
         }
     }
 
-    // Upstream-first order of the children (they were started in reverse).
-    let order: Vec<usize> = {
-        let mut by_service: Vec<usize> = (0..sup.children.len()).collect();
-        by_service.sort_by_key(|&i| services.iter().position(|s| s.spec.name == sup.children[i].name));
-        by_service
-    };
-
     if failure.is_none() && !stop_requested {
-        // Flow until everything has ended. A service whose upstreams have all ended gets `drain_timeout` to
-        // finish its stream, then is stopped.
-        let mut drain_deadline: Vec<Option<std::time::Instant>> = vec![None; order.len()];
-        loop {
-            let now = std::time::Instant::now();
-            let mut next_wake = Duration::from_secs(3600);
-            for (pos, &i) in order.iter().enumerate() {
-                if !sup.children[i].is_running() {
-                    continue;
-                }
-                let upstream_done = order[..pos].iter().all(|&j| !sup.children[j].is_running());
-                if pos > 0 && upstream_done {
-                    let deadline = *drain_deadline[pos].get_or_insert(now + drain_timeout);
-                    if now >= deadline {
-                        tracing::warn!(
-                            "{} did not finish within {:.0} s of its upstream; stopping it",
-                            sup.children[i].name,
-                            drain_timeout.as_secs_f64()
-                        );
-                        sup.stop_in_order(&[i], grace)?;
-                    } else {
-                        next_wake = next_wake.min(deadline - now);
-                    }
-                }
-            }
-            if order.iter().all(|&i| !sup.children[i].is_running()) {
-                break;
-            }
-            let running_before: Vec<bool> = sup.children.iter().map(|c| c.is_running()).collect();
-            let end = sup
-                .pump(next_wake, |s| s.children.iter().zip(&running_before).any(|(c, &was)| was && !c.is_running()))?;
-            if end == PumpEnd::StopRequested {
-                stop_requested = true;
-                break;
-            }
-            // A service that fails breaks the pipeline: stop the rest in order and report it.
-            if let Some(c) = sup.children.iter().find(|c| !c.is_running() && !c.succeeded()) {
-                failure =
-                    Some(format!("{} failed ({}): {}", c.name, c.exit_text(), c.last_error_line().unwrap_or_default()));
-                break;
-            }
+        let end = flow(&mut sup, &mut slots, &t, &mut events)?;
+        match end {
+            FlowEnd::Done => {}
+            FlowEnd::StopRequested => stop_requested = true,
+            FlowEnd::Failed(why) => failure = Some(why),
         }
     }
     if stop_requested {
         tracing::info!("stop requested: stopping services upstream first");
     }
-    sup.stop_in_order(&order, grace)?;
+    // Upstream first: the current instances, then any replaced one still ending.
+    let mut order: Vec<usize> = slots.iter().filter_map(|s| s.current).collect();
+    let replaced: Vec<usize> =
+        slots.iter().flat_map(|s| s.instances.iter().copied()).filter(|i| !order.contains(i)).collect();
+    order.extend(replaced);
+    sup.stop_in_order(&order, t.grace)?;
+    // After a stop request, a service that needed SIGKILL was logged above; the run still ends as stopped (130).
     if failure.is_none()
-        && let Some(c) = sup.children.iter().find(|c| !c.succeeded())
+        && !stop_requested
+        && let Some(c) = slots
+            .iter()
+            .filter_map(|s| s.current.or(s.instances.last().copied()))
+            .map(|i| &sup.children[i])
+            .find(|c| !c.retired && !c.succeeded())
     {
         failure = Some(format!("{} failed ({}): {}", c.name, c.exit_text(), c.last_error_line().unwrap_or_default()));
     }
     // Crashed children leave their nodes behind; reclaim them now rather than at the next run's start.
     sup.cleanup_dead();
 
-    let mut results: Vec<ServiceResult> = order
+    let results = slots
         .iter()
-        .map(|&i| {
-            let c = &sup.children[i];
-            ServiceResult {
-                name: c.name.clone(),
-                pid: c.pid,
-                core: c.core,
-                exit: c.exit_text(),
-                ok: c.succeeded(),
-                error: (!c.succeeded()).then(|| c.last_error_line()).flatten(),
-                log: c.log.display().to_string(),
+        .map(|slot| match slot.current.or(slot.instances.last().copied()) {
+            Some(i) => {
+                let c = &sup.children[i];
+                ServiceResult {
+                    name: c.name.clone(),
+                    pid: c.pid,
+                    core: c.core,
+                    exit: c.exit_text(),
+                    ok: c.succeeded(),
+                    error: (!c.succeeded()).then(|| c.last_error_line()).flatten(),
+                    log: c.log.display().to_string(),
+                    restarts: slot.restarts,
+                    earlier_instances: slot
+                        .instances
+                        .iter()
+                        .filter(|&&j| j != i)
+                        .map(|&j| {
+                            let e = &sup.children[j];
+                            let why = if e.retired { "replaced" } else { "failed" };
+                            format!("pid {}: {} ({why})", e.pid, e.exit_text())
+                        })
+                        .collect(),
+                }
             }
-        })
-        .collect();
-    // Services that never started (a failure before their turn) are listed too.
-    for s in services {
-        if !results.iter().any(|r| r.name == s.spec.name) {
-            results.push(ServiceResult {
-                name: s.spec.name.clone(),
+            // Services that never started (a failure before their turn) are listed too.
+            None => ServiceResult {
+                name: slot.name().to_string(),
                 pid: 0,
-                core: s.spec.core,
+                core: slot.service.spec.core,
                 exit: "not started".into(),
                 ok: false,
                 error: None,
                 log: String::new(),
-            });
-        }
-    }
-    results.sort_by_key(|r| services.iter().position(|s| s.spec.name == r.name));
+                restarts: 0,
+                earlier_instances: Vec::new(),
+            },
+        })
+        .collect();
     Ok(RunResult {
         services: results,
         latency: sup.latency.report(),
         stop_requested,
         failure,
         duration_s: started.elapsed().as_secs_f64(),
+        events,
     })
+}
+
+enum Start {
+    Ready(usize),
+    StopRequested,
+    Failed(String),
+}
+
+/// Starts an instance of the slot's service and waits until it reports ready. A replacement of a handover
+/// service starts in standby (`--standby`) and must be activated by the caller.
+fn start_instance(
+    sup: &mut Supervisor,
+    slot: &mut Slot,
+    replacement: bool,
+    t: &Timeouts,
+) -> Result<Start, SuperviseError> {
+    let standby = replacement && slot.service.spec.handover.is_some();
+    let extra: Vec<String> = if standby { vec!["--standby".into()] } else { Vec::new() };
+    let index = sup.spawn(&slot.service, &extra)?;
+    slot.instances.push(index);
+    slot.current = Some(index);
+    let pid = sup.children[index].pid;
+    let end = sup.pump(t.ready, |s| s.latency.is_pid_ready(pid) || !s.children[index].is_running())?;
+    let child = &sup.children[index];
+    Ok(match end {
+        PumpEnd::StopRequested => Start::StopRequested,
+        _ if sup.latency.is_pid_ready(pid) => Start::Ready(index),
+        PumpEnd::Timeout => {
+            let why = format!("{} did not report ready within {:.0} s", slot.name(), t.ready.as_secs_f64());
+            sup.children[index].hung = true;
+            sup.stop_one(index, t.grace)?;
+            Start::Failed(why)
+        }
+        PumpEnd::Done => Start::Failed(format!(
+            "{} ended before it was ready ({}): {}",
+            slot.name(),
+            child.exit_text(),
+            child.last_error_line().unwrap_or_default()
+        )),
+    })
+}
+
+/// After which keyframe a new instance of a handover service resumes. What the consumers of its output have
+/// taken in is done; after a graceful stop, so is everything the old instance published (its samples stay
+/// deliverable). After a crash only the consumers' word counts: a sample in flight may be lost with the dead
+/// process's memory, so it is redone (and a duplicate is dropped downstream by keyframe id).
+fn resume_point(sup: &Supervisor, slot: &Slot, old_pid: Option<u32>, graceful: bool) -> u64 {
+    let output = sup.latency.output_topic(slot.name());
+    let consumed = output.as_deref().and_then(|t| sup.latency.last_item_consumed(t));
+    let own = old_pid.and_then(|p| sup.latency.last_item_of_pid(p));
+    let has_consumer = output.as_deref().is_some_and(|t| sup.latency.has_consumer(t));
+    let done = if graceful || !has_consumer { consumed.max(own) } else { consumed };
+    done.max(slot.resume_floor).unwrap_or(Activation::RESUME_FROM_START)
+}
+
+enum FlowEnd {
+    Done,
+    StopRequested,
+    Failed(String),
+}
+
+/// Lets the stream flow until every service has ended: restarts under each service's policy, liveness deadlines,
+/// drain deadlines once upstream has ended, and control requests.
+fn flow(
+    sup: &mut Supervisor,
+    slots: &mut [Slot],
+    t: &Timeouts,
+    events: &mut Vec<String>,
+) -> Result<FlowEnd, SuperviseError> {
+    loop {
+        let now = Instant::now();
+        let mut next_wake = now + Duration::from_secs(3600);
+
+        // Ends of current instances: restart under the policy, or fail the run.
+        for k in 0..slots.len() {
+            let Some(i) = slots[k].current else { continue };
+            if sup.children[i].is_running() {
+                // Liveness: a ready instance silent for longer than its deadline is hung.
+                if let Some(limit) = slots[k].service.spec.liveness_s.map(Duration::from_secs_f64)
+                    && let Some(heard) = sup.latency.last_heard(sup.children[i].pid)
+                {
+                    if now.duration_since(heard) > limit {
+                        let line = format!(
+                            "{} (pid {}) sent nothing for {:.1} s (liveness deadline {:.1} s): stopping it",
+                            slots[k].name(),
+                            sup.children[i].pid,
+                            now.duration_since(heard).as_secs_f64(),
+                            limit.as_secs_f64()
+                        );
+                        tracing::warn!("{line}");
+                        events.push(line);
+                        sup.children[i].hung = true;
+                        sup.stop_one(i, t.grace)?;
+                    } else {
+                        next_wake = next_wake.min(heard + limit + Duration::from_millis(50));
+                    }
+                }
+                if sup.children[i].is_running() {
+                    continue;
+                }
+            }
+            slots[k].current = None;
+            let c = &sup.children[i];
+            let upstream_live = slots[..k].iter().any(|s| s.is_live(sup));
+            let restart = slots[k].service.spec.restart.clone();
+            let wanted = !slots[k].stopping
+                && match (c.succeeded(), restart.policy) {
+                    (false, RestartPolicy::OnFailure | RestartPolicy::Always) => true,
+                    (true, RestartPolicy::Always) => upstream_live,
+                    _ => false,
+                };
+            if wanted {
+                let window = Duration::from_secs_f64(restart.window_s);
+                while slots[k].recent_restarts.front().is_some_and(|&r| now.duration_since(r) > window) {
+                    slots[k].recent_restarts.pop_front();
+                }
+                let recent = slots[k].recent_restarts.len();
+                if recent >= restart.max_restarts as usize {
+                    return Ok(FlowEnd::Failed(format!(
+                        "{} ended {} times within {:.0} s ({} this time): giving up after {} restarts — {}",
+                        slots[k].name(),
+                        recent + 1,
+                        restart.window_s,
+                        c.exit_text(),
+                        recent,
+                        c.last_error_line().unwrap_or_default()
+                    )));
+                }
+                let delay = restart.backoff(recent);
+                let line = format!(
+                    "{} (pid {}) ended ({}): restart {} of at most {} within {:.0} s, in {:.2} s",
+                    slots[k].name(),
+                    c.pid,
+                    c.exit_text(),
+                    recent + 1,
+                    restart.max_restarts,
+                    restart.window_s,
+                    delay.as_secs_f64()
+                );
+                tracing::warn!("{line}");
+                events.push(line);
+                slots[k].restart_at = Some(now + delay);
+            } else if !c.succeeded() && !slots[k].stopping {
+                return Ok(FlowEnd::Failed(format!(
+                    "{} failed ({}): {}",
+                    c.name,
+                    c.exit_text(),
+                    c.last_error_line().unwrap_or_default()
+                )));
+            }
+        }
+
+        // Restarts that are due.
+        for slot in slots.iter_mut() {
+            let Some(at) = slot.restart_at else { continue };
+            if at > Instant::now() {
+                next_wake = next_wake.min(at);
+                continue;
+            }
+            slot.restart_at = None;
+            slot.recent_restarts.push_back(Instant::now());
+            slot.restarts += 1;
+            let old_pid = slot.instances.last().map(|&i| sup.children[i].pid);
+            // The dead instance's node and ports are reclaimed before the new one opens its own.
+            let cleaned = sup.cleanup_dead();
+            match start_instance(sup, slot, true, t)? {
+                Start::StopRequested => return Ok(FlowEnd::StopRequested),
+                // Its end is picked up above, at the next turn, and handled under the policy again.
+                Start::Failed(why) => events.push(format!("restart of {} failed: {why}", slot.name())),
+                Start::Ready(index) => {
+                    let pid = sup.children[index].pid;
+                    let mut line = format!("{} restarted (pid {pid}", slot.name());
+                    if cleaned > 0 {
+                        line.push_str(&format!(", {cleaned} dead node(s) cleaned"));
+                    }
+                    if slot.service.spec.handover.is_some() {
+                        let resume = resume_point(sup, slot, old_pid, false);
+                        sup.activate(pid, resume)?;
+                        slot.resume_floor = (resume != Activation::RESUME_FROM_START).then_some(resume);
+                        line.push_str(&resume_text(resume));
+                    }
+                    line.push(')');
+                    tracing::info!("{line}");
+                    events.push(line);
+                }
+            }
+        }
+
+        // Control requests (swaps).
+        while let Some(call) = sup.next_control_request() {
+            match swap(sup, slots, &call, t, events)? {
+                Swapped::StopRequested(response) => {
+                    sup.answer(call, response);
+                    return Ok(FlowEnd::StopRequested);
+                }
+                Swapped::Answer(response) => sup.answer(call, response),
+            }
+        }
+
+        // A service whose upstreams have all ended gets `drain` to finish its stream, then is stopped.
+        let now = Instant::now();
+        for pos in 1..slots.len() {
+            let Some(i) = slots[pos].current.filter(|&i| sup.children[i].is_running()) else { continue };
+            if slots[..pos].iter().any(|s| s.is_live(sup)) {
+                continue;
+            }
+            let deadline = *slots[pos].drain_deadline.get_or_insert(now + t.drain);
+            if now >= deadline {
+                tracing::warn!(
+                    "{} did not finish within {:.1} s of its upstream; stopping it",
+                    slots[pos].name(),
+                    t.drain.as_secs_f64()
+                );
+                slots[pos].stopping = true;
+                sup.stop_one(i, t.grace)?;
+            } else {
+                next_wake = next_wake.min(deadline);
+            }
+        }
+
+        if !slots.iter().any(|s| s.is_live(sup)) {
+            // Every service ended; one that ended badly without a restart was reported above.
+            return Ok(FlowEnd::Done);
+        }
+        let running: Vec<usize> = slots.iter().filter_map(|s| s.current).collect();
+        let wait = next_wake.saturating_duration_since(Instant::now());
+        let end = sup.pump(wait, |s| s.control_pending || running.iter().any(|&i| !s.children[i].is_running()))?;
+        if end == PumpEnd::StopRequested {
+            return Ok(FlowEnd::StopRequested);
+        }
+    }
+}
+
+fn resume_text(resume: u64) -> String {
+    if resume == Activation::RESUME_FROM_START {
+        ", from the first keyframe it receives".into()
+    } else {
+        format!(", resuming after keyframe {resume}")
+    }
+}
+
+enum Swapped {
+    Answer(ControlResponse),
+    StopRequested(ControlResponse),
+}
+
+/// Make-before-break: the new instance starts (in standby for a handover service) and reports ready, the old
+/// one is stopped (SIGTERM ladder, or SIGKILL for a fault drill), then the new one is activated to resume after
+/// what downstream already has. If the new instance cannot start, the old one keeps running.
+fn swap(
+    sup: &mut Supervisor,
+    slots: &mut [Slot],
+    call: &ControlCall,
+    t: &Timeouts,
+    events: &mut Vec<String>,
+) -> Result<Swapped, SuperviseError> {
+    let request = *call.payload();
+    let began = Instant::now();
+    let no = |m: String| Ok(Swapped::Answer(ControlResponse::new(false, &m)));
+    let Some(command) = request.command() else { return no(format!("unknown command {}", request.command)) };
+    let name = request.service();
+    let Some(k) = slots.iter().position(|s| s.name() == name) else {
+        let names: Vec<&str> = slots.iter().map(|s| s.name()).collect();
+        return no(format!("no service `{name}` in this run (it has: {})", names.join(", ")));
+    };
+    let Some(old) = slots[k].current.filter(|&i| sup.children[i].is_running()) else {
+        return no(format!("`{name}` is not running"));
+    };
+    let mut service = slots[k].service.clone();
+    if let Some(binary) = request.binary() {
+        let Some(program) = crate::launch_file::find_binary(&binary) else {
+            return no(format!("binary `{binary}` not found (a path, a bdis-slam binary or a program on PATH)"));
+        };
+        service.program = program;
+        service.spec.binary = binary;
+    }
+    let extra = request.args();
+    service.args.extend(extra.iter().cloned());
+    service.spec.args.extend(extra);
+
+    let old_pid = sup.children[old].pid;
+    let previous = std::mem::replace(&mut slots[k].service, service);
+    let new = match start_instance(sup, &mut slots[k], true, t)? {
+        Start::Ready(index) => index,
+        other => {
+            // Break nothing: the old instance stays in charge with its old command line.
+            slots[k].service = previous;
+            slots[k].current = Some(old);
+            let stop = matches!(other, Start::StopRequested);
+            let why = match other {
+                Start::Failed(why) => why,
+                _ => "stop requested".into(),
+            };
+            let line =
+                format!("swap of {name} refused: the new instance did not start ({why}); pid {old_pid} keeps running");
+            tracing::warn!("{line}");
+            events.push(line.clone());
+            let response = ControlResponse::new(false, &line);
+            return Ok(if stop { Swapped::StopRequested(response) } else { Swapped::Answer(response) });
+        }
+    };
+    let new_pid = sup.children[new].pid;
+    sup.children[old].retired = true;
+    let graceful = command == ControlCommand::Swap;
+    if graceful {
+        sup.stop_one(old, t.grace)?;
+    } else {
+        sup.signal(old, libc::SIGKILL);
+        sup.pump(Duration::from_secs(5), |s| !s.children[old].is_running())?;
+    }
+    // The old instance's last records are in; a cleanly stopped one may have needed SIGKILL after all.
+    sup.pump(Duration::ZERO, |_| true)?;
+    let clean = graceful && sup.children[old].succeeded();
+    let mut response = ControlResponse::new(true, "");
+    let mut line = format!(
+        "{name} swapped: pid {old_pid} ({}) → pid {new_pid}",
+        if graceful { format!("stopped: {}", sup.children[old].exit_text()) } else { "killed with SIGKILL".into() }
+    );
+    if slots[k].service.spec.handover.is_some() {
+        let resume = resume_point(sup, &slots[k], Some(old_pid), clean);
+        sup.activate(new_pid, resume)?;
+        slots[k].resume_floor = (resume != Activation::RESUME_FROM_START).then_some(resume);
+        response.resume_after = resume;
+        line.push_str(&resume_text(resume));
+    }
+    slots[k].restarts += 1;
+    let elapsed = began.elapsed();
+    line.push_str(&format!(", {:.0} ms", elapsed.as_secs_f64() * 1e3));
+    tracing::info!("{line}");
+    events.push(line.clone());
+    response.old_pid = old_pid;
+    response.new_pid = new_pid;
+    response.duration_us = elapsed.as_micros() as u64;
+    response.message = ControlResponse::new(true, &line).message;
+    Ok(Swapped::Answer(response))
 }

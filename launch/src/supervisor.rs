@@ -10,7 +10,8 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command, ExitStatus, Stdio};
 use std::time::{Duration, Instant};
 
-use bdis_ipc::{Ipc, IpcError, TELEMETRY_DRAIN_PERIOD, TelemetryRecord, Topic};
+use bdis_ipc::control::{Activation, ControlRequest, ControlResponse};
+use bdis_ipc::{Ipc, IpcError, TELEMETRY_DRAIN_PERIOD, TelemetryRecord, Topic, event_id};
 use iceoryx2::port::listener::Listener;
 use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::prelude::*;
@@ -34,6 +35,19 @@ pub enum SuperviseError {
 fn os(what: impl Into<String>) -> impl FnOnce(std::io::Error) -> SuperviseError {
     let what = what.into();
     move |e| SuperviseError::Os { what, detail: e.to_string() }
+}
+
+/// Pins the calling process (the launcher) to one core; a failure is logged, not fatal (the run still works).
+pub fn pin_this_process(core: usize) {
+    // SAFETY: zeroed cpu_set_t is the empty set; CPU_SET only writes into it; sched_setaffinity reads it.
+    let ok = unsafe {
+        let mut set: libc::cpu_set_t = std::mem::zeroed();
+        libc::CPU_SET(core, &mut set);
+        libc::sched_setaffinity(0, std::mem::size_of::<libc::cpu_set_t>(), &set) == 0
+    };
+    if !ok {
+        tracing::warn!("could not pin the launcher to core {core}: {}", std::io::Error::last_os_error());
+    }
 }
 
 /// A Linux pidfd: becomes readable when its process exits, so a WaitSet can wait for children.
@@ -70,6 +84,10 @@ pub struct Supervised {
     pub log: PathBuf,
     pub started: Instant,
     pub exit: Option<ExitStatus>,
+    /// Swapped out or stopped on purpose by the launcher: its end is expected, not a failure of the run.
+    pub retired: bool,
+    /// Stopped by the launcher because it missed its liveness deadline: a failure even if it exited cleanly.
+    pub hung: bool,
     child: Child,
     pidfd: PidFd,
 }
@@ -81,6 +99,13 @@ impl Supervised {
 
     /// `ok`, `exit code N` or `killed by signal S`; `running` while it runs.
     pub fn exit_text(&self) -> String {
+        if self.hung && self.exit.is_some() {
+            return format!("hung (missed its liveness deadline), then {}", self.exit_text_of_status());
+        }
+        self.exit_text_of_status()
+    }
+
+    fn exit_text_of_status(&self) -> String {
         match self.exit {
             None => "running".into(),
             Some(s) if s.success() => "ok".into(),
@@ -93,7 +118,7 @@ impl Supervised {
     }
 
     pub fn succeeded(&self) -> bool {
-        self.exit.is_some_and(|s| s.success())
+        !self.hung && self.exit.is_some_and(|s| s.success())
     }
 
     /// The last line of its log that says what went wrong (or the last line).
@@ -113,6 +138,23 @@ pub enum PumpEnd {
     StopRequested,
 }
 
+type ControlServer = iceoryx2::port::server::Server<ipc::Service, ControlRequest, (), ControlResponse, ()>;
+/// A control request being carried out; answered with [`Supervisor::answer`].
+pub type ControlCall = iceoryx2::active_request::ActiveRequest<ipc::Service, ControlRequest, (), ControlResponse, ()>;
+
+/// The launcher's side of the control contract: requests in, activations out.
+#[derive(Debug)]
+struct ControlPorts {
+    server: ControlServer,
+    requests: Listener<ipc::Service>,
+    responses: iceoryx2::port::notifier::Notifier<ipc::Service>,
+    activations: iceoryx2::port::publisher::Publisher<ipc::Service, Activation, ()>,
+    activation_events: iceoryx2::port::notifier::Notifier<ipc::Service>,
+    /// Services kept alive with their ports.
+    _control: bdis_ipc::control::ControlService,
+    _activation: bdis_ipc::control::ActivationService,
+}
+
 /// Owns the run's children and its telemetry subscription.
 #[derive(Debug)]
 pub struct Supervisor {
@@ -122,6 +164,9 @@ pub struct Supervisor {
     pub latency: LatencyAggregator,
     pub children: Vec<Supervised>,
     run_dir: PathBuf,
+    control: ControlPorts,
+    /// A control request was signalled and not yet taken.
+    pub control_pending: bool,
 }
 
 impl Supervisor {
@@ -131,6 +176,26 @@ impl Supervisor {
         let service = ipc.telemetry()?;
         let telemetry = ipc.telemetry_subscriber(&service)?;
         let telemetry_listener = ipc.listener(&ipc.events(Topic::Telemetry)?)?;
+        let control_service = ipc.control()?;
+        let server = control_service
+            .server_builder()
+            .create()
+            .map_err(|e| IpcError::Iceoryx { context: "create the control server".into(), detail: format!("{e:?}") })?;
+        let control_events = ipc.control_events()?;
+        let activation = ipc.activation()?;
+        let activations = activation.publisher_builder().create().map_err(|e| IpcError::Iceoryx {
+            context: "create the activation publisher".into(),
+            detail: format!("{e:?}"),
+        })?;
+        let control = ControlPorts {
+            server,
+            requests: ipc.listener(&control_events)?,
+            responses: ipc.notifier(&control_events)?,
+            activations,
+            activation_events: ipc.notifier(&ipc.activation_events()?)?,
+            _control: control_service,
+            _activation: activation,
+        };
         Ok(Self {
             ipc,
             telemetry,
@@ -138,7 +203,39 @@ impl Supervisor {
             latency: LatencyAggregator::new(),
             children: Vec::new(),
             run_dir: run_dir.to_path_buf(),
+            control,
+            control_pending: false,
         })
+    }
+
+    /// The next control request, if one is waiting.
+    pub fn next_control_request(&mut self) -> Option<ControlCall> {
+        self.control_pending = false;
+        match self.control.server.receive() {
+            Ok(r) => r,
+            Err(e) => {
+                tracing::warn!("control request: {e:?}");
+                None
+            }
+        }
+    }
+
+    /// Answers a control request (the caller may have given up waiting: that is not an error here).
+    pub fn answer(&self, call: ControlCall, response: ControlResponse) {
+        if let Err(e) = call.send_copy(response) {
+            tracing::warn!("answer a control request: {e:?}");
+        }
+        let _ = bdis_ipc::notify(&self.control.responses, event_id::CONTROL_RESPONSE);
+    }
+
+    /// Tells the standby process `pid` to start, skipping keyframes up to `resume_after`.
+    pub fn activate(&self, pid: u32, resume_after: u64) -> Result<(), SuperviseError> {
+        self.control
+            .activations
+            .send_copy(Activation { pid, reserved: 0, resume_after })
+            .map_err(|e| IpcError::Iceoryx { context: "send an activation".into(), detail: format!("{e:?}") })?;
+        bdis_ipc::notify(&self.control.activation_events, event_id::NEW_SAMPLE)?;
+        Ok(())
     }
 
     pub fn prefix(&self) -> &str {
@@ -147,14 +244,22 @@ impl Supervisor {
 
     /// Starts a service in its own process group (a terminal's Ctrl-C reaches only the launcher, which stops
     /// the pipeline in order), pinned to its core from its first instruction, output into its log file.
-    pub fn spawn(&mut self, service: &ResolvedService) -> Result<usize, SuperviseError> {
+    /// Every instance of a service writes its own log: `<name>.log`, then `<name>.1.log`, `<name>.2.log`, … for
+    /// replacements, so a crashed instance's last words are kept.
+    pub fn spawn(&mut self, service: &ResolvedService, extra_args: &[String]) -> Result<usize, SuperviseError> {
         let logs = self.run_dir.join("logs");
         std::fs::create_dir_all(&logs).map_err(os(format!("create {}", logs.display())))?;
-        let log = logs.join(format!("{}.log", service.spec.name));
+        let earlier = self.children.iter().filter(|c| c.name == service.spec.name).count();
+        let log = if earlier == 0 {
+            logs.join(format!("{}.log", service.spec.name))
+        } else {
+            logs.join(format!("{}.{earlier}.log", service.spec.name))
+        };
         let out = File::create(&log).map_err(os(format!("create {}", log.display())))?;
         let err = out.try_clone().map_err(os(format!("open {}", log.display())))?;
         let mut cmd = Command::new(&service.program);
         cmd.args(&service.args)
+            .args(extra_args)
             .envs(&service.spec.env)
             .env(bdis_ipc::PREFIX_ENV, &self.ipc.prefix)
             .env(SERVICE_NAME_ENV, &service.spec.name)
@@ -201,6 +306,8 @@ impl Supervisor {
             log,
             started: Instant::now(),
             exit: None,
+            retired: false,
+            hung: false,
             child,
             pidfd,
         });
@@ -265,6 +372,7 @@ impl Supervisor {
                 let attach_err =
                     |e| IpcError::Iceoryx { context: "attach to the WaitSet".into(), detail: format!("{e:?}") };
                 let _telemetry = waitset.attach_notification(&self.telemetry_listener).map_err(attach_err)?;
+                let _control = waitset.attach_notification(&self.control.requests).map_err(attach_err)?;
                 let _tick = waitset.attach_interval(TELEMETRY_DRAIN_PERIOD).map_err(attach_err)?;
                 let _children = self
                     .children
@@ -278,6 +386,9 @@ impl Supervisor {
                     .map_err(|e| IpcError::Iceoryx { context: "wait".into(), detail: format!("{e:?}") })?;
                 matches!(result, WaitSetRunResult::TerminationRequest | WaitSetRunResult::Interrupt)
             };
+            if bdis_ipc::drain_events(&self.control.requests).is_ok_and(|seen| seen != 0) {
+                self.control_pending = true;
+            }
             if stop_requested {
                 self.drain_telemetry();
                 self.reap();
@@ -290,21 +401,33 @@ impl Supervisor {
     /// still sends end of stream, so downstream services usually finish by themselves before their turn.
     pub fn stop_in_order(&mut self, order: &[usize], grace: Duration) -> Result<(), SuperviseError> {
         for &i in order {
-            if !self.children[i].is_running() {
-                continue;
-            }
-            tracing::info!("stopping {}", self.children[i].name);
-            self.signal(i, libc::SIGTERM);
-            // A second Ctrl-C while stopping is not a reason to skip the SIGKILL step.
-            let mut end = self.pump(grace, |s| !s.children[i].is_running())?;
-            while end == PumpEnd::StopRequested {
-                end = self.pump(grace, |s| !s.children[i].is_running())?;
-            }
-            if end == PumpEnd::Timeout {
-                tracing::warn!("{} ignored SIGTERM for {:.1} s: SIGKILL", self.children[i].name, grace.as_secs_f64());
-                self.signal(i, libc::SIGKILL);
-                self.pump(Duration::from_secs(5), |s| !s.children[i].is_running())?;
-            }
+            self.stop_one(i, grace)?;
+        }
+        Ok(())
+    }
+
+    /// The stop ladder for one child: SIGTERM, up to `grace` to exit, then SIGKILL.
+    pub fn stop_one(&mut self, i: usize, grace: Duration) -> Result<(), SuperviseError> {
+        if !self.children[i].is_running() {
+            return Ok(());
+        }
+        tracing::info!("stopping {} (pid {})", self.children[i].name, self.children[i].pid);
+        self.signal(i, libc::SIGTERM);
+        // A second Ctrl-C while stopping is not a reason to skip (or postpone) the SIGKILL step.
+        let deadline = Instant::now() + grace;
+        let mut end = self.pump(grace, |s| !s.children[i].is_running())?;
+        while end == PumpEnd::StopRequested {
+            end = self.pump(deadline.saturating_duration_since(Instant::now()), |s| !s.children[i].is_running())?;
+        }
+        if end == PumpEnd::Timeout {
+            tracing::warn!(
+                "{} (pid {}) ignored SIGTERM for {:.1} s: SIGKILL",
+                self.children[i].name,
+                self.children[i].pid,
+                grace.as_secs_f64()
+            );
+            self.signal(i, libc::SIGKILL);
+            self.pump(Duration::from_secs(5), |s| !s.children[i].is_running())?;
         }
         Ok(())
     }

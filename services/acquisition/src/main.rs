@@ -28,7 +28,8 @@ struct Args {
     /// Settings file (ORB-SLAM2 YAML or bdis-slam TOML); checked against the images.
     #[arg(long)]
     settings: Option<PathBuf>,
-    /// `on-demand` (next frame when a consumer asks), `recorded` (follow times.txt), or a rate such as `30hz`.
+    /// `on-demand` (next frame when a consumer asks), `recorded` (follow times.txt), a rate such as `30hz`, or
+    /// `on-demand:30hz` (when a consumer asks, but no faster than the rate: never drops a frame).
     #[arg(long, default_value = "on-demand")]
     pacing: Pacing,
     /// Stop after this many frames.
@@ -124,7 +125,7 @@ fn run(args: Args) -> Result<()> {
     // On demand, frames sent but not yet released by a consumer. When a consumer (re)joins mid-stream (a
     // replacement stereo instance), these are sent again: the instance that held them may have died with them.
     let mut unacked: std::collections::VecDeque<usize> = std::collections::VecDeque::with_capacity(8);
-    let on_demand = args.pacing == Pacing::OnDemand;
+    let on_demand = args.pacing.waits_for_consumer();
     // Set when iceoryx2 reports a consumer's notifier dead (its process died and was cleaned up): the next
     // consumer to join gets the frames the dead one held. A consumer joining while all others live gets none.
     let mut consumer_died = false;
@@ -141,8 +142,8 @@ fn run(args: Args) -> Result<()> {
         loop {
             let now = monotonic_ns();
             let timeout = match due_ns {
-                None if credits > 0 => Duration::ZERO,
-                None => Duration::from_secs(1),
+                _ if on_demand && credits == 0 => Duration::from_secs(1),
+                None => Duration::ZERO,
                 Some(due) => Duration::from_nanos(due.saturating_sub(now)),
             };
             let (mut released, mut joined, mut died) = (0u64, 0u64, 0u64);
@@ -163,6 +164,7 @@ fn run(args: Args) -> Result<()> {
                 )
                 .map_err(|e| anyhow::anyhow!("wait for the next frame: {e:?}"))?;
             credits += released + joined;
+            telemetry.keepalive();
             for _ in 0..released {
                 unacked.pop_front();
             }
@@ -181,20 +183,20 @@ fn run(args: Args) -> Result<()> {
                     continue 'frames;
                 }
             }
-            match due_ns {
-                None if credits > 0 => {
+            // Due when a consumer has asked for it (on demand) and its time has come (a rate).
+            if on_demand && credits == 0 {
+                waited_ms += timeout.as_millis() as u64;
+                if waited_ms > 0 && waited_ms.is_multiple_of(5000) {
+                    tracing::warn!("no consumer has asked for frame {index} for {} s", waited_ms / 1000);
+                    ipc.cleanup_dead_nodes();
+                }
+                continue;
+            }
+            if due_ns.is_none_or(|due| monotonic_ns() >= due) {
+                if on_demand {
                     credits -= 1;
-                    break;
                 }
-                None => {
-                    waited_ms += timeout.as_millis() as u64;
-                    if waited_ms > 0 && waited_ms.is_multiple_of(5000) {
-                        tracing::warn!("no consumer has asked for frame {index} for {} s", waited_ms / 1000);
-                        ipc.cleanup_dead_nodes();
-                    }
-                }
-                Some(due) if monotonic_ns() >= due => break,
-                Some(_) => {}
+                break;
             }
         }
 

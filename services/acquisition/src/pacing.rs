@@ -11,6 +11,28 @@ pub enum Pacing {
     Recorded,
     /// A fixed rate in Hz.
     Fixed(f64),
+    /// On demand, but no faster than this rate: a live camera's pace without ever dropping a frame (a slow
+    /// consumer delays frames instead). Written `on-demand:30hz`.
+    OnDemandAtMost(f64),
+}
+
+impl Pacing {
+    /// True when a frame waits for a consumer's credit.
+    pub fn waits_for_consumer(self) -> bool {
+        matches!(self, Self::OnDemand | Self::OnDemandAtMost(_))
+    }
+}
+
+fn parse_rate(s: &str, whole: &str) -> Result<f64, String> {
+    let hz: f64 =
+        s.trim_end_matches("hz").trim_end_matches("Hz").parse().map_err(|_| {
+            format!("`{whole}`: expected on-demand, on-demand:<rate>, recorded, or a rate such as 30hz")
+        })?;
+    if hz.is_finite() && hz > 0.0 && hz <= 10_000.0 {
+        Ok(hz)
+    } else {
+        Err(format!("`{whole}`: the rate must be in (0, 10000] Hz"))
+    }
 }
 
 impl FromStr for Pacing {
@@ -19,18 +41,10 @@ impl FromStr for Pacing {
         match s {
             "on-demand" => Ok(Self::OnDemand),
             "recorded" => Ok(Self::Recorded),
-            _ => {
-                let hz: f64 = s
-                    .trim_end_matches("hz")
-                    .trim_end_matches("Hz")
-                    .parse()
-                    .map_err(|_| format!("`{s}`: expected on-demand, recorded, or a rate such as 30hz"))?;
-                if hz.is_finite() && hz > 0.0 && hz <= 10_000.0 {
-                    Ok(Self::Fixed(hz))
-                } else {
-                    Err(format!("`{s}`: the rate must be in (0, 10000] Hz"))
-                }
-            }
+            _ => match s.strip_prefix("on-demand:") {
+                Some(rate) => parse_rate(rate, s).map(Self::OnDemandAtMost),
+                None => parse_rate(s, s).map(Self::Fixed),
+            },
         }
     }
 }
@@ -54,7 +68,7 @@ impl Schedule {
     pub fn due_offset_ns(&self, index: usize, t_source_s: Option<f64>) -> Option<u64> {
         let seconds = match self.pacing {
             Pacing::OnDemand => return None,
-            Pacing::Fixed(hz) => index as f64 / hz,
+            Pacing::Fixed(hz) | Pacing::OnDemandAtMost(hz) => index as f64 / hz,
             Pacing::Recorded => match (t_source_s, self.first_source_s) {
                 (Some(t), Some(t0)) => t - t0,
                 _ => index as f64 * self.fallback_period_s,
@@ -74,6 +88,10 @@ mod tests {
         assert_eq!("25hz".parse::<Pacing>(), Ok(Pacing::Fixed(25.0)));
         assert!("fast".parse::<Pacing>().is_err());
         assert!("0hz".parse::<Pacing>().is_err());
+        assert_eq!("on-demand:30hz".parse::<Pacing>(), Ok(Pacing::OnDemandAtMost(30.0)));
+        assert!("on-demand:fast".parse::<Pacing>().unwrap_err().contains("on-demand:<rate>"));
+        assert!(Pacing::OnDemandAtMost(30.0).waits_for_consumer() && !Pacing::Fixed(30.0).waits_for_consumer());
+        assert_eq!(Schedule::new(Pacing::OnDemandAtMost(10.0), None, 30.0).due_offset_ns(2, None), Some(200_000_000));
         let s = Schedule::new(Pacing::Recorded, Some(10.0), 30.0);
         assert_eq!(s.due_offset_ns(3, Some(10.5)), Some(500_000_000));
         let s = Schedule::new(Pacing::Recorded, None, 25.0);

@@ -135,6 +135,7 @@ fn run(args: Args) -> Result<()> {
         let _ = bdis_ipc::drain_events(&depth_events);
         let _ = bdis_ipc::drain_events(&correction_events);
         let _ = bdis_ipc::drain_events(&snapshot_requests);
+        telemetry.keepalive();
         // Corrections first: those a keyframe was made after were sent before it.
         if let Err(e) = pending.receive(&correction_subscriber) {
             break Some(e);

@@ -2,7 +2,12 @@
 //! acquisition as a keyframe, matches it in place in shared memory (BDIS or plain DIS), and publishes a depth
 //! keyframe (disparity, confidence, RGB, intrinsics) written once into a loaned sample.
 //!
-//! Replaceable at any moment: with on-demand pacing, acquisition sends a frame only when a consumer has released
+//! Hot-swappable: started with `--standby` (by the launcher, for a swap or a restart), it opens its ports,
+//! reports ready and waits for the launcher's activation, which comes after its predecessor has stopped and says
+//! after which keyframe to resume. The tracker keeps its last keyframes in the topic's history, so the new
+//! instance receives the ones its predecessor did not finish.
+//!
+//! With frames as input it is replaceable at any moment too: with on-demand pacing, acquisition sends a frame only when a consumer has released
 //! the last one, and when a consumer joins it sends again the frames nobody released, so a new instance first
 //! receives the frame its predecessor died on. A keyframe may therefore be published twice; consumers
 //! de-duplicate by keyframe id.
@@ -21,7 +26,8 @@ use iceoryx2::waitset::WaitSetRunResult;
 
 /// Dense stereo service: frames in, depth keyframes out.
 #[derive(Debug, Parser)]
-#[command(name = "bdis-stereo", version)]
+// A later flag overrides an earlier one, so a swap can append `--algorithm dis` to the service's arguments.
+#[command(name = "bdis-stereo", version, args_override_self = true)]
 struct Args {
     /// Settings file: the camera (fx, fy, cx, cy, bf) and `BDISparam.*`.
     #[arg(long)]
@@ -39,6 +45,10 @@ struct Args {
     /// Override a BDIS parameter, e.g. `--param patchsz=8` (repeatable).
     #[arg(long = "param", value_name = "NAME=VALUE")]
     params: Vec<String>,
+    /// Open the ports, report ready, then wait for the launcher's activation before taking keyframes (a
+    /// replacement instance: make-before-break).
+    #[arg(long)]
+    standby: bool,
     /// Name of this process in the run.
     #[arg(long, env = "BDIS_SERVICE_NAME", default_value = "stereo")]
     name: String,
@@ -144,6 +154,9 @@ fn run(args: Args) -> Result<()> {
         "keyframes" => true,
         other => bail!("--input: `{other}` is not an input (frames, keyframes)"),
     };
+    if args.standby && !from_tracker {
+        bail!("--standby: only with --input keyframes (with frames as input a new instance simply joins)");
+    }
     let mut matcher = Matcher::new(params)?;
     let camera = settings.camera;
     let (Some(width), Some(height)) = (camera.width, camera.height) else {
@@ -177,8 +190,34 @@ fn run(args: Args) -> Result<()> {
         ..Default::default()
     };
     let published = if from_tracker {
-        tracing::info!("stereo ({:?}, the tracker's keyframes) ready", params.algorithm);
-        from_keyframes(&ipc, &mut output, &mut telemetry, base)?
+        // The subscription exists before ready is reported: nothing sent from now on is missed, and the tracker's
+        // history brings the last keyframes before it.
+        let keyframes = ipc.keyframes()?;
+        let subscriber = ipc.keyframe_subscriber(&keyframes)?;
+        let mut resume_after = None;
+        if args.standby {
+            let standby = bdis_ipc::control::Standby::open(&ipc)?;
+            telemetry.ready();
+            tracing::info!("stereo ({:?}, the tracker's keyframes) in standby", params.algorithm);
+            match standby.wait(|| telemetry.keepalive())? {
+                None => {
+                    tracing::info!("stop requested in standby");
+                    telemetry.finished();
+                    return Ok(());
+                }
+                Some(after) => {
+                    resume_after = (after != bdis_ipc::control::Activation::RESUME_FROM_START).then_some(after);
+                    tracing::info!(
+                        "activated{}",
+                        resume_after.map_or(String::new(), |k| format!(": resuming after keyframe {k}"))
+                    );
+                }
+            }
+        } else {
+            telemetry.ready();
+            tracing::info!("stereo ({:?}, the tracker's keyframes) ready", params.algorithm);
+        }
+        from_keyframes(&ipc, &subscriber, &mut output, &mut telemetry, base, resume_after)?
     } else {
         tracing::info!("stereo ({:?}, every {} frames) ready", params.algorithm, args.every);
         from_frames(&ipc, &mut output, &mut telemetry, base, args.every)?
@@ -219,6 +258,7 @@ fn from_frames(
         }
         let _ = bdis_ipc::drain_events(&frame_events);
         let _ = &guard;
+        telemetry.keepalive();
         loop {
             let sample = match subscriber.receive() {
                 Ok(Some(s)) => s,
@@ -263,20 +303,20 @@ fn from_frames(
 /// safely), so nothing is acknowledged.
 fn from_keyframes(
     ipc: &Ipc,
+    subscriber: &iceoryx2::port::subscriber::Subscriber<ipc::Service, [u8], bdis_ipc::KeyframeHeader>,
     output: &mut DepthOutput,
     telemetry: &mut TelemetryPublisher,
     base: DepthHeader,
+    resume_after: Option<u64>,
 ) -> Result<u64> {
-    let keyframes = ipc.keyframes()?;
-    let subscriber = ipc.keyframe_subscriber(&keyframes)?;
     let events = ipc.listener(&ipc.events(Topic::Keyframes)?)?;
     let waitset = WaitSetBuilder::new().create::<ipc::Service>().map_err(|e| iox("create a WaitSet")(&e))?;
     let guard = waitset
         .attach_deadline(&events, Duration::from_secs(1))
         .map_err(|e| iox("attach the keyframes listener")(&e))?;
-    let mut last_kf: Option<u64> = None;
+    // Keyframes up to `resume_after` were done by a predecessor (history replays them).
+    let mut last_kf: Option<u64> = resume_after;
     let mut published = 0u64;
-    telemetry.ready();
     'outer: loop {
         let result = waitset
             .wait_and_process_once(|_| CallbackProgression::Continue)
@@ -287,6 +327,7 @@ fn from_keyframes(
         }
         let _ = bdis_ipc::drain_events(&events);
         let _ = &guard;
+        telemetry.keepalive();
         loop {
             let sample = match subscriber.receive() {
                 Ok(Some(s)) => s,
@@ -352,7 +393,8 @@ fn report(
     );
     telemetry.message(
         MessageTiming {
-            frame_seq,
+            // The keyframe id: the launcher resumes a replacement after the last one done.
+            frame_seq: kf_id,
             t_capture_ns: header.t_capture_ns,
             t_upstream_publish_ns: header.t_publish_ns,
             t_receive_ns,

@@ -17,6 +17,7 @@ use bdis_ipc::{
 };
 use bdis_track::{StereoCamera, Tracker, TrackerSettings, TrackingState};
 use clap::Parser;
+use iceoryx2::port::update_connections::UpdateConnections;
 use iceoryx2::prelude::*;
 use iceoryx2::waitset::WaitSetRunResult;
 
@@ -119,6 +120,13 @@ fn run(args: Args) -> Result<()> {
         }
         let _ = bdis_ipc::drain_events(&frame_events);
         let _ = &guard;
+        telemetry.keepalive();
+        // A stereo instance that joined since the last wake-up (a swap, a restart) receives the keyframe history
+        // now rather than at the next keyframe, which may be seconds away while the endoscope hovers. Cheap when
+        // nothing changed (a generation counter compare).
+        if let Err(e) = keyframe_publisher.update_connections() {
+            tracing::warn!("keyframes: connecting a new subscriber: {e:?}");
+        }
         loop {
             let sample = match subscriber.receive() {
                 Ok(Some(s)) => s,

@@ -21,6 +21,7 @@ use iceoryx2::service::port_factory::event::PortFactory as EventFactory;
 use iceoryx2::service::port_factory::publish_subscribe::PortFactory as PubSubFactory;
 
 pub mod clock;
+pub mod control;
 pub mod depth;
 pub mod frame;
 pub mod map;
@@ -58,7 +59,11 @@ pub mod event_id {
     pub const MAP_REQUEST: usize = 6;
     /// The map's owner answered a snapshot request.
     pub const MAP_RESPONSE: usize = 7;
-    pub const MAX: usize = 7;
+    /// A tool sent the launcher a control request (swap a service).
+    pub const CONTROL_REQUEST: usize = 8;
+    /// The launcher answered a control request.
+    pub const CONTROL_RESPONSE: usize = 9;
+    pub const MAX: usize = 9;
 }
 
 /// The topics of the pipeline. Their names, payloads and QoS are defined here and nowhere else.
@@ -173,7 +178,7 @@ pub mod qos {
     pub const DEPTH_BORROWED: usize = 2;
     pub const MAX_NODES: usize = 32;
     pub const TELEMETRY_MAX_PUBLISHERS: usize = 16;
-    /// Keyframes: 3 · (8 + 2) + 0 + 1 = 31 samples of 5·W·H bytes (48 MB at 640×480). The buffer covers a
+    /// Keyframes: 3 · (8 + 2) + 8 + 1 = 39 samples of 5·W·H bytes (60 MB at 640×480). The buffer covers a
     /// stereo instance being busy for 8 keyframes (seconds of tracking) before the oldest is lost.
     pub const KEYFRAMES_MAX_PUBLISHERS: usize = 2;
     pub const KEYFRAMES_MAX_SUBSCRIBERS: usize = 3;
@@ -187,6 +192,12 @@ pub mod qos {
     /// Records are drained by the launcher every [`TELEMETRY_DRAIN_PERIOD`](super::TELEMETRY_DRAIN_PERIOD); the
     /// buffer holds seconds of them at pipeline rates.
     pub const TELEMETRY_BUFFER: usize = 512;
+    /// Standby instances waiting for the launcher's activation (at most one per swappable service at a time).
+    pub const ACTIVATION_MAX_SUBSCRIBERS: usize = 4;
+    pub const ACTIVATION_BUFFER: usize = 4;
+    /// The last keyframes stay in the publisher's history: a stereo instance that joins late (a swap, a
+    /// restart after a crash) receives them and redoes those its downstream does not have yet.
+    pub const KEYFRAMES_HISTORY: usize = 8;
 }
 
 /// How often the launcher drains telemetry. Message records are not individually signalled (that would add a
@@ -375,7 +386,7 @@ impl Ipc {
                 .max_nodes(qos::MAX_NODES)
                 .subscriber_max_buffer_size(qos::KEYFRAMES_BUFFER)
                 .subscriber_max_borrowed_samples(qos::KEYFRAMES_BORROWED)
-                .history_size(0)
+                .history_size(qos::KEYFRAMES_HISTORY)
                 .enable_safe_overflow(true)
                 .open_or_create()
         })

@@ -21,7 +21,14 @@ pub enum TelemetryKind {
     Finished = 3,
     /// The process stopped on an error (totals as for `Finished`).
     Failed = 4,
+    /// Nothing to report, but alive: sent when a process has been quiet for [`HEARTBEAT_PERIOD`], so the launcher
+    /// can tell an idle service from a hung one (its liveness deadline).
+    Heartbeat = 5,
 }
+
+/// A process that has sent no record for this long sends a heartbeat at its next wake-up. Services wake at least
+/// once a second (their WaitSet deadlines), so a live service is never silent for much over a second.
+pub const HEARTBEAT_PERIOD: std::time::Duration = std::time::Duration::from_millis(500);
 
 impl TelemetryKind {
     pub fn from_u32(v: u32) -> Option<Self> {
@@ -30,6 +37,7 @@ impl TelemetryKind {
             2 => Self::Message,
             3 => Self::Finished,
             4 => Self::Failed,
+            5 => Self::Heartbeat,
             _ => return None,
         })
     }
@@ -49,6 +57,9 @@ pub struct TelemetryRecord {
     pub process: [u8; 32],
     pub input_topic: [u8; 16],
     pub output_topic: [u8; 16],
+    /// The id of the message handled: the frame sequence number, or the keyframe id on the keyframes and depth
+    /// topics (a keyframe-consuming service reports the keyframe id, so the launcher knows which keyframes are
+    /// done downstream when it swaps the stereo service).
     pub frame_seq: u64,
     pub t_capture_ns: u64,
     pub t_upstream_publish_ns: u64,
@@ -123,6 +134,7 @@ pub struct TelemetryPublisher {
     notifier: Notifier<ipc::Service>,
     template: TelemetryRecord,
     failures: u64,
+    last_sent_ns: u64,
 }
 
 impl TelemetryPublisher {
@@ -141,7 +153,7 @@ impl TelemetryPublisher {
             output_topic: fixed(output.map_or("", Topic::short_name)),
             ..Default::default()
         };
-        Ok(Self { publisher, notifier, template, failures: 0 })
+        Ok(Self { publisher, notifier, template, failures: 0, last_sent_ns: clock::monotonic_ns() })
     }
 
     fn send(&mut self, kind: TelemetryKind, timing: MessageTiming, wake_launcher: bool) {
@@ -156,6 +168,7 @@ impl TelemetryPublisher {
             record.cpu_time_ns = clock::process_cpu_ns();
         }
         self.template.record_seq += 1;
+        self.last_sent_ns = clock::monotonic_ns();
         let sent = self.publisher.send_copy(record).map(|_| ());
         let notified = if wake_launcher {
             self.notifier
@@ -201,6 +214,17 @@ impl TelemetryPublisher {
             MessageTiming { t_done_ns: clock::monotonic_ns(), ..Default::default() },
             true,
         );
+    }
+
+    /// Sends a heartbeat when nothing was sent for [`HEARTBEAT_PERIOD`]; cheap to call at every wake-up.
+    pub fn keepalive(&mut self) {
+        if clock::elapsed_ns(self.last_sent_ns, clock::monotonic_ns()) >= HEARTBEAT_PERIOD.as_nanos() as u64 {
+            self.send(
+                TelemetryKind::Heartbeat,
+                MessageTiming { t_done_ns: clock::monotonic_ns(), ..Default::default() },
+                false,
+            );
+        }
     }
 
     pub fn messages(&self) -> u64 {

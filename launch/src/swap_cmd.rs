@@ -1,0 +1,81 @@
+//! `bdis-slam swap`: asks a running launcher (over iceoryx2 request-response) to replace one of its services
+//! make-before-break, and prints what it did.
+
+use std::time::{Duration, Instant};
+
+use anyhow::{Result, anyhow, bail};
+use bdis_ipc::control::{Activation, ControlCommand, ControlRequest};
+use bdis_ipc::{Ipc, event_id};
+use iceoryx2::prelude::*;
+
+#[derive(Debug, clap::Args)]
+#[command(
+    after_help = "Examples:\n  bdis-slam swap stereo --ipc-prefix bdis_r1234_\n  bdis-slam swap stereo -- --algorithm dis\n  bdis-slam swap stereo --bin ./target/release/bdis-stereo -- --param patchsz=12"
+)]
+pub struct SwapArgs {
+    /// The service to replace (its name in the run, e.g. `stereo`).
+    service: String,
+    /// Start the new instance from this binary (default: the service's binary).
+    #[arg(long = "bin", value_name = "PATH")]
+    binary: Option<String>,
+    /// Kill the old instance with SIGKILL instead of stopping it gracefully (a fault drill: what it was working
+    /// on is redone by the new instance).
+    #[arg(long)]
+    kill: bool,
+    /// Give up when the launcher has not answered within this many seconds.
+    #[arg(long, default_value_t = 60.0)]
+    timeout: f64,
+    /// Shared-memory name prefix of the run (printed by `bdis-slam run`, or BDIS_IPC_PREFIX).
+    #[arg(long, env = bdis_ipc::PREFIX_ENV, default_value = bdis_ipc::DEFAULT_PREFIX)]
+    ipc_prefix: String,
+    /// Arguments appended to the service's own for the new instance (and its later restarts); for bdis-stereo a
+    /// later flag overrides an earlier one, e.g. `-- --algorithm dis`.
+    #[arg(last = true)]
+    args: Vec<String>,
+}
+
+pub fn swap(args: SwapArgs) -> Result<()> {
+    if !(args.timeout.is_finite() && args.timeout > 0.0) {
+        bail!("--timeout: must be > 0 seconds, found {}", args.timeout);
+    }
+    let command = if args.kill { ControlCommand::Kill } else { ControlCommand::Swap };
+    let request =
+        ControlRequest::new(command, &args.service, args.binary.as_deref(), &args.args).map_err(|e| anyhow!("{e}"))?;
+    let ipc = Ipc::open("swap", &args.ipc_prefix)?;
+    let service = ipc.control()?;
+    if service.dynamic_config().number_of_servers() == 0 {
+        bail!("no launcher is running with shared-memory prefix `{}`", args.ipc_prefix);
+    }
+    let client = service.client_builder().create().map_err(|e| anyhow!("create the control client: {e:?}"))?;
+    let events = ipc.control_events()?;
+    let request_signal = ipc.notifier(&events)?;
+    let responses = ipc.listener(&events)?;
+    let waitset = WaitSetBuilder::new().create::<ipc::Service>().map_err(|e| anyhow!("create a WaitSet: {e:?}"))?;
+    let _guard = waitset.attach_notification(&responses).map_err(|e| anyhow!("attach the listener: {e:?}"))?;
+
+    let start = Instant::now();
+    let pending = client.send_copy(request).map_err(|e| anyhow!("send the swap request: {e:?}"))?;
+    bdis_ipc::notify(&request_signal, event_id::CONTROL_REQUEST)?;
+    let deadline = start + Duration::from_secs_f64(args.timeout);
+    let response = loop {
+        if let Some(r) = pending.receive().map_err(|e| anyhow!("receive the answer: {e:?}"))? {
+            break *r.payload();
+        }
+        let left = deadline.saturating_duration_since(Instant::now());
+        if left.is_zero() {
+            bail!("the launcher did not answer within {} s", args.timeout);
+        }
+        waitset
+            .wait_and_process_once_with_timeout(|_| CallbackProgression::Continue, left)
+            .map_err(|e| anyhow!("wait for the answer: {e:?}"))?;
+        let _ = bdis_ipc::drain_events(&responses);
+    };
+    if response.ok == 0 {
+        bail!("{}", response.message());
+    }
+    println!("{}", response.message());
+    if response.resume_after != Activation::RESUME_FROM_START {
+        tracing::debug!("resumed after keyframe {}", response.resume_after);
+    }
+    Ok(())
+}
