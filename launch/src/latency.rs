@@ -589,6 +589,42 @@ mod tests {
     }
 
     #[test]
+    fn instances_of_a_service_are_told_apart_for_readiness_liveness_and_resume_points() {
+        let mut agg = LatencyAggregator::new();
+        let with_pid = |mut r: TelemetryRecord, pid: u32, item: u64| {
+            r.pid = pid;
+            r.frame_seq = item;
+            r
+        };
+        agg.record(&with_pid(rec("mosaic", TelemetryKind::Ready, 0, [0; 4], "depth", ""), 9, 0));
+        agg.record(&with_pid(rec("stereo", TelemetryKind::Ready, 0, [0; 4], "keyframes", "depth"), 1, 0));
+        for kf in 0..5u64 {
+            let t = [1_000 + kf, 2_000, 3_000, 4_000 + kf];
+            agg.record(&with_pid(rec("stereo", TelemetryKind::Message, kf + 1, t, "keyframes", "depth"), 1, kf));
+            if kf < 3 {
+                agg.record(&with_pid(rec("mosaic", TelemetryKind::Message, kf + 1, t, "depth", ""), 9, kf));
+            }
+        }
+        // A replacement reports ready while the old instance still sends (make-before-break); its record
+        // numbers start at 0 again without counting as lost.
+        agg.record(&with_pid(rec("stereo", TelemetryKind::Ready, 0, [0; 4], "keyframes", "depth"), 2, 0));
+        assert!(agg.is_pid_ready(2) && agg.is_pid_ready(1) && !agg.is_pid_ready(3));
+        agg.record(&with_pid(rec("stereo", TelemetryKind::Heartbeat, 6, [0; 4], "keyframes", "depth"), 1, 0));
+        assert_eq!(agg.last_item_of_pid(1), Some(4));
+        assert_eq!(agg.last_item_of_pid(2), None);
+        assert_eq!(agg.output_topic("stereo").as_deref(), Some("depth"));
+        assert_eq!(agg.last_item_consumed("depth"), Some(2), "the mosaic took in keyframes 0–2");
+        assert!(agg.has_consumer("depth") && !agg.has_consumer("poses"));
+        assert!(agg.last_heard(1).is_some() && agg.last_heard(7).is_none());
+        let report = agg.report();
+        assert_eq!(report.telemetry_records_lost, 0);
+        let stereo = report.processes.iter().find(|p| p.name == "stereo").unwrap();
+        assert_eq!((stereo.restarts, stereo.pid, stereo.messages), (1, 2, 5));
+        assert_eq!(report.end_to_end.len(), 1, "the mosaic's output age is capture → map");
+        assert_eq!(report.end_to_end[0].path, "capture → map");
+    }
+
+    #[test]
     fn the_plot_has_a_bar_per_process_and_hop_scaled_by_p50() {
         let p = |p50: f64| Percentiles { count: 10, p50, p90: p50 * 2.0, p99: p50 * 3.0, max: p50 * 4.0, mean: p50 };
         let process = |name: &str, us: f64| ProcessReport {
