@@ -169,9 +169,23 @@ impl LatencyAggregator {
         self.instances.get(&pid).and_then(|i| i.last_item)
     }
 
-    /// The highest message id any consumer of `topic` has handled (e.g. the last keyframe id the mosaic took in).
+    /// The highest message id that the current instance of every consumer of `topic` has (handled, or
+    /// restored from a save): e.g. the last keyframe id both the mosaic and the depth probe took in. `None` when
+    /// some consumer has nothing yet.
     pub fn last_item_consumed(&self, topic: &str) -> Option<u64> {
-        self.processes.values().filter(|p| p.input_topic == topic).filter_map(|p| p.last_item).max()
+        let mut consumers = self.processes.values().filter(|p| p.input_topic == topic).peekable();
+        consumers.peek()?;
+        consumers.map(|p| p.last_item).min().flatten()
+    }
+
+    /// The highest message id the current instance of `process` has.
+    pub fn last_item_of(&self, process: &str) -> Option<u64> {
+        self.processes.get(process).and_then(|p| p.last_item)
+    }
+
+    /// The topic `process` consumes, as its telemetry names it.
+    pub fn input_topic(&self, process: &str) -> Option<String> {
+        self.processes.get(process).map(|p| p.input_topic.clone()).filter(|t| !t.is_empty())
     }
 
     /// The topic `process` publishes, as its telemetry names it.
@@ -231,6 +245,10 @@ impl LatencyAggregator {
             // A replacement may be started with other arguments (another input, say).
             acc.input_topic = r.input_topic().to_string();
             acc.output_topic = r.output_topic().to_string();
+            // What this instance has is what it restored, not what its predecessor had taken in.
+            acc.last_item = r.restored();
+        } else if kind == TelemetryKind::Ready && acc.last_item.is_none() {
+            acc.last_item = r.restored();
         }
         match kind {
             TelemetryKind::Ready => instance.ready = true,
@@ -614,6 +632,18 @@ mod tests {
         assert_eq!(agg.last_item_of_pid(2), None);
         assert_eq!(agg.output_topic("stereo").as_deref(), Some("depth"));
         assert_eq!(agg.last_item_consumed("depth"), Some(2), "the mosaic took in keyframes 0–2");
+        // Every consumer must have it: a probe that saw keyframes 0–4 does not move the resume point.
+        agg.record(&with_pid(rec("probe", TelemetryKind::Ready, 0, [0; 4], "depth", ""), 11, 0));
+        assert_eq!(agg.last_item_consumed("depth"), None, "the probe has nothing yet");
+        for kf in 0..5u64 {
+            agg.record(&with_pid(rec("probe", TelemetryKind::Message, kf + 1, [1, 2, 3, 4], "depth", ""), 11, kf));
+        }
+        assert_eq!(agg.last_item_consumed("depth"), Some(2));
+        // A restarted mosaic has what it restored from its checkpoint, not what its predecessor had.
+        let mut ready = with_pid(rec("mosaic", TelemetryKind::Ready, 0, [0; 4], "depth", ""), 12, 0);
+        ready.restored_item = 1;
+        agg.record(&ready);
+        assert_eq!((agg.last_item_of("mosaic"), agg.last_item_consumed("depth")), (Some(1), Some(1)));
         assert!(agg.has_consumer("depth") && !agg.has_consumer("poses"));
         assert!(agg.last_heard(1).is_some() && agg.last_heard(7).is_none());
         let report = agg.report();

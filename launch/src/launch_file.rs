@@ -24,6 +24,7 @@
 //!                          # handled as a failure under the restart policy
 //! handover = "keyframes"   # a replacement instance (swap, restart) starts with --standby and is activated after
 //!                          # the last keyframe its downstream already has (the stereo service)
+//! replacement_args = ["--resume"]   # for instances after the first (the mosaic resumes from its checkpoint)
 //! [service.restart]
 //! policy = "on-failure"    # never (default) | on-failure | always
 //! max_restarts = 5         # at most this many restarts within window_s; one more failure fails the run
@@ -119,6 +120,9 @@ pub struct ServiceSpec {
     /// How a replacement instance takes over (see the module documentation).
     #[serde(default)]
     pub handover: Option<Handover>,
+    /// Extra arguments for every instance after the first (a restart, a swap), e.g. the mosaic's `--resume`.
+    #[serde(default)]
+    pub replacement_args: Vec<String>,
 }
 
 #[derive(Debug, Clone, Copy, Serialize, Deserialize, PartialEq, Eq, Default)]

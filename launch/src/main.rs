@@ -201,6 +201,7 @@ fn plan_for_sequence(
         restart: Default::default(),
         liveness_s: None,
         handover: None,
+        replacement_args: Vec::new(),
     };
     let mut services = vec![spec("acquisition", "bdis-acquisition", acquisition_args, 0)];
     if track {
@@ -224,7 +225,15 @@ fn plan_for_sequence(
         for p in map_params {
             mosaic_args.extend(["--map-param".to_string(), p.clone()]);
         }
-        services.push(spec("mosaic", "bdis-mosaic", mosaic_args, 1));
+        // A crashed mosaic is restarted from its last checkpoint (every 4 keyframes, well within the tracker's
+        // keyframe history of 16), and the launcher has the stereo service redo the keyframes after it.
+        mosaic_args.extend(["--save-every".to_string(), "4".to_string()]);
+        let mut mosaic = spec("mosaic", "bdis-mosaic", mosaic_args, 1);
+        mosaic.restart.policy = bdis_slam::launch_file::RestartPolicy::OnFailure;
+        // Keyframes pass quickly (up to 14 per second): come back fast, so the tracker's history still has them.
+        mosaic.restart.backoff_initial_s = 0.1;
+        mosaic.replacement_args = vec!["--resume".into()];
+        services.push(mosaic);
         // The probe keeps a preview of the last depth keyframe beside the map.
         services.push(spec(
             "probe",
@@ -530,11 +539,14 @@ fn demo(args: DemoArgs) -> Result<ExitCode> {
             h.from, h.to, h.topic, h.latency_us.p50, h.latency_us.p99
         );
     }
-    if let Some(a) = find("probe").and_then(|p| p.age_us) {
+    for e in &result.latency.end_to_end {
         println!(
-            "  latency     capture → depth keyframe received p50 {:.1} ms, p99 {:.1} ms",
-            a.p50 / 1000.0,
-            a.p99 / 1000.0
+            "  latency     {} p50 {:.1} ms, p99 {:.1} ms ({} {})",
+            e.path,
+            e.latency_us.p50 / 1000.0,
+            e.latency_us.p99 / 1000.0,
+            e.latency_us.count,
+            if e.path.ends_with("map") { "keyframes" } else { "frames" }
         );
     }
     println!(

@@ -234,7 +234,13 @@ fn start_instance(
     t: &Timeouts,
 ) -> Result<Start, SuperviseError> {
     let standby = replacement && slot.service.spec.handover.is_some();
-    let extra: Vec<String> = if standby { vec!["--standby".into()] } else { Vec::new() };
+    let mut extra: Vec<String> = Vec::new();
+    if replacement {
+        extra.extend(slot.service.spec.replacement_args.iter().cloned());
+    }
+    if standby {
+        extra.push("--standby".into());
+    }
     let index = sup.spawn(&slot.service, &extra)?;
     slot.instances.push(index);
     slot.current = Some(index);
@@ -263,13 +269,31 @@ fn start_instance(
 /// taken in is done; after a graceful stop, so is everything the old instance published (its samples stay
 /// deliverable). After a crash only the consumers' word counts: a sample in flight may be lost with the dead
 /// process's memory, so it is redone (and a duplicate is dropped downstream by keyframe id).
-fn resume_point(sup: &Supervisor, slot: &Slot, old_pid: Option<u32>, graceful: bool) -> u64 {
+fn resume_point(sup: &Supervisor, slot: &Slot, old_pid: Option<u32>, rule: &Resume) -> u64 {
     let output = sup.latency.output_topic(slot.name());
     let consumed = output.as_deref().and_then(|t| sup.latency.last_item_consumed(t));
     let own = old_pid.and_then(|p| sup.latency.last_item_of_pid(p));
     let has_consumer = output.as_deref().is_some_and(|t| sup.latency.has_consumer(t));
-    let done = if graceful || !has_consumer { consumed.max(own) } else { consumed };
-    done.max(slot.resume_floor).unwrap_or(Activation::RESUME_FROM_START)
+    let done = match rule {
+        Resume::Graceful => consumed.max(own).max(slot.resume_floor),
+        Resume::Crashed if has_consumer => consumed.max(slot.resume_floor),
+        Resume::Crashed => own.max(slot.resume_floor),
+        // A consumer lost what it had taken in since its checkpoint: its word alone counts, even if it is
+        // behind what was done before.
+        Resume::ConsumerRestored(consumer) => sup.latency.last_item_of(consumer),
+    };
+    done.unwrap_or(Activation::RESUME_FROM_START)
+}
+
+/// Whose word says which keyframes are done when a replacement resumes.
+#[derive(Debug, Clone, PartialEq, Eq)]
+enum Resume {
+    /// The old instance stopped cleanly: what it published was delivered.
+    Graceful,
+    /// The old instance died: only what the consumers took in.
+    Crashed,
+    /// The named consumer was restarted from a checkpoint: what it has now.
+    ConsumerRestored(String),
 }
 
 enum FlowEnd {
@@ -286,6 +310,8 @@ fn flow(
     t: &Timeouts,
     events: &mut Vec<String>,
 ) -> Result<FlowEnd, SuperviseError> {
+    // Services restarted in this turn, whose feeders may have to redo what they lost.
+    let mut replays: Vec<String> = Vec::new();
     loop {
         let now = Instant::now();
         let mut next_wake = now + Duration::from_secs(3600);
@@ -393,7 +419,7 @@ fn flow(
                         line.push_str(&format!(", {cleaned} dead node(s) cleaned"));
                     }
                     if slot.service.spec.handover.is_some() {
-                        let resume = resume_point(sup, slot, old_pid, false);
+                        let resume = resume_point(sup, slot, old_pid, &Resume::Crashed);
                         sup.activate(pid, resume)?;
                         slot.resume_floor = (resume != Activation::RESUME_FROM_START).then_some(resume);
                         line.push_str(&resume_text(resume));
@@ -401,6 +427,26 @@ fn flow(
                     line.push(')');
                     tracing::info!("{line}");
                     events.push(line);
+                    replays.push(slot.name().to_string());
+                }
+            }
+        }
+        // A restarted consumer resumed from its checkpoint: the handover services feeding it redo what it lost.
+        for consumer in std::mem::take(&mut replays) {
+            let Some(input) = sup.latency.input_topic(&consumer) else { continue };
+            let feeders: Vec<usize> = (0..slots.len())
+                .filter(|&k| {
+                    slots[k].service.spec.handover.is_some()
+                        && sup.latency.output_topic(slots[k].name()).as_deref() == Some(input.as_str())
+                })
+                .collect();
+            for k in feeders {
+                let why = format!("{consumer} restarted from its checkpoint");
+                let rule = Resume::ConsumerRestored(consumer.clone());
+                match replace(sup, slots, k, ControlCommand::Swap, None, Vec::new(), rule, t, events)? {
+                    Swapped::StopRequested(_) => return Ok(FlowEnd::StopRequested),
+                    Swapped::Answer(r) if r.ok == 0 => tracing::warn!("replay for {why}: {}", r.message()),
+                    Swapped::Answer(_) => tracing::info!("replayed for {why}"),
                 }
             }
         }
@@ -463,9 +509,7 @@ enum Swapped {
     StopRequested(ControlResponse),
 }
 
-/// Make-before-break: the new instance starts (in standby for a handover service) and reports ready, the old
-/// one is stopped (SIGTERM ladder, or SIGKILL for a fault drill), then the new one is activated to resume after
-/// what downstream already has. If the new instance cannot start, the old one keeps running.
+/// Carries out a control request (a swap).
 fn swap(
     sup: &mut Supervisor,
     slots: &mut [Slot],
@@ -474,7 +518,6 @@ fn swap(
     events: &mut Vec<String>,
 ) -> Result<Swapped, SuperviseError> {
     let request = *call.payload();
-    let began = Instant::now();
     let no = |m: String| Ok(Swapped::Answer(ControlResponse::new(false, &m)));
     let Some(command) = request.command() else { return no(format!("unknown command {}", request.command)) };
     let name = request.service();
@@ -482,21 +525,41 @@ fn swap(
         let names: Vec<&str> = slots.iter().map(|s| s.name()).collect();
         return no(format!("no service `{name}` in this run (it has: {})", names.join(", ")));
     };
+    let rule = if command == ControlCommand::Swap { Resume::Graceful } else { Resume::Crashed };
+    replace(sup, slots, k, command, request.binary(), request.args(), rule, t, events)
+}
+
+/// Make-before-break: the new instance starts (in standby for a handover service) and reports ready, the old
+/// one is stopped (SIGTERM ladder, or SIGKILL for a fault drill), then the new one is activated to resume after
+/// what downstream already has. If the new instance cannot start, the old one keeps running.
+#[allow(clippy::too_many_arguments)] // one call site each for a swap request and a replay; a struct adds nothing
+fn replace(
+    sup: &mut Supervisor,
+    slots: &mut [Slot],
+    k: usize,
+    command: ControlCommand,
+    binary: Option<String>,
+    extra: Vec<String>,
+    rule: Resume,
+    t: &Timeouts,
+    events: &mut Vec<String>,
+) -> Result<Swapped, SuperviseError> {
+    let began = Instant::now();
+    let no = |m: String| Ok(Swapped::Answer(ControlResponse::new(false, &m)));
+    let name = slots[k].name().to_string();
     let Some(old) = slots[k].current.filter(|&i| sup.children[i].is_running()) else {
         return no(format!("`{name}` is not running"));
     };
     let mut service = slots[k].service.clone();
-    if let Some(binary) = request.binary() {
+    if let Some(binary) = binary {
         let Some(program) = crate::launch_file::find_binary(&binary) else {
             return no(format!("binary `{binary}` not found (a path, a bdis-slam binary or a program on PATH)"));
         };
         service.program = program;
         service.spec.binary = binary;
     }
-    let extra = request.args();
     service.args.extend(extra.iter().cloned());
     service.spec.args.extend(extra);
-
     let old_pid = sup.children[old].pid;
     let previous = std::mem::replace(&mut slots[k].service, service);
     let new = match start_instance(sup, &mut slots[k], true, t)? {
@@ -529,14 +592,14 @@ fn swap(
     }
     // The old instance's last records are in; a cleanly stopped one may have needed SIGKILL after all.
     sup.pump(Duration::ZERO, |_| true)?;
-    let clean = graceful && sup.children[old].succeeded();
+    let rule = if rule == Resume::Graceful && !sup.children[old].succeeded() { Resume::Crashed } else { rule };
     let mut response = ControlResponse::new(true, "");
     let mut line = format!(
         "{name} swapped: pid {old_pid} ({}) → pid {new_pid}",
         if graceful { format!("stopped: {}", sup.children[old].exit_text()) } else { "killed with SIGKILL".into() }
     );
     if slots[k].service.spec.handover.is_some() {
-        let resume = resume_point(sup, &slots[k], Some(old_pid), clean);
+        let resume = resume_point(sup, &slots[k], Some(old_pid), &rule);
         sup.activate(new_pid, resume)?;
         slots[k].resume_floor = (resume != Activation::RESUME_FROM_START).then_some(resume);
         response.resume_after = resume;

@@ -1,4 +1,4 @@
-//! `bdis-slam top`: a live view of a running pipeline — every service's rate, latency, CPU and core — read from
+//! `bdis-slam top`: a live view of a running pipeline — every service's rate, latency, CPU, core and restarts — read from
 //! the run's telemetry topic and /proc, redrawn in place on a terminal.
 
 use std::collections::BTreeMap;
@@ -76,12 +76,22 @@ pub fn top(args: TopArgs) -> Result<()> {
             args.ipc_prefix, args.interval
         );
         out += &format!(
-            "{:<14} {:>7} {:>4} {:>6} {:>8} {:>8} {:>7} {:>16} {:>16} {:>9}\n",
-            "process", "pid", "core", "CPU %", "rate Hz", "msgs", "dropped", "processing ms", "output age ms", "state"
+            "{:<14} {:>7} {:>4} {:>6} {:>8} {:>8} {:>7} {:>16} {:>16} {:>8} {:>9}\n",
+            "process",
+            "pid",
+            "core",
+            "CPU %",
+            "rate Hz",
+            "msgs",
+            "dropped",
+            "processing ms",
+            "output age ms",
+            "restarts",
+            "state"
         );
         out += &format!(
-            "{:<14} {:>7} {:>4} {:>6} {:>8} {:>8} {:>7} {:>16} {:>16} {:>9}\n",
-            "", "", "", "", "now", "", "", "p50 / p99", "p50 / p99", ""
+            "{:<14} {:>7} {:>4} {:>6} {:>8} {:>8} {:>7} {:>16} {:>16} {:>8} {:>9}\n",
+            "", "", "", "", "now", "", "", "p50 / p99", "p50 / p99", "", ""
         );
         let ms = |p: Option<bdis_slam::latency::Percentiles>| {
             p.map_or_else(|| "-".to_string(), |p| format!("{:.2} / {:.2}", p.p50 / 1000.0, p.p99 / 1000.0))
@@ -111,7 +121,7 @@ pub fn top(args: TopArgs) -> Result<()> {
                 None => "starting".into(),
             };
             out += &format!(
-                "{:<14} {:>7} {:>4} {:>6} {:>8} {:>8} {:>7} {:>16} {:>16} {:>9}\n",
+                "{:<14} {:>7} {:>4} {:>6} {:>8} {:>8} {:>7} {:>16} {:>16} {:>8} {:>9}\n",
                 p.name,
                 p.pid,
                 core,
@@ -121,6 +131,8 @@ pub fn top(args: TopArgs) -> Result<()> {
                 p.dropped,
                 ms(p.processing_us),
                 ms(p.age_us),
+                // Instances seen starting (a swap or a restart) since this view started.
+                p.restarts,
                 state
             );
         }

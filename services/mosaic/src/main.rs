@@ -35,6 +35,10 @@ struct Args {
     /// max_weight).
     #[arg(long = "map-param", value_name = "NAME=VALUE")]
     map_params: Vec<String>,
+    /// Resume from the run folder's map.bin when there is one (the checkpoint of a predecessor that crashed);
+    /// the launcher gives this to a restarted instance. Without a checkpoint it starts empty.
+    #[arg(long, conflicts_with = "load")]
+    resume: bool,
     /// Save map.bin after every this many new keyframes (0 = only at the end).
     #[arg(long, default_value_t = 10)]
     save_every: u64,
@@ -76,7 +80,17 @@ struct Counters {
 
 fn run(args: Args) -> Result<()> {
     let out_dir = args.out.clone().unwrap_or_else(|| PathBuf::from("."));
-    let mut mosaic = match &args.load {
+    let checkpoint = out_dir.join("map.bin");
+    let load = match (&args.load, args.resume) {
+        (Some(path), _) => Some(path.clone()),
+        (None, true) if checkpoint.is_file() => Some(checkpoint),
+        (None, true) => {
+            tracing::info!("no checkpoint in {}: starting an empty map", out_dir.display());
+            None
+        }
+        (None, false) => None,
+    };
+    let mut mosaic = match &load {
         Some(path) => {
             let mut m = bdis_mosaic::load(path)?;
             m.params.apply_overrides(&args.map_params).map_err(|e| anyhow!("--map-param {e}"))?;
@@ -121,7 +135,10 @@ fn run(args: Args) -> Result<()> {
     let mut end_of_stream = false;
     // Keyframes inserted when map.bin was last saved.
     let mut checkpointed = 0u64;
-    telemetry.ready();
+    // A resumed map tells the launcher which keyframes it has, so the stereo service redoes those after them.
+    let restored = mosaic.keyframes().map(|k| k.kf_id).max();
+    counters.highest_kf_id = restored;
+    telemetry.ready_restored(restored);
     tracing::info!("mosaic ready ({} keyframes, {} points)", mosaic.n_keyframes(), mosaic.n_points());
     let failure = loop {
         let result = match waitset.wait_and_process_once(|_| CallbackProgression::Continue) {

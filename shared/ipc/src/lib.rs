@@ -178,7 +178,7 @@ pub mod qos {
     pub const DEPTH_BORROWED: usize = 2;
     pub const MAX_NODES: usize = 32;
     pub const TELEMETRY_MAX_PUBLISHERS: usize = 16;
-    /// Keyframes: 3 · (8 + 2) + 8 + 1 = 39 samples of 5·W·H bytes (60 MB at 640×480). The buffer covers a
+    /// Keyframes: 3 · (8 + 2) + 16 + 1 = 47 samples of 5·W·H bytes (72 MB at 640×480). The buffer covers a
     /// stereo instance being busy for 8 keyframes (seconds of tracking) before the oldest is lost.
     pub const KEYFRAMES_MAX_PUBLISHERS: usize = 2;
     pub const KEYFRAMES_MAX_SUBSCRIBERS: usize = 3;
@@ -196,8 +196,10 @@ pub mod qos {
     pub const ACTIVATION_MAX_SUBSCRIBERS: usize = 4;
     pub const ACTIVATION_BUFFER: usize = 4;
     /// The last keyframes stay in the publisher's history: a stereo instance that joins late (a swap, a
-    /// restart after a crash) receives them and redoes those its downstream does not have yet.
-    pub const KEYFRAMES_HISTORY: usize = 8;
+    /// restart after a crash, a replay for a restarted mosaic) receives them and redoes those its downstream
+    /// does not have yet. 16 covers a mosaic's checkpoint interval (4) plus its restart (~0.2 s) at the
+    /// highest keyframe rate seen (14 per second at 320×240); at 640×480 it is 24 MB of shared memory.
+    pub const KEYFRAMES_HISTORY: usize = 16;
 }
 
 /// How often the launcher drains telemetry. Message records are not individually signalled (that would add a

@@ -71,6 +71,10 @@ pub struct TelemetryRecord {
     pub dropped: u64,
     /// CPU time of the process so far.
     pub cpu_time_ns: u64,
+    /// In a `Ready` record: the highest message id this instance restored from a save (the mosaic's checkpoint),
+    /// so the launcher knows what a restarted consumer already has; [`TelemetryRecord::NOTHING_RESTORED`]
+    /// otherwise.
+    pub restored_item: u64,
 }
 
 fn fixed<const N: usize>(s: &str) -> [u8; N] {
@@ -86,6 +90,13 @@ fn text(bytes: &[u8]) -> &str {
 }
 
 impl TelemetryRecord {
+    pub const NOTHING_RESTORED: u64 = u64::MAX;
+
+    /// The highest message id restored from a save, from a `Ready` record.
+    pub fn restored(&self) -> Option<u64> {
+        (self.restored_item != Self::NOTHING_RESTORED).then_some(self.restored_item)
+    }
+
     pub fn kind(&self) -> Option<TelemetryKind> {
         TelemetryKind::from_u32(self.kind)
     }
@@ -151,6 +162,7 @@ impl TelemetryPublisher {
             process: fixed(process),
             input_topic: fixed(input.map_or("", Topic::short_name)),
             output_topic: fixed(output.map_or("", Topic::short_name)),
+            restored_item: TelemetryRecord::NOTHING_RESTORED,
             ..Default::default()
         };
         Ok(Self { publisher, notifier, template, failures: 0, last_sent_ns: clock::monotonic_ns() })
@@ -184,6 +196,13 @@ impl TelemetryPublisher {
                 tracing::warn!("telemetry could not be sent ({e}); latency figures of this process will be incomplete");
             }
         }
+    }
+
+    /// Announces that the process's ports are open and that it restored messages up to `restored` from a save.
+    pub fn ready_restored(&mut self, restored: Option<u64>) {
+        self.template.restored_item = restored.unwrap_or(TelemetryRecord::NOTHING_RESTORED);
+        self.ready();
+        self.template.restored_item = TelemetryRecord::NOTHING_RESTORED;
     }
 
     /// Announces that the process's ports are open (the launcher starts upstream processes after this).
