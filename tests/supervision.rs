@@ -170,3 +170,70 @@ fn the_stop_ladder_sends_sigkill_after_the_grace_period() {
     assert!(err.contains("victim (pid") && err.contains("ignored SIGTERM for 0.5 s: SIGKILL"), "{err}");
     assert_no_leftovers(&prefix);
 }
+
+#[test]
+fn swap_replaces_a_running_service_and_refuses_what_it_cannot_do() {
+    let tmp = TempDir::new("sup-swap");
+    // A long-running source and a victim that behaves; the victim is swapped while it runs.
+    let launch = launch_file(tmp.path(), 400, &["--mode", "ok", "--frames", "100000"], "", "drain_timeout_s = 1");
+    let prefix = prefix("supswap");
+    let child = Command::new(bdis_slam())
+        .args(["run", &launch, "--ipc-prefix", &prefix, "--out"])
+        .arg(tmp.path().join("run"))
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let swap = |args: &[&str]| {
+        let out = run_with_timeout(
+            Command::new(bdis_slam()).args(["swap", "--ipc-prefix", &prefix]).args(args),
+            Duration::from_secs(60),
+        );
+        (out.status.code(), text(&out.stdout), text(&out.stderr))
+    };
+    // Wait until the launcher serves control requests (its pipeline is up).
+    let start = Instant::now();
+    let first = loop {
+        let r = swap(&["victim"]);
+        if r.0 == Some(0) || start.elapsed() > Duration::from_secs(30) {
+            break r;
+        }
+        std::thread::sleep(Duration::from_millis(100));
+    };
+    assert_eq!(first.0, Some(0), "{first:?}");
+    assert!(first.1.starts_with("victim swapped: pid ") && first.1.contains("(stopped: ok) → pid "), "{first:?}");
+
+    let (code, _, err) = swap(&["nosuch"]);
+    assert_eq!(code, Some(1));
+    assert_eq!(err.trim(), "bdis-slam: error: no service `nosuch` in this run (it has: source, victim)");
+    let (code, _, err) = swap(&["victim", "--bin", "/nonexistent/bdis-stereo"]);
+    assert_eq!(code, Some(1));
+    assert!(err.contains("binary `/nonexistent/bdis-stereo` not found"), "{err}");
+    // A replacement that cannot start leaves the running instance in charge.
+    let (code, _, err) = swap(&["victim", "--", "--mode", "crash-on-start"]);
+    assert_eq!(code, Some(1));
+    assert!(
+        err.contains("swap of victim refused: the new instance did not start")
+            && err.contains("crash on start (fixture)")
+            && err.contains("keeps running"),
+        "{err}"
+    );
+
+    let out = child.wait_with_output().unwrap();
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    assert_no_leftovers(&prefix);
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(tmp.path().join("run/latency.json")).unwrap()).unwrap();
+    let v = victim(&report);
+    // The swap and the refused replacement both count as instances.
+    assert_eq!(v["exit"], "ok", "{v}");
+    assert!(v["earlier_instances"].as_array().unwrap().len() == 2, "{v}");
+
+    // Without a launcher on that prefix, one line says so.
+    let out = run_with_timeout(
+        Command::new(bdis_slam()).args(["swap", "stereo", "--ipc-prefix", &common::prefix("nolauncher")]),
+        Duration::from_secs(30),
+    );
+    assert_eq!(out.status.code(), Some(1));
+    assert!(text(&out.stderr).contains("no launcher is running with shared-memory prefix"), "{}", text(&out.stderr));
+}
