@@ -641,7 +641,7 @@ mod tests {
         assert_eq!(agg.last_item_consumed("depth"), Some(2));
         // A restarted mosaic has what it restored from its checkpoint, not what its predecessor had.
         let mut ready = with_pid(rec("mosaic", TelemetryKind::Ready, 0, [0; 4], "depth", ""), 12, 0);
-        ready.restored_item = 1;
+        ready.restored_next = 2;
         agg.record(&ready);
         assert_eq!((agg.last_item_of("mosaic"), agg.last_item_consumed("depth")), (Some(1), Some(1)));
         assert!(agg.has_consumer("depth") && !agg.has_consumer("poses"));

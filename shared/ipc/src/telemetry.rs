@@ -71,10 +71,10 @@ pub struct TelemetryRecord {
     pub dropped: u64,
     /// CPU time of the process so far.
     pub cpu_time_ns: u64,
-    /// In a `Ready` record: the highest message id this instance restored from a save (the mosaic's checkpoint),
-    /// so the launcher knows what a restarted consumer already has; [`TelemetryRecord::NOTHING_RESTORED`]
-    /// otherwise.
-    pub restored_item: u64,
+    /// In a `Ready` record: one past the highest message id this instance restored from a save (the mosaic's
+    /// checkpoint), so the launcher knows what a restarted consumer already has; 0 = nothing restored (the
+    /// default, so a record built field by field cannot claim a restore by accident).
+    pub restored_next: u64,
 }
 
 fn fixed<const N: usize>(s: &str) -> [u8; N] {
@@ -90,11 +90,9 @@ fn text(bytes: &[u8]) -> &str {
 }
 
 impl TelemetryRecord {
-    pub const NOTHING_RESTORED: u64 = u64::MAX;
-
     /// The highest message id restored from a save, from a `Ready` record.
     pub fn restored(&self) -> Option<u64> {
-        (self.restored_item != Self::NOTHING_RESTORED).then_some(self.restored_item)
+        self.restored_next.checked_sub(1)
     }
 
     pub fn kind(&self) -> Option<TelemetryKind> {
@@ -162,7 +160,6 @@ impl TelemetryPublisher {
             process: fixed(process),
             input_topic: fixed(input.map_or("", Topic::short_name)),
             output_topic: fixed(output.map_or("", Topic::short_name)),
-            restored_item: TelemetryRecord::NOTHING_RESTORED,
             ..Default::default()
         };
         Ok(Self { publisher, notifier, template, failures: 0, last_sent_ns: clock::monotonic_ns() })
@@ -200,9 +197,9 @@ impl TelemetryPublisher {
 
     /// Announces that the process's ports are open and that it restored messages up to `restored` from a save.
     pub fn ready_restored(&mut self, restored: Option<u64>) {
-        self.template.restored_item = restored.unwrap_or(TelemetryRecord::NOTHING_RESTORED);
+        self.template.restored_next = restored.map_or(0, |id| id.saturating_add(1));
         self.ready();
-        self.template.restored_item = TelemetryRecord::NOTHING_RESTORED;
+        self.template.restored_next = 0;
     }
 
     /// Announces that the process's ports are open (the launcher starts upstream processes after this).
