@@ -37,7 +37,10 @@ fn a_missing_sequence_is_one_line_and_exit_1() {
 fn bad_pacing_is_rejected_by_the_argument_parser() {
     let out = bin().args(["--sequence", "/x", "--pacing", "fast"]).output().unwrap();
     assert_eq!(out.status.code(), Some(2));
-    assert!(String::from_utf8_lossy(&out.stderr).contains("expected on-demand, on-demand:<rate>, recorded, or a rate such as 30hz"));
+    assert!(
+        String::from_utf8_lossy(&out.stderr)
+            .contains("expected on-demand, on-demand:<rate>, recorded, or a rate such as 30hz")
+    );
 }
 
 #[test]

@@ -1,30 +1,10 @@
 #![allow(clippy::unwrap_used, clippy::expect_used)] // test code: a panic is the failure report
 //! Hot-path discipline: once warmed up on a size, the matcher allocates nothing per pair.
 
-use std::alloc::{GlobalAlloc, Layout, System};
-use std::sync::atomic::{AtomicUsize, Ordering};
-
 use bdis_stereo::{Algorithm, DisparityMap, GrayImage, Matcher, Params};
 
-struct Counting;
-static ALLOCATIONS: AtomicUsize = AtomicUsize::new(0);
-
-unsafe impl GlobalAlloc for Counting {
-    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-        ALLOCATIONS.fetch_add(1, Ordering::Relaxed);
-        unsafe { System.alloc(layout) }
-    }
-    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
-        unsafe { System.dealloc(ptr, layout) }
-    }
-    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
-        ALLOCATIONS.fetch_add(1, Ordering::Relaxed);
-        unsafe { System.realloc(ptr, layout, new_size) }
-    }
-}
-
 #[global_allocator]
-static GLOBAL: Counting = Counting;
+static GLOBAL: bdis_testkit::CountingAllocator = bdis_testkit::CountingAllocator;
 
 #[test]
 fn a_warmed_up_pair_allocates_nothing() {
@@ -42,10 +22,10 @@ fn a_warmed_up_pair_allocates_nothing() {
         let mut out = DisparityMap::default();
         let (l, r) = (GrayImage { width: w, height: h, data: &left }, GrayImage { width: w, height: h, data: &right });
         matcher.compute_into(l, r, &mut out).unwrap();
-        let before = ALLOCATIONS.load(Ordering::Relaxed);
+        let before = bdis_testkit::allocations();
         matcher.compute_into(l, r, &mut out).unwrap();
         matcher.compute_into(l, r, &mut out).unwrap();
-        let after = ALLOCATIONS.load(Ordering::Relaxed);
+        let after = bdis_testkit::allocations();
         assert_eq!(after - before, 0, "{params:?}: {} allocations in two warmed-up pairs", after - before);
     }
 }

@@ -31,6 +31,10 @@ struct Args {
     /// Folder for the trajectories (default: the run folder the launcher gives, else the current folder).
     #[arg(long, env = "BDIS_RUN_DIR")]
     out: Option<PathBuf>,
+    /// Where local bundle adjustment runs: `worker` (its own thread; the per-frame path never waits for it) or
+    /// `inline` (in the tracking thread, at each keyframe: single-core targets, or measuring its cost).
+    #[arg(long, default_value = "worker", value_parser = ["worker", "inline"])]
+    ba: String,
     /// Name of this process in the run.
     #[arg(long, env = "BDIS_SERVICE_NAME", default_value = "tracking")]
     name: String,
@@ -73,6 +77,9 @@ fn run(args: Args) -> Result<()> {
         orb: bdis_orb::OrbParams::from_settings(&settings.orb),
     };
     let mut tracker = Tracker::new(cam, tracker_settings).with_context(|| format!("{}", args.settings.display()))?;
+    if args.ba == "inline" {
+        tracker.set_ba_mode(bdis_track::mapper::BaMode::Inline);
+    }
     let out_dir = args.out.clone().unwrap_or_else(|| PathBuf::from("."));
 
     let ipc = Ipc::open(&args.name, &args.ipc_prefix)?;

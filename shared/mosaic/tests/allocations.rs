@@ -2,39 +2,11 @@
 //! A warmed-up keyframe update allocates only the new keyframe's own storage: the per-pixel depth image, the
 //! fusion accumulators and the covered-cell flags are buffers the map reuses; removal works in place.
 
-use std::alloc::{GlobalAlloc, Layout, System};
-use std::cell::Cell;
-
 use bdis_mosaic::{DepthKeyframe, Fusion, Intrinsics, Mosaic, MosaicParams};
 use nalgebra::Isometry3;
 
-struct Counting;
-thread_local! {
-    static ALLOCATIONS: Cell<usize> = const { Cell::new(0) };
-    static BYTES: Cell<usize> = const { Cell::new(0) };
-}
-
-fn count(bytes: usize) {
-    let _ = ALLOCATIONS.try_with(|c| c.set(c.get() + 1));
-    let _ = BYTES.try_with(|c| c.set(c.get() + bytes));
-}
-
-unsafe impl GlobalAlloc for Counting {
-    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-        count(layout.size());
-        unsafe { System.alloc(layout) }
-    }
-    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
-        unsafe { System.dealloc(ptr, layout) }
-    }
-    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
-        count(new_size);
-        unsafe { System.realloc(ptr, layout, new_size) }
-    }
-}
-
 #[global_allocator]
-static GLOBAL: Counting = Counting;
+static GLOBAL: bdis_testkit::CountingAllocator = bdis_testkit::CountingAllocator;
 
 const W: u32 = 320;
 const H: u32 = 240;
@@ -62,9 +34,9 @@ fn a_warmed_up_keyframe_allocates_only_its_own_points() {
             map.insert(&keyframe(id)).unwrap();
         }
         for id in 5..10 {
-            let (a0, b0) = (ALLOCATIONS.with(Cell::get), BYTES.with(Cell::get));
+            let (a0, b0) = (bdis_testkit::allocations(), bdis_testkit::bytes());
             let report = map.insert(&keyframe(id)).unwrap();
-            let (allocations, bytes) = (ALLOCATIONS.with(Cell::get) - a0, BYTES.with(Cell::get) - b0);
+            let (allocations, bytes) = (bdis_testkit::allocations() - a0, bdis_testkit::bytes() - b0);
             assert!(report.removed > 0 && report.added > 0, "{report:?}");
             // The new keyframe's point vector, and at most one node of the keyframe index.
             assert!(allocations <= 2, "{fusion:?}, keyframe {id}: {allocations} allocations");

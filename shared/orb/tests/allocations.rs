@@ -1,32 +1,12 @@
 #![allow(clippy::unwrap_used, clippy::expect_used)] // test code: a panic is the failure report
 //! A warmed-up extraction, stereo match, grid and rotation filter allocate nothing.
 
-use std::alloc::{GlobalAlloc, Layout, System};
-use std::sync::atomic::{AtomicUsize, Ordering};
-
 use bdis_orb::{
     FeatureGrid, Features, OrbExtractor, OrbParams, RotationBins, RotationHistogram, StereoFeatures, StereoMatcher,
 };
 
-struct Counting;
-static ALLOCATIONS: AtomicUsize = AtomicUsize::new(0);
-
-unsafe impl GlobalAlloc for Counting {
-    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-        ALLOCATIONS.fetch_add(1, Ordering::Relaxed);
-        unsafe { System.alloc(layout) }
-    }
-    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
-        unsafe { System.dealloc(ptr, layout) }
-    }
-    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
-        ALLOCATIONS.fetch_add(1, Ordering::Relaxed);
-        unsafe { System.realloc(ptr, layout, new_size) }
-    }
-}
-
 #[global_allocator]
-static GLOBAL: Counting = Counting;
+static GLOBAL: bdis_testkit::CountingAllocator = bdis_testkit::CountingAllocator;
 
 #[test]
 fn a_warmed_up_stereo_frame_allocates_nothing() {
@@ -63,9 +43,9 @@ fn a_warmed_up_stereo_frame_allocates_nothing() {
     };
     frame(&mut el, &mut er);
     frame(&mut el, &mut er);
-    let before = ALLOCATIONS.load(Ordering::Relaxed);
+    let before = bdis_testkit::allocations();
     frame(&mut el, &mut er);
-    let after = ALLOCATIONS.load(Ordering::Relaxed);
+    let after = bdis_testkit::allocations();
     assert_eq!(after - before, 0, "{} allocations in a warmed-up frame", after - before);
     assert!(
         fl.keypoints.len() > 100 && st.matched() > 20,

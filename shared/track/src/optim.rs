@@ -76,6 +76,44 @@ pub fn chi2(cam: &StereoCamera, pose: &CameraFromWorld, x_w: &Point3<f64>, obs: 
 }
 
 /// The cost of an edge with squared error `chi2`: Huber with width `delta` when `robust`, else χ² itself.
+/// Levenberg–Marquardt damping, one schedule for pose-only optimisation and bundle adjustment: λ starts at
+/// 1e-5 × the largest diagonal entry of the first normal equations, grows ×10 on a rejected (or unsolvable)
+/// step and shrinks ÷3 (not below 1e-12) on an accepted one; an iteration tries at most 10 λs.
+#[derive(Debug)]
+struct Damping {
+    lambda: Option<f64>,
+}
+
+impl Damping {
+    fn new() -> Self {
+        Self { lambda: None }
+    }
+
+    /// Sets the first λ from the first iteration's largest diagonal entry; later calls keep the running λ.
+    fn start(&mut self, max_diagonal: f64) {
+        self.lambda.get_or_insert(1e-5 * max_diagonal.max(1e-12));
+    }
+
+    /// Tries `solve(λ)` — a candidate and its cost, or `None` when the damped system cannot be solved — with
+    /// growing λ until one lowers `current_cost`; `None` when none of 10 does (the optimisation has converged).
+    fn step<T>(&mut self, current_cost: f64, mut solve: impl FnMut(f64) -> Option<(f64, T)>) -> Option<(f64, T)> {
+        let mut lambda = self.lambda.unwrap_or(1e-12);
+        let mut accepted = None;
+        for _ in 0..10 {
+            match solve(lambda) {
+                Some((cost, candidate)) if cost < current_cost => {
+                    lambda = (lambda / 3.0).max(1e-12);
+                    accepted = Some((cost, candidate));
+                    break;
+                }
+                _ => lambda *= 10.0,
+            }
+        }
+        self.lambda = Some(lambda);
+        accepted
+    }
+}
+
 fn robust_cost(chi2: f64, delta: f64, robust: bool) -> f64 {
     if !robust || chi2.sqrt() <= delta { chi2 } else { 2.0 * delta * chi2.sqrt() - delta * delta }
 }
@@ -160,7 +198,7 @@ impl PoseOptimizer {
                 }
                 c
             };
-            let mut lambda = -1.0;
+            let mut damping = Damping::new();
             let mut current_cost = cost(&current, outlier);
             for _ in 0..10 {
                 let (mut h, mut b) = (Matrix6::<f64>::zeros(), Vector6::<f64>::zeros());
@@ -181,34 +219,19 @@ impl PoseOptimizer {
                     h += j.transpose() * j * w;
                     b += j.transpose() * e * w;
                 }
-                if lambda < 0.0 {
-                    lambda = 1e-5 * (0..6).map(|k| h[(k, k)]).fold(0.0, f64::max).max(1e-12);
-                }
-                // Up to 10 damping increases until the cost goes down.
-                let mut improved = false;
-                for _ in 0..10 {
+                damping.start((0..6).map(|k| h[(k, k)]).fold(0.0, f64::max));
+                let accepted = damping.step(current_cost, |lambda| {
                     let mut hd = h;
                     for k in 0..6 {
                         hd[(k, k)] += lambda;
                     }
-                    let Some(step) = hd.cholesky().map(|c| c.solve(&(-b))) else {
-                        lambda *= 10.0;
-                        continue;
-                    };
+                    let step = hd.cholesky().map(|c| c.solve(&(-b)))?;
                     let candidate = update(&step, &current);
-                    let c = cost(&candidate, outlier);
-                    if c < current_cost {
-                        current = candidate;
-                        current_cost = c;
-                        lambda = (lambda / 3.0).max(1e-12);
-                        improved = true;
-                        break;
-                    }
-                    lambda *= 10.0;
-                }
-                if !improved {
-                    break;
-                }
+                    Some((cost(&candidate, outlier), candidate))
+                });
+                let Some((c, candidate)) = accepted else { break };
+                current = candidate;
+                current_cost = c;
             }
             // Classify every edge, excluded ones included.
             for i in 0..n {
@@ -304,7 +327,7 @@ impl BaProblem {
         }
         let initial_cost = self.cost(cam, &self.poses, &self.points, robust);
         let mut current_cost = initial_cost;
-        let mut lambda = -1.0;
+        let mut damping = Damping::new();
         let mut done = 0;
         let dim = 6 * n_free;
         for _ in 0..iterations {
@@ -345,15 +368,13 @@ impl BaProblem {
                     h_pl[k] = jp.transpose() * jl * w;
                 }
             }
-            if lambda < 0.0 {
-                let max_diag = (0..dim)
+            damping.start(
+                (0..dim)
                     .map(|k| h_pp[(k, k)])
                     .chain(h_ll.iter().flat_map(|m| (0..3).map(move |k| m[(k, k)])))
-                    .fold(0.0, f64::max);
-                lambda = 1e-5 * max_diag.max(1e-12);
-            }
-            let mut improved = false;
-            for _ in 0..10 {
+                    .fold(0.0, f64::max),
+            );
+            let accepted = damping.step(current_cost, |lambda| {
                 // Schur complement with damping λ on every diagonal.
                 let mut s = h_pp.clone();
                 let mut rhs = -g_p.clone();
@@ -361,13 +382,9 @@ impl BaProblem {
                     s[(k, k)] += lambda;
                 }
                 let mut c_inv = vec![Matrix3::<f64>::zeros(); self.points.len()];
-                let mut ok = true;
                 for (p, edges) in by_point.iter().enumerate() {
                     let c = h_ll[p] + Matrix3::identity() * lambda;
-                    let Some(ci) = c.try_inverse() else {
-                        ok = false;
-                        break;
-                    };
+                    let ci = c.try_inverse()?;
                     c_inv[p] = ci;
                     for &ka in edges {
                         let Some(&ba) = block.get(self.edges[ka].pose).filter(|b| **b != usize::MAX) else { continue };
@@ -389,21 +406,7 @@ impl BaProblem {
                         }
                     }
                 }
-                if !ok {
-                    lambda *= 10.0;
-                    continue;
-                }
-                let dp = if dim == 0 {
-                    DVector::zeros(0)
-                } else {
-                    match s.clone().cholesky() {
-                        Some(c) => c.solve(&rhs),
-                        None => {
-                            lambda *= 10.0;
-                            continue;
-                        }
-                    }
-                };
+                let dp = if dim == 0 { DVector::zeros(0) } else { s.clone().cholesky()?.solve(&rhs) };
                 // Back-substitution for the points: dl = C⁻¹(−g_l − Σ H_plᵀ dp).
                 let mut new_points = self.points.clone();
                 for (p, edges) in by_point.iter().enumerate() {
@@ -430,20 +433,12 @@ impl BaProblem {
                         }
                     })
                     .collect();
-                let c = self.cost(cam, &new_poses, &new_points, robust);
-                if c < current_cost {
-                    self.poses = new_poses;
-                    self.points = new_points;
-                    current_cost = c;
-                    lambda = (lambda / 3.0).max(1e-12);
-                    improved = true;
-                    break;
-                }
-                lambda *= 10.0;
-            }
-            if !improved {
-                break;
-            }
+                Some((self.cost(cam, &new_poses, &new_points, robust), (new_poses, new_points)))
+            });
+            let Some((c, (new_poses, new_points))) = accepted else { break };
+            self.poses = new_poses;
+            self.points = new_points;
+            current_cost = c;
         }
         BaReport { iterations: done, initial_cost, final_cost: current_cost }
     }

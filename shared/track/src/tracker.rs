@@ -96,6 +96,13 @@ pub struct Tracker {
 }
 
 impl Tracker {
+    /// Where local bundle adjustment runs: a worker thread (the default; results applied at the next keyframe)
+    /// or inline in the caller's thread (applied at once: a single-core target, or measuring its cost per
+    /// keyframe). Set before the first frame.
+    pub fn set_ba_mode(&mut self, mode: crate::mapper::BaMode) {
+        self.mapper = LocalMapper::new(mode);
+    }
+
     pub fn new(cam: StereoCamera, settings: TrackerSettings) -> Result<Self, TrackError> {
         let builder = FrameBuilder::new(cam, settings.orb)?;
         let scales = builder.scales().clone();

@@ -1,43 +1,11 @@
 #![allow(clippy::unwrap_used, clippy::expect_used)] // test code: a panic is the failure report
 //! A warmed-up frame that makes no keyframe allocates nothing (keyframes and new points may: they grow the map).
 
-use std::alloc::{GlobalAlloc, Layout, System};
-use std::cell::Cell;
-
 use bdis_track::{StereoCamera, Tracker, TrackerSettings};
 
-/// Counts the allocations of the calling thread only: the bundle-adjustment worker allocates its problem on
-/// its own thread, off the per-frame path.
-struct Counting;
-thread_local! {
-    static ALLOCATIONS: Cell<usize> = const { Cell::new(0) };
-}
-
-fn count() {
-    // try_with: the thread-local may already be gone while a thread exits.
-    let _ = ALLOCATIONS.try_with(|c| c.set(c.get() + 1));
-}
-
-fn allocations() -> usize {
-    ALLOCATIONS.with(Cell::get)
-}
-
-unsafe impl GlobalAlloc for Counting {
-    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-        count();
-        unsafe { System.alloc(layout) }
-    }
-    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
-        unsafe { System.dealloc(ptr, layout) }
-    }
-    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
-        count();
-        unsafe { System.realloc(ptr, layout, new_size) }
-    }
-}
-
+// Per-thread counts: the bundle-adjustment worker allocates its problem on its own thread, off the per-frame path.
 #[global_allocator]
-static GLOBAL: Counting = Counting;
+static GLOBAL: bdis_testkit::CountingAllocator = bdis_testkit::CountingAllocator;
 
 #[test]
 fn a_warmed_up_frame_without_a_keyframe_allocates_nothing() {
@@ -63,9 +31,9 @@ fn a_warmed_up_frame_without_a_keyframe_allocates_nothing() {
     let mut tracker = Tracker::new(cam, TrackerSettings { th_depth: 20.0, fps: 30.0, orb }).unwrap();
     let (mut checked, mut worst) = (0, 0);
     for (i, (l, r)) in frames.iter().enumerate() {
-        let before = allocations();
+        let before = bdis_testkit::allocations();
         let result = tracker.track(i as u64 * 33_333_333, l, r).unwrap();
-        let allocations = allocations() - before;
+        let allocations = bdis_testkit::allocations() - before;
         assert_eq!(result.state, bdis_track::TrackingState::Ok, "frame {i}");
         // Warm-up: the first 12 frames; afterwards only frames that made no keyframe count.
         if i >= 12 && result.new_keyframe.is_none() && result.mapper.is_none() {
