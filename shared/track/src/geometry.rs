@@ -38,7 +38,9 @@ pub fn update(xi: &Vector6<f64>, t: &Isometry3<f64>) -> Isometry3<f64> {
     u
 }
 
-/// A rectified stereo pair's left camera: pinhole, no distortion (ORB-SLAM2-STEREO.md §1.7), and `bf`.
+/// A rectified stereo pair's left camera: pinhole, no distortion (ORB-SLAM2-STEREO.md §1.7), and `bf`. The
+/// tracker's checked form of the settings' [`bdis_core::calib::StereoCamera`] (made by [`Self::from_settings`]):
+/// no distortion model, the image size known, projections without `Option`s on the per-frame path.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct StereoCamera {
     pub fx: f64,
