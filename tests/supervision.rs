@@ -202,6 +202,12 @@ fn swap_replaces_a_running_service_and_refuses_what_it_cannot_do() {
     };
     assert_eq!(first.0, Some(0), "{first:?}");
     assert!(first.1.starts_with("victim swapped: pid ") && first.1.contains("(stopped: ok) → pid "), "{first:?}");
+    // The same by the run folder instead of the prefix.
+    let by_folder = run_with_timeout(
+        Command::new(bdis_slam()).args(["swap", "victim", "--run"]).arg(tmp.path().join("run")),
+        Duration::from_secs(60),
+    );
+    assert!(by_folder.status.success(), "{}", text(&by_folder.stderr));
 
     let (code, _, err) = swap(&["nosuch"]);
     assert_eq!(code, Some(1));
@@ -225,9 +231,9 @@ fn swap_replaces_a_running_service_and_refuses_what_it_cannot_do() {
     let report: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(tmp.path().join("run/latency.json")).unwrap()).unwrap();
     let v = victim(&report);
-    // The swap and the refused replacement both count as instances.
+    // The two swaps and the refused replacement all count as instances.
     assert_eq!(v["exit"], "ok", "{v}");
-    assert!(v["earlier_instances"].as_array().unwrap().len() == 2, "{v}");
+    assert_eq!(v["earlier_instances"].as_array().unwrap().len(), 3, "{v}");
 
     // Without a launcher on that prefix, one line says so.
     let out = run_with_timeout(

@@ -374,6 +374,10 @@ fn execute_and_write(
     if print {
         eprintln!("bdis-slam: run `{name}` → {} (shared memory prefix {prefix})", run_dir.display());
     }
+    // Tools find the running pipeline by its folder (`bdis-slam swap stereo --run DIR`, `top --run DIR`).
+    let prefix_file = run_dir.join(bdis_slam::run_dir::PREFIX_FILE);
+    std::fs::write(&prefix_file, format!("{prefix}\n"))
+        .with_context(|| format!("{}: cannot write", prefix_file.display()))?;
 
     let result = bdis_slam::run::execute(launch, &services, &prefix, &run_dir)?;
     let leftovers = bdis_slam::run_dir::remove_leftovers(&prefix);

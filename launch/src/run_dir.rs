@@ -36,6 +36,22 @@ pub fn create_run_dir(base: &Path, name: &str) -> std::io::Result<PathBuf> {
     Err(std::io::Error::other("too many runs in one second"))
 }
 
+/// The file in a run folder that names the run's shared-memory prefix while it runs, so tools can find the
+/// pipeline by its folder (`bdis-slam swap stereo --run runs/…`).
+pub const PREFIX_FILE: &str = "ipc-prefix";
+
+/// The shared-memory prefix of the run in `dir` (written by the launcher when the run starts).
+pub fn prefix_of_run(dir: &Path) -> Result<String, String> {
+    let path = dir.join(PREFIX_FILE);
+    let text = std::fs::read_to_string(&path)
+        .map_err(|e| format!("{}: cannot read ({e}); is it a run folder of a running pipeline?", path.display()))?;
+    let prefix = text.trim();
+    if prefix.is_empty() || !prefix.chars().all(|c| c.is_ascii_alphanumeric() || c == '_') {
+        return Err(format!("{}: `{prefix}` is not a shared-memory prefix", path.display()));
+    }
+    Ok(prefix.to_string())
+}
+
 /// A prefix no other run on this machine uses: `bdis<pid><time>_` in hex, short enough for shm names.
 pub fn unique_prefix() -> String {
     let nanos = SystemTime::now().duration_since(UNIX_EPOCH).map_or(0, |d| d.subsec_nanos());

@@ -26,9 +26,15 @@ pub struct SnapshotArgs {
     /// Shared-memory name prefix of the run (printed by `bdis-slam run`, or BDIS_IPC_PREFIX).
     #[arg(long, env = bdis_ipc::PREFIX_ENV, default_value = bdis_ipc::DEFAULT_PREFIX)]
     ipc_prefix: String,
+    /// The run folder of the pipeline (instead of --ipc-prefix: the launcher writes its prefix there).
+    #[arg(long, value_name = "DIR")]
+    run: Option<std::path::PathBuf>,
 }
 
-pub fn snapshot(args: SnapshotArgs) -> Result<()> {
+pub fn snapshot(mut args: SnapshotArgs) -> Result<()> {
+    if let Some(dir) = &args.run {
+        args.ipc_prefix = bdis_slam::run_dir::prefix_of_run(dir).map_err(anyhow::Error::msg)?;
+    }
     if !(args.timeout.is_finite() && args.timeout > 0.0) {
         bail!("--timeout: must be > 0 seconds, found {}", args.timeout);
     }

@@ -25,6 +25,9 @@ pub struct TopArgs {
     /// Shared-memory name prefix of the run to watch (printed by `bdis-slam run`, or BDIS_IPC_PREFIX).
     #[arg(long, env = bdis_ipc::PREFIX_ENV, default_value = bdis_ipc::DEFAULT_PREFIX)]
     ipc_prefix: String,
+    /// The run folder of the pipeline (instead of --ipc-prefix: the launcher writes its prefix there).
+    #[arg(long, value_name = "DIR")]
+    run: Option<std::path::PathBuf>,
 }
 
 /// CPU time (user + system, clock ticks) and the core a process last ran on, from /proc/<pid>/stat.
@@ -40,7 +43,10 @@ fn proc_stat(pid: u32) -> Option<(u64, u32)> {
     Some((utime + stime, core))
 }
 
-pub fn top(args: TopArgs) -> Result<()> {
+pub fn top(mut args: TopArgs) -> Result<()> {
+    if let Some(dir) = &args.run {
+        args.ipc_prefix = bdis_slam::run_dir::prefix_of_run(dir).map_err(anyhow::Error::msg)?;
+    }
     if !(args.interval.is_finite() && args.interval >= 0.05) {
         bail!("--interval: give at least 0.05 s, found {}", args.interval);
     }
