@@ -4,7 +4,7 @@
 //! ground truth, determinism of both, recovery after the view is lost (black frames), a map snapshot taken over
 //! request-response while the pipeline runs, the map file read back by an independent (numpy) reader, and the
 //! stereo service hot-swapped five times (once by a crash) and the mosaic killed during a run, without a
-//! keyframe lost or doubled.
+//! keyframe lost or doubled, and the tracker killed and continued by its replacement.
 //!
 //! The sequence is rendered once at 320×240 (f = 260, 5 mm baseline), 400 frames: at 640×480 rendering alone
 //! would take ~10 minutes on the CI machine.
@@ -36,7 +36,17 @@ fn render(dir: &Path) {
 /// is returned too), the run's shared-memory files are checked to be owner-only, and `bdis-slam top` must show
 /// every service.
 fn track(tmp: &TempDir, seq: &Path, tag: &str, snapshot: bool) -> (PathBuf, Option<String>) {
-    track_with(tmp, seq, tag, snapshot, "on-demand", false)
+    track_with(tmp, seq, tag, snapshot, "on-demand", During::Nothing)
+}
+
+/// What happens to the pipeline while it runs.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum During {
+    Nothing,
+    /// [`swap_five_times`].
+    Swaps,
+    /// The tracker is killed (kill -9) at frame ~120.
+    TrackerCrash,
 }
 
 /// [`track`] with a pacing, and optionally the stereo service swapped five times while it runs (see
@@ -47,13 +57,16 @@ fn track_with(
     tag: &str,
     snapshot: bool,
     pacing: &str,
-    swaps: bool,
+    during: During,
 ) -> (PathBuf, Option<String>) {
     let run_dir = tmp.path().join(tag);
     let prefix = prefix(tag);
-    let swap_thread = swaps.then(|| {
+    let swap_thread = (during != During::Nothing).then(|| {
         let (prefix, run_dir) = (prefix.clone(), run_dir.clone());
-        std::thread::spawn(move || swap_five_times(&prefix, &run_dir))
+        std::thread::spawn(move || match during {
+            During::Swaps => swap_five_times(&prefix, &run_dir),
+            _ => crash_the_tracker(&prefix, &run_dir),
+        })
     });
     let snapshot_thread = snapshot.then(|| {
         let (prefix, out) = (prefix.clone(), tmp.path().join(format!("{tag}-snapshot.ply")));
@@ -167,6 +180,16 @@ fn swap_five_times(prefix: &str, run_dir: &Path) {
     wait_for_line(&logs.join("mosaic.1.log"), "mosaic ready", Duration::from_secs(30));
 }
 
+/// Kills the tracker with SIGKILL mid-run and waits until the launcher's replacement is up.
+fn crash_the_tracker(prefix: &str, run_dir: &Path) {
+    let logs = run_dir.join("logs");
+    wait_for_line(&logs.join("tracking.log"), "frame 120:", Duration::from_secs(120));
+    let tracker = pid_of("bdis-tracking", prefix);
+    // SAFETY: kill with the pid of this run's tracking service.
+    assert_eq!(unsafe { libc::kill(tracker, libc::SIGKILL) }, 0);
+    wait_for_line(&logs.join("tracking.1.log"), "tracking ready", Duration::from_secs(30));
+}
+
 /// The pid of the running `binary` of the run with `prefix` (from /proc: its command line and environment).
 fn pid_of(binary: &str, prefix: &str) -> i32 {
     let marker = format!("{}={prefix}", bdis_ipc::PREFIX_ENV);
@@ -244,8 +267,8 @@ fn tracks_the_synthetic_colon_deterministically_and_recovers_after_black_frames(
 
     // Clean run, twice: no loss, bounded error, byte-identical trajectories. At a live camera's pace (30 Hz)
     // without ever dropping a frame, so the run with swaps below compares with them.
-    let (a, _) = track_with(&tmp, &seq, "track-a", false, "on-demand:30hz", false);
-    let (b, _) = track_with(&tmp, &seq, "track-b", false, "on-demand:30hz", false);
+    let (a, _) = track_with(&tmp, &seq, "track-a", false, "on-demand:30hz", During::Nothing);
+    let (b, _) = track_with(&tmp, &seq, "track-b", false, "on-demand:30hz", During::Nothing);
     let sa = summary(&a);
     assert_eq!(sa["frames"], FRAMES as u64);
     assert_eq!(sa["lost"], 0, "{sa}");
@@ -317,7 +340,7 @@ fn tracks_the_synthetic_colon_deterministically_and_recovers_after_black_frames(
     // The stereo service replaced five times while the tracker runs (once by a crash), then the mosaic killed:
     // every keyframe has exactly one depth keyframe in the map, the trajectory is the same, and the tracker did
     // not slow down.
-    let (w, _) = track_with(&tmp, &seq, "track-swaps", false, "on-demand:30hz", true);
+    let (w, _) = track_with(&tmp, &seq, "track-swaps", false, "on-demand:30hz", During::Swaps);
     let sw = summary(&w);
     let mw = json_file(&w.join("mosaic.json"));
     eprintln!("with 5 stereo swaps: {sw}\n{mw}");
@@ -360,6 +383,23 @@ fn tracks_the_synthetic_colon_deterministically_and_recovers_after_black_frames(
         wall_p99(&w)
     );
     assert!(pw <= 1.10 * pa.max(pb), "tracker p99 {pw} ms with swaps vs {pa} / {pb} ms without");
+
+    // The tracker killed mid-run: the launcher restarts it, the new one continues from its predecessor's journal
+    // (same world frame, keyframe ids after the last published one): a pose for every frame, the error
+    // within twice the clean run's, every keyframe of both instances in the map once.
+    let (k, _) = track_with(&tmp, &seq, "track-crash", false, "on-demand:30hz", During::TrackerCrash);
+    let sk = summary(&k);
+    let mk = json_file(&k.join("mosaic.json"));
+    let (rmse_crash, _) = ate(&seq, &k);
+    eprintln!("tracker killed at frame ~120: ATE RMSE {rmse_crash:.3} mm (clean {rmse:.3}); {sk}\n{mk}");
+    assert!(rmse_crash <= 2.0 * rmse, "ATE {rmse_crash} mm after a tracker crash vs {rmse} mm without");
+    assert_eq!(sk["frames"], FRAMES as u64, "{sk}");
+    assert!(sk["frames_of_earlier_instances"].as_u64().unwrap() >= 120, "{sk}");
+    assert_eq!(mk["keyframes_in_map"], sk["keyframes_created"], "{mk}");
+    assert_eq!(mk["keyframes_missing"], 0, "{mk}");
+    let run = json_file(&k.join("latency.json"));
+    let tracking = run["services"].as_array().unwrap().iter().find(|s| s["name"] == "tracking").unwrap();
+    assert_eq!(tracking["restarts"], 1, "{tracking}");
 
     // Ten black frames in the middle: the tracker reports lost, relocalises when the view returns, and the
     // trajectory stays within twice the clean error.

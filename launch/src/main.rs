@@ -211,7 +211,13 @@ fn plan_for_sequence(
         let settings = absolute(settings)?.display().to_string();
         // Acquisition and tracking share core 0; the dense stereo (and its consumer) run on core 1, so the dense
         // mapper does not slow the tracker.
-        services.push(spec("tracking", "bdis-tracking", vec!["--settings".into(), settings.clone()], 0));
+        // A crashed tracker is restarted and continues from its journal: the same world frame, keyframe ids after
+        // the last published one; acquisition sends it again the frame the dead one held.
+        let mut tracking = spec("tracking", "bdis-tracking", vec!["--settings".into(), settings.clone()], 0);
+        tracking.restart.policy = bdis_slam::launch_file::RestartPolicy::OnFailure;
+        tracking.restart.backoff_initial_s = 0.1;
+        tracking.replacement_args = vec!["--resume".into()];
+        services.push(tracking);
         // The stereo service is replaceable while the tracker runs (`bdis-slam swap stereo`) and restarted when
         // it crashes: the tracker keeps its last keyframes in the topic's history, and a new instance resumes
         // after the last keyframe the mosaic has.

@@ -15,11 +15,13 @@ use bdis_ipc::track::{pose_to_array, tracking_state};
 use bdis_ipc::{
     FrameView, Ipc, KeyframeHeader, KeyframePose, PoseRecord, TelemetryPublisher, Topic, event_id, monotonic_ns,
 };
+use bdis_track::journal::{self, Continuation};
 use bdis_track::{StereoCamera, Tracker, TrackerSettings, TrackingState};
 use clap::Parser;
 use iceoryx2::port::update_connections::UpdateConnections;
 use iceoryx2::prelude::*;
 use iceoryx2::waitset::WaitSetRunResult;
+use nalgebra::Isometry3;
 
 /// Tracking service: stereo frames in; poses, keyframes and pose corrections out.
 #[derive(Debug, Parser)]
@@ -35,6 +37,10 @@ struct Args {
     /// `inline` (in the tracking thread, at each keyframe: single-core targets, or measuring its cost).
     #[arg(long, default_value = "worker", value_parser = ["worker", "inline"])]
     ba: String,
+    /// Continue after a crashed predecessor: its journal (`tracking.journal` in the run folder) gives the frames
+    /// it tracked, the keyframe ids it published and the world frame; a new map continues the same trajectory.
+    #[arg(long)]
+    resume: bool,
     /// Name of this process in the run.
     #[arg(long, env = "BDIS_SERVICE_NAME", default_value = "tracking")]
     name: String,
@@ -81,6 +87,25 @@ fn run(args: Args) -> Result<()> {
         tracker.set_ba_mode(bdis_track::mapper::BaMode::Inline);
     }
     let out_dir = args.out.clone().unwrap_or_else(|| PathBuf::from("."));
+    // What earlier instances of this run published (a restart after a crash), and this instance's own journal.
+    let journal_path = out_dir.join("tracking.journal");
+    let earlier = if args.resume && journal_path.is_file() {
+        let text = std::fs::read_to_string(&journal_path)
+            .with_context(|| format!("{}: cannot read", journal_path.display()))?;
+        Continuation::parse(&text).map_err(|e| anyhow!("{}: {e}", journal_path.display()))?
+    } else {
+        Continuation::default()
+    };
+    let mut journal = Journal::open(&journal_path, args.resume)?;
+    let mut frame = WorldFrame::continuing(&earlier);
+    if let Some(seq) = earlier.last_frame_seq() {
+        tracing::info!(
+            "resuming after frame {seq}: {} frames and {} keyframes of earlier instances; keyframe ids from {}",
+            earlier.frames.len(),
+            earlier.keyframes.len(),
+            frame.kf_offset
+        );
+    }
 
     let ipc = Ipc::open(&args.name, &args.ipc_prefix)?;
     let frames = ipc.frames()?;
@@ -108,9 +133,9 @@ fn run(args: Args) -> Result<()> {
         .attach_deadline(&frame_events, Duration::from_secs(1))
         .map_err(|e| iox("attach the frames listener")(&e))?;
 
-    let mut generation = 0u64;
+    let mut generation = earlier.generation;
     let mut finished = false;
-    let mut last_seq: Option<u64> = None;
+    let mut last_seq: Option<u64> = earlier.last_frame_seq();
     let (mut n_frames, mut n_keyframes, mut n_lost, mut n_relocalised) = (0u64, 0u64, 0u64, 0u64);
     // Per-frame CPU (frames without a new keyframe) and per-keyframe CPU (tracking plus local mapping), ms.
     let (mut frame_ms, mut keyframe_ms) = (Vec::<f64>::with_capacity(4096), Vec::<f64>::with_capacity(1024));
@@ -146,7 +171,8 @@ fn run(args: Args) -> Result<()> {
                 // The last bundle adjustment's corrections go out before the end of the stream, so the mosaic,
                 // which stops at the end of the depth stream, has applied them when it writes the map.
                 let last = tracker.finish();
-                publish_corrections(&correction_publisher, &correction_events, &tracker, &last, &mut generation)?;
+                let out = Corrections { publisher: &correction_publisher, events: &correction_events, frame: &frame };
+                out.publish(&tracker, &last, &mut generation, &mut journal)?;
                 finished = true;
                 let mut end = keyframe_publisher
                     .loan_slice_uninit(0)
@@ -192,9 +218,16 @@ fn run(args: Args) -> Result<()> {
                 .track(header.t_source_ns, view.left_gray, view.right_gray)
                 .with_context(|| format!("frame {}", header.frame_seq))?;
             let cpu_ns = bdis_ipc::clock::thread_cpu_ns().saturating_sub(cpu_start);
+            // A restarted tracker's new map is placed where its predecessor's motion says this frame is.
+            if let Some(camera_from_map) = &result.camera_from_world {
+                frame.anchor(&earlier, header.frame_seq, &camera_from_map.inverse());
+            }
             // A new keyframe goes out with its images (copied from the frame, which goes back to acquisition).
             if let Some(kf) = result.new_keyframe {
-                let pose = tracker.map.keyframes[kf].camera_from_world.inverse();
+                let pose = frame.to_world(&tracker.map.keyframes[kf].camera_from_world.inverse());
+                let kf_id = frame.kf_offset + kf as u64;
+                // Journalled before it goes out: a crash in between leaves a gap in the ids, never a reused id.
+                journal.write(&journal::keyframe_line(kf_id, header.t_source_ns, &pose));
                 let mut loan = keyframe_publisher
                     .loan_slice_uninit(frame_bytes)
                     .map_err(|e| anyhow!("loan a keyframe sample: {e:?}"))?;
@@ -207,7 +240,7 @@ fn run(args: Args) -> Result<()> {
                 let mut kf_sample = unsafe { loan.assume_init() };
                 *kf_sample.user_header_mut() = KeyframeHeader {
                     frame: bdis_ipc::FrameHeader { t_publish_ns: monotonic_ns(), ..header },
-                    kf_id: kf as u64,
+                    kf_id,
                     world_from_camera: pose_to_array(&pose),
                     fx: camera.fx,
                     fy: camera.fy,
@@ -216,7 +249,7 @@ fn run(args: Args) -> Result<()> {
                     bf: camera.bf,
                     corrections_generation: generation,
                 };
-                kf_sample.send().map_err(|e| anyhow!("send keyframe {kf}: {e:?}"))?;
+                kf_sample.send().map_err(|e| anyhow!("send keyframe {kf_id}: {e:?}"))?;
                 bdis_ipc::notify(&keyframe_events, event_id::NEW_SAMPLE)?;
                 n_keyframes += 1;
             }
@@ -224,22 +257,25 @@ fn run(args: Args) -> Result<()> {
             bdis_ipc::notify(&credits, event_id::CONSUMED)?;
             // Corrections for every keyframe bundle adjustment moved.
             if let Some(report) = &result.mapper {
-                publish_corrections(&correction_publisher, &correction_events, &tracker, report, &mut generation)?;
+                let out = Corrections { publisher: &correction_publisher, events: &correction_events, frame: &frame };
+                out.publish(&tracker, report, &mut generation, &mut journal)?;
             }
+            let world_from_camera = result.camera_from_world.map(|p| frame.to_world(&p.inverse()));
             let t_publish_ns = monotonic_ns();
             let record = PoseRecord {
                 frame_seq: header.frame_seq,
                 t_capture_ns: header.t_capture_ns,
                 t_source_ns: header.t_source_ns,
                 t_publish_ns,
-                world_from_camera: result.camera_from_world.map(|p| pose_to_array(&p.inverse())).unwrap_or([0.0; 7]),
+                world_from_camera: world_from_camera.map(|p| pose_to_array(&p)).unwrap_or([0.0; 7]),
                 state: state_code(result.state),
                 inliers: result.inliers as u32,
-                new_keyframe: result.new_keyframe.map_or(u64::MAX, |k| k as u64),
+                new_keyframe: result.new_keyframe.map_or(u64::MAX, |k| frame.kf_offset + k as u64),
                 cpu_ns,
             };
             pose_publisher.send_copy(record).map_err(|e| anyhow!("send pose {}: {e:?}", header.frame_seq))?;
             bdis_ipc::notify(&pose_events, event_id::NEW_SAMPLE)?;
+            journal.write(&journal::frame_line(header.frame_seq, header.t_source_ns, world_from_camera.as_ref()));
             n_frames += 1;
             n_lost += u64::from(result.state == TrackingState::Lost);
             n_relocalised += u64::from(result.relocalised);
@@ -276,9 +312,10 @@ fn run(args: Args) -> Result<()> {
     // the final keyframe poses.
     if !finished {
         let last = tracker.finish();
-        publish_corrections(&correction_publisher, &correction_events, &tracker, &last, &mut generation)?;
+        let out = Corrections { publisher: &correction_publisher, events: &correction_events, frame: &frame };
+        out.publish(&tracker, &last, &mut generation, &mut journal)?;
     }
-    write_trajectories(&tracker, &out_dir)?;
+    write_trajectories(&tracker, &earlier, &frame, &out_dir)?;
     let median = |v: &mut Vec<f64>| {
         v.sort_by(f64::total_cmp);
         v.get(v.len() / 2).copied()
@@ -286,10 +323,11 @@ fn run(args: Args) -> Result<()> {
     let p99 = |v: &[f64]| v.get(((v.len() as f64 * 0.99) as usize).min(v.len().saturating_sub(1))).copied();
     let summary = serde_json::json!({
         "schema": "bdis.v1.tracking",
-        "frames": n_frames,
+        "frames": earlier.frames.len() as u64 + n_frames,
+        "frames_of_earlier_instances": earlier.frames.len(),
         "lost": n_lost,
         "relocalisations": n_relocalised,
-        "keyframes_created": n_keyframes,
+        "keyframes_created": frame.kf_offset + n_keyframes,
         "keyframes_in_map": tracker.map.n_good_keyframes(),
         "map_points": tracker.map.points.iter().filter(|p| !p.bad).count(),
         "frame_cpu_ms_p50": median(&mut frame_ms),
@@ -305,68 +343,146 @@ fn run(args: Args) -> Result<()> {
     Ok(())
 }
 
-fn publish_corrections(
-    publisher: &iceoryx2::port::publisher::Publisher<ipc::Service, KeyframePose, ()>,
-    events: &iceoryx2::port::notifier::Notifier<ipc::Service>,
-    tracker: &Tracker,
-    report: &bdis_track::mapper::MapperReport,
-    generation: &mut u64,
-) -> Result<()> {
-    if report.moved.is_empty() {
-        return Ok(());
-    }
-    *generation += 1;
-    let send = |k: usize, culled: u32| -> Result<()> {
-        let pose = tracker.map.keyframe_pose(k).inverse();
-        let record = KeyframePose {
-            kf_id: k as u64,
-            world_from_camera: pose_to_array(&pose),
-            generation: *generation,
-            culled,
-            reserved: 0,
-        };
-        publisher.send_copy(record).map_err(|e| anyhow!("send a correction: {e:?}"))?;
-        Ok(())
-    };
-    for &k in &report.moved {
-        send(k, 0)?;
-    }
-    // A culled keyframe's pose follows its parent's (the mosaic keeps its dense points): it moved too when the
-    // first live keyframe up its parent chain did.
-    let moved: std::collections::BTreeSet<usize> = report.moved.iter().copied().collect();
-    let keyframes = &tracker.map.keyframes;
-    for k in (0..keyframes.len()).filter(|&k| keyframes[k].bad) {
-        let mut ancestor = keyframes[k].parent;
-        for _ in 0..keyframes.len() {
-            match ancestor {
-                Some(a) if keyframes[a].bad => ancestor = keyframes[a].parent,
-                _ => break,
-            }
-        }
-        if ancestor.is_some_and(|a| moved.contains(&a)) {
-            send(k, 1)?;
-        }
-    }
-    bdis_ipc::notify(events, event_id::NEW_SAMPLE)?;
-    Ok(())
+/// Where a tracker instance's map sits in the run's world frame, and where its keyframe ids start. The first
+/// instance's map is the world; a restarted one's is anchored at its first tracked frame.
+#[derive(Debug)]
+struct WorldFrame {
+    world_from_map: Option<Isometry3<f64>>,
+    kf_offset: u64,
 }
 
-/// trajectory.tum / trajectory.kitti (every tracked frame, from the final keyframe poses) and keyframes.tum.
-fn write_trajectories(tracker: &Tracker, dir: &std::path::Path) -> Result<()> {
+impl WorldFrame {
+    fn continuing(earlier: &Continuation) -> Self {
+        let first = earlier.frames.is_empty();
+        Self { world_from_map: first.then(Isometry3::identity), kf_offset: earlier.next_kf_id() }
+    }
+
+    /// Places a restarted tracker's map the first time it has a pose: there, `frame_seq` is where the
+    /// predecessor's motion predicts it.
+    fn anchor(&mut self, earlier: &Continuation, frame_seq: u64, map_from_camera: &Isometry3<f64>) {
+        if self.world_from_map.is_none() {
+            let world_from_camera = earlier.predict(frame_seq).unwrap_or_else(Isometry3::identity);
+            self.world_from_map = Some(world_from_camera * map_from_camera.inverse());
+        }
+    }
+
+    fn to_world(&self, map_from_camera: &Isometry3<f64>) -> Isometry3<f64> {
+        self.world_from_map.unwrap_or_else(Isometry3::identity) * map_from_camera
+    }
+}
+
+/// The journal this instance appends to (see [`bdis_track::journal`]). A failed write costs only the ability
+/// to resume, so it is reported once and tracking goes on.
+struct Journal {
+    file: Option<std::fs::File>,
+    path: PathBuf,
+}
+
+impl Journal {
+    fn open(path: &std::path::Path, append: bool) -> Result<Self> {
+        let file = std::fs::OpenOptions::new()
+            .create(true)
+            .append(append)
+            .write(true)
+            .truncate(!append)
+            .open(path)
+            .with_context(|| format!("{}: cannot open the tracking journal", path.display()))?;
+        Ok(Self { file: Some(file), path: path.to_path_buf() })
+    }
+
+    fn write(&mut self, line: &str) {
+        use std::io::Write;
+        // One write per line: a crash leaves at most the last line torn, which the reader ignores.
+        if let Some(f) = &mut self.file
+            && let Err(e) = f.write_all(line.as_bytes())
+        {
+            tracing::warn!("{}: {e}; a restarted tracker could not continue from here", self.path.display());
+            self.file = None;
+        }
+    }
+}
+
+/// The corrections topic, with the frame the poses are published in.
+struct Corrections<'a> {
+    publisher: &'a iceoryx2::port::publisher::Publisher<ipc::Service, KeyframePose, ()>,
+    events: &'a iceoryx2::port::notifier::Notifier<ipc::Service>,
+    frame: &'a WorldFrame,
+}
+
+impl Corrections<'_> {
+    fn publish(
+        &self,
+        tracker: &Tracker,
+        report: &bdis_track::mapper::MapperReport,
+        generation: &mut u64,
+        journal: &mut Journal,
+    ) -> Result<()> {
+        if report.moved.is_empty() {
+            return Ok(());
+        }
+        *generation += 1;
+        let mut send = |k: usize, culled: u32| -> Result<()> {
+            let pose = self.frame.to_world(&tracker.map.keyframe_pose(k).inverse());
+            let kf_id = self.frame.kf_offset + k as u64;
+            let record = KeyframePose {
+                kf_id,
+                world_from_camera: pose_to_array(&pose),
+                generation: *generation,
+                culled,
+                reserved: 0,
+            };
+            self.publisher.send_copy(record).map_err(|e| anyhow!("send a correction: {e:?}"))?;
+            journal.write(&journal::correction_line(kf_id, *generation, &pose));
+            Ok(())
+        };
+        for &k in &report.moved {
+            send(k, 0)?;
+        }
+        // A culled keyframe's pose follows its parent's (the mosaic keeps its dense points): it moved too when the
+        // first live keyframe up its parent chain did.
+        let moved: std::collections::BTreeSet<usize> = report.moved.iter().copied().collect();
+        let keyframes = &tracker.map.keyframes;
+        for k in (0..keyframes.len()).filter(|&k| keyframes[k].bad) {
+            let mut ancestor = keyframes[k].parent;
+            for _ in 0..keyframes.len() {
+                match ancestor {
+                    Some(a) if keyframes[a].bad => ancestor = keyframes[a].parent,
+                    _ => break,
+                }
+            }
+            if ancestor.is_some_and(|a| moved.contains(&a)) {
+                send(k, 1)?;
+            }
+        }
+        bdis_ipc::notify(self.events, event_id::NEW_SAMPLE)?;
+        Ok(())
+    }
+}
+
+/// trajectory.tum / trajectory.kitti (every tracked frame, from the final keyframe poses; frames of crashed
+/// earlier instances as they were published) and keyframes.tum.
+fn write_trajectories(
+    tracker: &Tracker,
+    earlier: &Continuation,
+    world: &WorldFrame,
+    dir: &std::path::Path,
+) -> Result<()> {
     use bdis_core::formats::trajectory::{write_kitti, write_tum};
-    let frames: Vec<StampedPose> = tracker
-        .trajectory()
-        .into_iter()
-        .map(|(t_ns, pose, _lost)| StampedPose { t_s: t_ns as f64 * 1e-9, world_from_camera: pose })
-        .collect();
+    let stamped = |t_ns: u64, pose: Isometry3<f64>| StampedPose { t_s: t_ns as f64 * 1e-9, world_from_camera: pose };
+    let mut frames: Vec<StampedPose> = Vec::with_capacity(earlier.frames.len() + 4096);
+    // An earlier frame without a pose (lost, not initialised) keeps the last pose before it.
+    let mut last = Isometry3::identity();
+    for &(_, t_ns, pose) in &earlier.frames {
+        last = pose.unwrap_or(last);
+        frames.push(stamped(t_ns, last));
+    }
+    frames.extend(tracker.trajectory().into_iter().map(|(t_ns, pose, _lost)| stamped(t_ns, world.to_world(&pose))));
     write_tum(&dir.join("trajectory.tum"), &frames)?;
     let kitti: Vec<_> = frames.iter().map(|p| p.world_from_camera).collect();
     write_kitti(&dir.join("trajectory.kitti"), &kitti)?;
-    let keyframes: Vec<StampedPose> = tracker
-        .keyframe_trajectory()
-        .into_iter()
-        .map(|(t_ns, pose)| StampedPose { t_s: t_ns as f64 * 1e-9, world_from_camera: pose })
-        .collect();
+    let mut keyframes: Vec<StampedPose> = earlier.keyframes.values().map(|&(t_ns, pose)| stamped(t_ns, pose)).collect();
+    keyframes
+        .extend(tracker.keyframe_trajectory().into_iter().map(|(t_ns, pose)| stamped(t_ns, world.to_world(&pose))));
     write_tum(&dir.join("keyframes.tum"), &keyframes)?;
     Ok(())
 }
