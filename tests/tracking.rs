@@ -353,8 +353,9 @@ fn tracks_the_synthetic_colon_deterministically_and_recovers_after_black_frames(
     // the map keeps one cloud per keyframe id.)
     assert_eq!(mw["keyframes_in_map"], sw["keyframes_created"], "every keyframe in the map once: {mw}");
     assert_eq!(mw["keyframes_missing"], 0, "{mw}");
-    // Only a crash can make a keyframe arrive twice (redone because its depth was in flight); the map drops it.
-    assert!(mw["duplicates"].as_u64().unwrap() <= 2, "{mw}");
+    // A keyframe arrives twice only when it is redone: its depth was in flight when the stereo instance died, or
+    // the old instance sent it to the restarted mosaic before the replay took over. The map drops the second.
+    assert!(mw["duplicates"].as_u64().unwrap() <= 16, "{mw}");
     let run = json_file(&w.join("latency.json"));
     let stereo = run["services"].as_array().unwrap().iter().find(|s| s["name"] == "stereo").unwrap();
     // Five replacements, and a sixth: the replay for the restarted mosaic.

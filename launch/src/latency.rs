@@ -69,6 +69,8 @@ struct ProcessAcc {
     instances: u32,
     /// The highest message id (frame sequence number or keyframe id) any instance has handled.
     last_item: Option<u64>,
+    /// What the latest instance restored from a save (it has every message up to this one).
+    restored: Option<u64>,
 }
 
 /// One process instance: readiness, liveness and record numbering are per process, not per service name.
@@ -178,6 +180,12 @@ impl LatencyAggregator {
         consumers.map(|p| p.last_item).min().flatten()
     }
 
+    /// What the current instance of `process` restored from a save: it has every message up to this id (what it
+    /// handled since may have gaps: messages sent while it was down).
+    pub fn restored_of(&self, process: &str) -> Option<u64> {
+        self.processes.get(process).and_then(|p| p.restored)
+    }
+
     /// The highest message id the current instance of `process` has.
     pub fn last_item_of(&self, process: &str) -> Option<u64> {
         self.processes.get(process).and_then(|p| p.last_item)
@@ -236,6 +244,7 @@ impl LatencyAggregator {
             ended: None,
             instances: 1,
             last_item: None,
+            restored: None,
         });
         if kind == TelemetryKind::Ready && r.pid != acc.pid {
             // A new instance (restart or swap) takes over the name.
@@ -247,8 +256,10 @@ impl LatencyAggregator {
             acc.output_topic = r.output_topic().to_string();
             // What this instance has is what it restored, not what its predecessor had taken in.
             acc.last_item = r.restored();
+            acc.restored = r.restored();
         } else if kind == TelemetryKind::Ready && acc.last_item.is_none() {
             acc.last_item = r.restored();
+            acc.restored = r.restored();
         }
         match kind {
             TelemetryKind::Ready => instance.ready = true,
@@ -644,6 +655,9 @@ mod tests {
         ready.restored_next = 2;
         agg.record(&ready);
         assert_eq!((agg.last_item_of("mosaic"), agg.last_item_consumed("depth")), (Some(1), Some(1)));
+        // It then takes in keyframe 4 (sent while it was down, 2–3 lost): it still has everything up to 1 only.
+        agg.record(&with_pid(rec("mosaic", TelemetryKind::Message, 1, [1, 2, 3, 4], "depth", ""), 12, 4));
+        assert_eq!((agg.last_item_of("mosaic"), agg.restored_of("mosaic")), (Some(4), Some(1)));
         assert!(agg.has_consumer("depth") && !agg.has_consumer("poses"));
         assert!(agg.last_heard(1).is_some() && agg.last_heard(7).is_none());
         let report = agg.report();

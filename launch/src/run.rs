@@ -280,7 +280,8 @@ fn resume_point(sup: &Supervisor, slot: &Slot, old_pid: Option<u32>, rule: &Resu
         Resume::Crashed => own.max(slot.resume_floor),
         // A consumer lost what it had taken in since its checkpoint: its word alone counts, even if it is
         // behind what was done before.
-        Resume::ConsumerRestored(consumer) => sup.latency.last_item_of(consumer),
+        // What it restored, not the highest it has taken in since: that may be a keyframe sent after a gap.
+        Resume::ConsumerRestored(consumer) => sup.latency.restored_of(consumer),
     };
     done.unwrap_or(Activation::RESUME_FROM_START)
 }

@@ -178,11 +178,12 @@ pub mod qos {
     pub const DEPTH_BORROWED: usize = 2;
     pub const MAX_NODES: usize = 32;
     pub const TELEMETRY_MAX_PUBLISHERS: usize = 16;
-    /// Keyframes: 3 · (8 + 2) + 16 + 1 = 47 samples of 5·W·H bytes (72 MB at 640×480). The buffer covers a
-    /// stereo instance being busy for 8 keyframes (seconds of tracking) before the oldest is lost.
+    /// Keyframes: 3 · (16 + 2) + 16 + 1 = 71 samples of 5·W·H bytes (109 MB of address space at 640×480; tmpfs
+    /// backs only the pages written). A subscriber receives at most its buffer size of history, so the buffer
+    /// is as deep as the history: a replacement stereo instance gets all 16 last keyframes.
     pub const KEYFRAMES_MAX_PUBLISHERS: usize = 2;
     pub const KEYFRAMES_MAX_SUBSCRIBERS: usize = 3;
-    pub const KEYFRAMES_BUFFER: usize = 8;
+    pub const KEYFRAMES_BUFFER: usize = 16;
     pub const KEYFRAMES_BORROWED: usize = 2;
     /// Poses and corrections are small; their buffers hold seconds of them.
     pub const POSES_MAX_SUBSCRIBERS: usize = 4;
@@ -198,7 +199,8 @@ pub mod qos {
     /// The last keyframes stay in the publisher's history: a stereo instance that joins late (a swap, a
     /// restart after a crash, a replay for a restarted mosaic) receives them and redoes those its downstream
     /// does not have yet. 16 covers a mosaic's checkpoint interval (4) plus its restart (~0.2 s) at the
-    /// highest keyframe rate seen (14 per second at 320×240); at 640×480 it is 24 MB of shared memory.
+    /// highest keyframe rate seen (14 per second at 320×240). iceoryx2 delivers at most the subscriber's buffer
+    /// size of history: [`KEYFRAMES_BUFFER`] matches it.
     pub const KEYFRAMES_HISTORY: usize = 16;
 }
 
