@@ -47,8 +47,6 @@ pub fn snapshot(mut args: SnapshotArgs) -> Result<()> {
     let events = ipc.map_snapshot_events()?;
     let request_signal = ipc.notifier(&events)?;
     let responses = ipc.listener(&events)?;
-    let waitset = WaitSetBuilder::new().create::<ipc::Service>().map_err(|e| anyhow!("create a WaitSet: {e:?}"))?;
-    let _guard = waitset.attach_notification(&responses).map_err(|e| anyhow!("attach the listener: {e:?}"))?;
 
     let start = Instant::now();
     let pending = client
@@ -56,19 +54,9 @@ pub fn snapshot(mut args: SnapshotArgs) -> Result<()> {
         .map_err(|e| anyhow!("send the snapshot request: {e:?}"))?;
     bdis_ipc::notify(&request_signal, event_id::MAP_REQUEST)?;
     let deadline = start + Duration::from_secs_f64(args.timeout);
-    let response = loop {
-        if let Some(r) = pending.receive().map_err(|e| anyhow!("receive the snapshot: {e:?}"))? {
-            break r;
-        }
-        let left = deadline.saturating_duration_since(Instant::now());
-        if left.is_zero() {
-            bail!("no snapshot within {} s (is the mosaic service busy or stopped?)", args.timeout);
-        }
-        waitset
-            .wait_and_process_once_with_timeout(|_| CallbackProgression::Continue, left)
-            .map_err(|e| anyhow!("wait for the snapshot: {e:?}"))?;
-        let _ = bdis_ipc::drain_events(&responses);
-    };
+    let response =
+        bdis_ipc::wait_for(&responses, deadline, || pending.receive().map_err(bdis_ipc::iox("receive the snapshot")))?
+            .ok_or_else(|| anyhow!("no snapshot within {} s (is the mosaic service busy or stopped?)", args.timeout))?;
     let round_trip_ms = start.elapsed().as_secs_f64() * 1e3;
     let header = *response.user_header();
     let points = response.payload();

@@ -56,26 +56,15 @@ pub fn swap(mut args: SwapArgs) -> Result<()> {
     let events = ipc.control_events()?;
     let request_signal = ipc.notifier(&events)?;
     let responses = ipc.listener(&events)?;
-    let waitset = WaitSetBuilder::new().create::<ipc::Service>().map_err(|e| anyhow!("create a WaitSet: {e:?}"))?;
-    let _guard = waitset.attach_notification(&responses).map_err(|e| anyhow!("attach the listener: {e:?}"))?;
 
     let start = Instant::now();
     let pending = client.send_copy(request).map_err(|e| anyhow!("send the swap request: {e:?}"))?;
     bdis_ipc::notify(&request_signal, event_id::CONTROL_REQUEST)?;
     let deadline = start + Duration::from_secs_f64(args.timeout);
-    let response = loop {
-        if let Some(r) = pending.receive().map_err(|e| anyhow!("receive the answer: {e:?}"))? {
-            break *r.payload();
-        }
-        let left = deadline.saturating_duration_since(Instant::now());
-        if left.is_zero() {
-            bail!("the launcher did not answer within {} s", args.timeout);
-        }
-        waitset
-            .wait_and_process_once_with_timeout(|_| CallbackProgression::Continue, left)
-            .map_err(|e| anyhow!("wait for the answer: {e:?}"))?;
-        let _ = bdis_ipc::drain_events(&responses);
-    };
+    let response = bdis_ipc::wait_for(&responses, deadline, || {
+        pending.receive().map(|r| r.map(|r| *r.payload())).map_err(bdis_ipc::iox("receive the answer"))
+    })?
+    .ok_or_else(|| anyhow!("the launcher did not answer within {} s", args.timeout))?;
     if response.ok == 0 {
         bail!("{}", response.message());
     }

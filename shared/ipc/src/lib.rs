@@ -128,7 +128,8 @@ pub enum IpcError {
     Contract { topic: &'static str, detail: String },
 }
 
-pub(crate) fn iox<E: Debug>(context: impl Into<String>) -> impl FnOnce(E) -> IpcError {
+/// Wraps an iceoryx2 error with what was being done.
+pub fn iox<E: Debug>(context: impl Into<String>) -> impl FnOnce(E) -> IpcError {
     let context = context.into();
     move |e| IpcError::Iceoryx { context, detail: format!("{e:?}") }
 }
@@ -505,6 +506,30 @@ fn restrict_global_management(prefix: &str) {
 /// Notifies with one of the [`event_id`]s.
 pub fn notify(notifier: &Notifier<ipc::Service>, id: usize) -> Result<usize, IpcError> {
     notifier.notify_with_custom_event_id(EventId::new(id)).map_err(iox("notify"))
+}
+
+/// Waits until `receive` yields something (a request-response answer, typically) or `deadline` passes; between
+/// tries it sleeps in a WaitSet on `listener`, the event service the other side signals on. `None` on timeout.
+pub fn wait_for<T>(
+    listener: &Listener<ipc::Service>,
+    deadline: std::time::Instant,
+    mut receive: impl FnMut() -> Result<Option<T>, IpcError>,
+) -> Result<Option<T>, IpcError> {
+    let waitset = WaitSetBuilder::new().create::<ipc::Service>().map_err(iox("create a WaitSet"))?;
+    let _guard = waitset.attach_notification(listener).map_err(iox("attach the listener"))?;
+    loop {
+        if let Some(answer) = receive()? {
+            return Ok(Some(answer));
+        }
+        let left = deadline.saturating_duration_since(std::time::Instant::now());
+        if left.is_zero() {
+            return Ok(None);
+        }
+        waitset
+            .wait_and_process_once_with_timeout(|_| CallbackProgression::Continue, left)
+            .map_err(iox("wait for an answer"))?;
+        let _ = drain_events(listener);
+    }
 }
 
 /// Drains a listener's pending events and reports which ids were seen (bit `1 << id`).
