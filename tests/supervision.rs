@@ -40,6 +40,17 @@ fn run(dir: &Path, launch: &str, tag: &str) -> (Output, serde_json::Value, Durat
     (out, report, took)
 }
 
+/// Starts the launch file in the background (for tests that act on the running pipeline).
+fn start_run(dir: &Path, launch: &str, prefix: &str) -> std::process::Child {
+    Command::new(bdis_slam())
+        .args(["run", launch, "--ipc-prefix", prefix, "--out"])
+        .arg(dir.join("run"))
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap()
+}
+
 fn victim(report: &serde_json::Value) -> serde_json::Value {
     report["services"].as_array().unwrap().iter().find(|s| s["name"] == "victim").unwrap().clone()
 }
@@ -154,13 +165,7 @@ fn the_stop_ladder_sends_sigkill_after_the_grace_period() {
     let launch =
         launch_file(tmp.path(), 100_000, &["--mode", "ignore-sigterm", "--frames", "0"], "", "stop_grace_s = 0.5");
     let prefix = prefix("supladder2");
-    let child = Command::new(bdis_slam())
-        .args(["run", &launch, "--ipc-prefix", &prefix, "--out"])
-        .arg(tmp.path().join("run"))
-        .stdout(std::process::Stdio::piped())
-        .stderr(std::process::Stdio::piped())
-        .spawn()
-        .unwrap();
+    let child = start_run(tmp.path(), &launch, &prefix);
     std::thread::sleep(Duration::from_millis(1500));
     // SAFETY: kill with the pid of the launcher this test started.
     assert_eq!(unsafe { libc::kill(child.id() as i32, libc::SIGTERM) }, 0);
@@ -177,13 +182,7 @@ fn swap_replaces_a_running_service_and_refuses_what_it_cannot_do() {
     // A long-running source and a victim that behaves; the victim is swapped while it runs.
     let launch = launch_file(tmp.path(), 400, &["--mode", "ok", "--frames", "100000"], "", "drain_timeout_s = 1");
     let prefix = prefix("supswap");
-    let child = Command::new(bdis_slam())
-        .args(["run", &launch, "--ipc-prefix", &prefix, "--out"])
-        .arg(tmp.path().join("run"))
-        .stdout(std::process::Stdio::piped())
-        .stderr(std::process::Stdio::piped())
-        .spawn()
-        .unwrap();
+    let child = start_run(tmp.path(), &launch, &prefix);
     let swap = |args: &[&str]| {
         let out = run_with_timeout(
             Command::new(bdis_slam()).args(["swap", "--ipc-prefix", &prefix]).args(args),

@@ -227,7 +227,7 @@ fn run(args: Args) -> Result<()> {
                 let pose = frame.to_world(&tracker.map.keyframes[kf].camera_from_world.inverse());
                 let kf_id = frame.kf_offset + kf as u64;
                 // Journalled before it goes out: a crash in between leaves a gap in the ids, never a reused id.
-                journal.write(&journal::keyframe_line(kf_id, header.t_source_ns, &pose));
+                journal.write(|line| journal::keyframe_line(line, kf_id, header.t_source_ns, &pose));
                 let mut loan = keyframe_publisher
                     .loan_slice_uninit(frame_bytes)
                     .map_err(|e| anyhow!("loan a keyframe sample: {e:?}"))?;
@@ -275,7 +275,9 @@ fn run(args: Args) -> Result<()> {
             };
             pose_publisher.send_copy(record).map_err(|e| anyhow!("send pose {}: {e:?}", header.frame_seq))?;
             bdis_ipc::notify(&pose_events, event_id::NEW_SAMPLE)?;
-            journal.write(&journal::frame_line(header.frame_seq, header.t_source_ns, world_from_camera.as_ref()));
+            journal.write(|line| {
+                journal::frame_line(line, header.frame_seq, header.t_source_ns, world_from_camera.as_ref())
+            });
             n_frames += 1;
             n_lost += u64::from(result.state == TrackingState::Lost);
             n_relocalised += u64::from(result.relocalised);
@@ -376,6 +378,8 @@ impl WorldFrame {
 struct Journal {
     file: Option<std::fs::File>,
     path: PathBuf,
+    /// The line being written, reused: journalling a frame allocates nothing once warmed up.
+    line: String,
 }
 
 impl Journal {
@@ -387,15 +391,16 @@ impl Journal {
             .truncate(!append)
             .open(path)
             .with_context(|| format!("{}: cannot open the tracking journal", path.display()))?;
-        Ok(Self { file: Some(file), path: path.to_path_buf() })
+        Ok(Self { file: Some(file), path: path.to_path_buf(), line: String::with_capacity(256) })
     }
 
-    fn write(&mut self, line: &str) {
+    fn write(&mut self, format: impl FnOnce(&mut String)) {
         use std::io::Write;
+        let Some(f) = &mut self.file else { return };
+        self.line.clear();
+        format(&mut self.line);
         // One write per line: a crash leaves at most the last line torn, which the reader ignores.
-        if let Some(f) = &mut self.file
-            && let Err(e) = f.write_all(line.as_bytes())
-        {
+        if let Err(e) = f.write_all(self.line.as_bytes()) {
             tracing::warn!("{}: {e}; a restarted tracker could not continue from here", self.path.display());
             self.file = None;
         }
@@ -432,7 +437,7 @@ impl Corrections<'_> {
                 reserved: 0,
             };
             self.publisher.send_copy(record).map_err(|e| anyhow!("send a correction: {e:?}"))?;
-            journal.write(&journal::correction_line(kf_id, *generation, &pose));
+            journal.write(|line| journal::correction_line(line, kf_id, *generation, &pose));
             Ok(())
         };
         for &k in &report.moved {

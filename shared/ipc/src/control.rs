@@ -14,7 +14,7 @@ use iceoryx2::prelude::*;
 use iceoryx2::service::port_factory::publish_subscribe::PortFactory as PubSubFactory;
 use iceoryx2::service::port_factory::request_response::PortFactory as RequestResponseFactory;
 
-use crate::{Ipc, IpcError, iox, qos};
+use crate::{Ipc, IpcError, fixed, iox, qos, text};
 
 /// Room for a service name, a binary path and the arguments of a swap request.
 pub const NAME_BYTES: usize = 32;
@@ -82,22 +82,6 @@ impl Activation {
     pub const RESUME_FROM_START: u64 = u64::MAX;
 }
 
-pub(crate) fn fixed<const N: usize>(s: &str) -> [u8; N] {
-    let mut out = [0u8; N];
-    // Cut at a character boundary so the text stays valid UTF-8.
-    let mut n = s.len().min(N);
-    while !s.is_char_boundary(n) {
-        n -= 1;
-    }
-    out[..n].copy_from_slice(&s.as_bytes()[..n]);
-    out
-}
-
-pub(crate) fn text(bytes: &[u8]) -> String {
-    let end = bytes.iter().position(|&b| b == 0).unwrap_or(bytes.len());
-    String::from_utf8_lossy(&bytes[..end]).into_owned()
-}
-
 /// Why a request cannot be encoded.
 #[derive(Debug, thiserror::Error, PartialEq, Eq)]
 pub enum EncodeError {
@@ -156,11 +140,11 @@ impl ControlRequest {
     }
 
     pub fn service(&self) -> String {
-        text(&self.service)
+        text(&self.service).to_string()
     }
 
     pub fn binary(&self) -> Option<String> {
-        Some(text(&self.binary)).filter(|b| !b.is_empty())
+        Some(text(&self.binary).to_string()).filter(|b| !b.is_empty())
     }
 
     pub fn args(&self) -> Vec<String> {
@@ -186,7 +170,7 @@ impl ControlResponse {
     }
 
     pub fn message(&self) -> String {
-        text(&self.message)
+        text(&self.message).to_string()
     }
 }
 

@@ -503,6 +503,23 @@ fn restrict_global_management(prefix: &str) {
     }
 }
 
+/// A string in a fixed-size, NUL-padded field of a message, cut at a character boundary so it stays UTF-8.
+pub(crate) fn fixed<const N: usize>(s: &str) -> [u8; N] {
+    let mut out = [0u8; N];
+    let mut n = s.len().min(N);
+    while !s.is_char_boundary(n) {
+        n -= 1;
+    }
+    out[..n].copy_from_slice(&s.as_bytes()[..n]);
+    out
+}
+
+/// The string in a fixed-size, NUL-padded field (`?` when a sender wrote something that is not UTF-8).
+pub(crate) fn text(bytes: &[u8]) -> &str {
+    let end = bytes.iter().position(|&b| b == 0).unwrap_or(bytes.len());
+    std::str::from_utf8(&bytes[..end]).unwrap_or("?")
+}
+
 /// Notifies with one of the [`event_id`]s.
 pub fn notify(notifier: &Notifier<ipc::Service>, id: usize) -> Result<usize, IpcError> {
     notifier.notify_with_custom_event_id(EventId::new(id)).map_err(iox("notify"))

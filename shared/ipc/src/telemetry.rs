@@ -7,7 +7,7 @@ use iceoryx2::port::notifier::Notifier;
 use iceoryx2::port::publisher::Publisher;
 use iceoryx2::prelude::*;
 
-use crate::{Ipc, IpcError, Topic, clock, event_id, iox};
+use crate::{Ipc, IpcError, Topic, clock, event_id, fixed, iox, text};
 
 /// What a telemetry record reports.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -75,18 +75,6 @@ pub struct TelemetryRecord {
     /// checkpoint), so the launcher knows what a restarted consumer already has; 0 = nothing restored (the
     /// default, so a record built field by field cannot claim a restore by accident).
     pub restored_next: u64,
-}
-
-fn fixed<const N: usize>(s: &str) -> [u8; N] {
-    let mut out = [0u8; N];
-    let n = s.len().min(N);
-    out[..n].copy_from_slice(&s.as_bytes()[..n]);
-    out
-}
-
-fn text(bytes: &[u8]) -> &str {
-    let end = bytes.iter().position(|&b| b == 0).unwrap_or(bytes.len());
-    std::str::from_utf8(&bytes[..end]).unwrap_or("?")
 }
 
 impl TelemetryRecord {

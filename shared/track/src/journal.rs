@@ -42,31 +42,30 @@ fn pose_text(out: &mut String, p: &Isometry3<f64>) {
     let _ = write!(out, "{} {} {} {} {} {} {}", t.x, t.y, t.z, q.i, q.j, q.k, q.w);
 }
 
-/// `F` line of a frame.
-pub fn frame_line(frame_seq: u64, t_ns: u64, world_from_camera: Option<&Isometry3<f64>>) -> String {
-    let mut s = format!("F {frame_seq} {t_ns} ");
+// The line writers append to a buffer the caller reuses: the tracker journals every frame.
+
+/// Appends the `F` line of a frame.
+pub fn frame_line(out: &mut String, frame_seq: u64, t_ns: u64, world_from_camera: Option<&Isometry3<f64>>) {
+    let _ = write!(out, "F {frame_seq} {t_ns} ");
     match world_from_camera {
-        Some(p) => pose_text(&mut s, p),
-        None => s.push('-'),
+        Some(p) => pose_text(out, p),
+        None => out.push('-'),
     }
-    s.push('\n');
-    s
+    out.push('\n');
 }
 
-/// `K` line of a keyframe.
-pub fn keyframe_line(kf_id: u64, t_ns: u64, world_from_camera: &Isometry3<f64>) -> String {
-    let mut s = format!("K {kf_id} {t_ns} ");
-    pose_text(&mut s, world_from_camera);
-    s.push('\n');
-    s
+/// Appends the `K` line of a keyframe.
+pub fn keyframe_line(out: &mut String, kf_id: u64, t_ns: u64, world_from_camera: &Isometry3<f64>) {
+    let _ = write!(out, "K {kf_id} {t_ns} ");
+    pose_text(out, world_from_camera);
+    out.push('\n');
 }
 
-/// `C` line of a correction.
-pub fn correction_line(kf_id: u64, generation: u64, world_from_camera: &Isometry3<f64>) -> String {
-    let mut s = format!("C {kf_id} {generation} ");
-    pose_text(&mut s, world_from_camera);
-    s.push('\n');
-    s
+/// Appends the `C` line of a correction.
+pub fn correction_line(out: &mut String, kf_id: u64, generation: u64, world_from_camera: &Isometry3<f64>) {
+    let _ = write!(out, "C {kf_id} {generation} ");
+    pose_text(out, world_from_camera);
+    out.push('\n');
 }
 
 fn parse_pose(fields: &[&str]) -> Result<Isometry3<f64>, String> {
@@ -180,12 +179,12 @@ mod tests {
     fn round_trips_and_continues_ids_generations_and_motion() {
         let mut text = String::new();
         for i in 0..5u64 {
-            text += &frame_line(i, 1000 * i, Some(&moving(i)));
+            frame_line(&mut text, i, 1000 * i, Some(&moving(i)));
         }
-        text += &keyframe_line(0, 0, &pose(0.0, 0.0));
-        text += &keyframe_line(1, 4000, &pose(4.0, 0.04));
-        text += &correction_line(0, 3, &pose(0.1, 0.0));
-        text += &frame_line(5, 5000, None);
+        keyframe_line(&mut text, 0, 0, &pose(0.0, 0.0));
+        keyframe_line(&mut text, 1, 4000, &pose(4.0, 0.04));
+        correction_line(&mut text, 0, 3, &pose(0.1, 0.0));
+        frame_line(&mut text, 5, 5000, None);
         let c = Continuation::parse(&text).unwrap();
         assert_eq!(c.frames.len(), 6);
         assert_eq!(c.last_frame_seq(), Some(5));
@@ -201,7 +200,8 @@ mod tests {
 
     #[test]
     fn a_torn_last_line_is_ignored_and_other_bad_lines_are_errors() {
-        let good = frame_line(0, 0, Some(&pose(0.0, 0.0)));
+        let mut good = String::new();
+        frame_line(&mut good, 0, 0, Some(&pose(0.0, 0.0)));
         let torn = format!("{good}F 1 1000 0.5 0.2");
         assert_eq!(Continuation::parse(&torn).unwrap().frames.len(), 1);
         let bad = format!("{good}X 1\n{good}");
