@@ -7,6 +7,8 @@ pub mod pattern;
 mod simd;
 pub mod stereo;
 
-pub use extract::{Features, KeyPoint, OrbError, OrbExtractor, OrbParams, hamming, image_to_level, level_to_image};
+pub use extract::{
+    Features, KeyPoint, Level, OrbError, OrbExtractor, OrbParams, hamming, image_to_level, level_to_image,
+};
 pub use matching::{FeatureGrid, RotationBins, RotationHistogram};
 pub use stereo::{StereoFeatures, StereoMatcher, close_depth};

@@ -1,7 +1,7 @@
 //! Tracks a plain sequence folder (left/<n>.png, right/<n>.png, times.txt, settings.yaml, n from 1) offline and
 //! writes the trajectory as TUM: a development tool (the product runs the `bdis-tracking` service).
 //!
-//! cargo run --release -p bdis-track --example track_sequence -- <dir> <out.tum> [max frames]
+//! cargo run --release -p bdis-track --example track_sequence -- <dir> <out.tum> [max frames] [--whole-pixel]
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 use bdis_track::{StereoCamera, Tracker, TrackerSettings};
 use std::io::Write;
@@ -31,6 +31,7 @@ fn main() {
         orb: bdis_orb::OrbParams::from_settings(&settings.orb),
     };
     let mut tracker = Tracker::new(cam, ts).unwrap();
+    tracker.set_refinement(!a.iter().any(|x| x == "--whole-pixel"));
     let mut cpu = Vec::new();
     let mut kf_ms = Vec::new();
     let mut steps = [0.0f64; 5];
@@ -63,6 +64,7 @@ fn main() {
         }
     }
     tracker.finish();
+    eprintln!("refined measurements: σ {:.3} of their octave's", tracker.map.refined_sigma);
     cpu.sort_by(f64::total_cmp);
     kf_ms.sort_by(f64::total_cmp);
     eprintln!(

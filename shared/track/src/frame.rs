@@ -23,6 +23,13 @@ impl Scales {
         self.scale.len()
     }
 
+    /// σ⁻² of a measurement at `octave`: s^−2o, or (s^o · `refined_sigma`)⁻² when it was refined by patch
+    /// alignment.
+    pub fn information(&self, octave: u8, refined: bool, refined_sigma: f64) -> f64 {
+        let base = self.inv_sigma2[usize::from(octave)];
+        if refined { base / (refined_sigma * refined_sigma) } else { base }
+    }
+
     /// The octave at which a point seen at `dist` with a scale-invariance limit `max_dist` should appear.
     pub fn predict_level(&self, dist: f64, max_dist: f64) -> usize {
         let ratio = max_dist / dist;
@@ -46,6 +53,9 @@ pub struct Frame {
     pub grid: FeatureGrid,
     pub points: Vec<Option<PointId>>,
     pub outlier: Vec<bool>,
+    /// Keypoint i's position (and right match) was refined by patch alignment ([`crate::refine`]): its σ is
+    /// the map's `refined_sigma` of its octave's.
+    pub refined: Vec<bool>,
     pub camera_from_world: Option<CameraFromWorld>,
 }
 
@@ -61,6 +71,7 @@ impl Frame {
             grid: FeatureGrid::new(cam.width as f32, cam.height as f32),
             points: Vec::new(),
             outlier: Vec::new(),
+            refined: Vec::new(),
             camera_from_world: None,
         }
     }
@@ -95,6 +106,7 @@ impl Frame {
         self.grid.clone_from(&other.grid);
         self.points.clone_from(&other.points);
         self.outlier.clone_from(&other.outlier);
+        self.refined.clone_from(&other.refined);
         self.camera_from_world = other.camera_from_world;
     }
 }
@@ -131,6 +143,16 @@ impl FrameBuilder {
         })
     }
 
+    /// The left image's pyramid of the last frame built (level 0 is the image).
+    pub fn left_levels(&self) -> &[bdis_orb::Level] {
+        &self.left.levels
+    }
+
+    /// The right image's pyramid of the last frame built.
+    pub fn right_levels(&self) -> &[bdis_orb::Level] {
+        &self.right.levels
+    }
+
     pub fn scales(&self) -> &Scales {
         &self.scales
     }
@@ -164,6 +186,8 @@ impl FrameBuilder {
         frame.points.resize(n, None);
         frame.outlier.clear();
         frame.outlier.resize(n, false);
+        frame.refined.clear();
+        frame.refined.resize(n, false);
         frame.camera_from_world = None;
         Ok(())
     }

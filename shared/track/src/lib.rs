@@ -7,6 +7,7 @@ pub mod journal;
 pub mod map;
 pub mod mapper;
 pub mod optim;
+pub mod refine;
 pub mod search;
 pub mod tracker;
 

@@ -26,6 +26,8 @@ pub struct KeyFrame {
     pub depth: Vec<f32>,
     pub grid: FeatureGrid,
     pub points: Vec<Option<PointId>>,
+    /// Per keypoint: refined by patch alignment (see [`Frame::refined`]).
+    pub refined: Vec<bool>,
     /// All neighbours with their shared-point counts.
     pub connections: BTreeMap<KfId, u32>,
     /// Neighbours with weight ≥ 15 (or the single strongest), by descending weight then id.
@@ -50,6 +52,7 @@ impl KeyFrame {
             depth: frame.depth.clone(),
             grid: frame.grid.clone(),
             points: frame.points.iter().zip(&frame.outlier).map(|(p, o)| if *o { None } else { *p }).collect(),
+            refined: frame.refined.clone(),
             connections: BTreeMap::new(),
             ordered: Vec::new(),
             parent: None,
@@ -106,6 +109,9 @@ pub struct MapPoint {
     pub bad: bool,
     pub replaced_by: Option<PointId>,
     pub cache: TrackCache,
+    /// The patch later measurements are aligned to ([`crate::refine`]); set when the point is first measured
+    /// as an inlier, and anew when the view has moved too far from it.
+    pub anchor: Option<crate::refine::Anchor>,
 }
 
 impl MapPoint {
@@ -115,10 +121,19 @@ impl MapPoint {
 }
 
 /// The map.
-#[derive(Debug, Clone, Default)]
+#[derive(Debug, Clone)]
 pub struct Map {
     pub keyframes: Vec<KeyFrame>,
     pub points: Vec<MapPoint>,
+    /// σ of measurements refined by patch alignment, relative to their octave's (measured by the tracker;
+    /// see [`crate::refine::INITIAL_REFINED_SIGMA`]).
+    pub refined_sigma: f64,
+}
+
+impl Default for Map {
+    fn default() -> Self {
+        Self { keyframes: Vec::new(), points: Vec::new(), refined_sigma: crate::refine::INITIAL_REFINED_SIGMA }
+    }
 }
 
 impl Map {
@@ -158,6 +173,7 @@ impl Map {
             bad: false,
             replaced_by: None,
             cache: TrackCache::default(),
+            anchor: None,
         });
         self.add_observation(id, kf, idx);
         self.update_normal_and_depth(id, scales);

@@ -508,13 +508,15 @@ fn snapshot_local_ba(map: &Map, kf: KfId, cam: &StereoCamera, scales: &Scales) -
         for (&k, &idx) in &map.points[p].observations {
             let Some(&pose) = pose_index.get(&k) else { continue };
             let kp = &map.keyframes[k].keypoints[idx];
+            let refined = map.keyframes[k].refined[idx];
             let obs = Observation {
                 u: f64::from(kp.x),
                 v: f64::from(kp.y),
                 u_right: map.keyframes[k].is_stereo(idx).then(|| f64::from(map.keyframes[k].u_right[idx])),
-                inv_sigma2: scales.inv_sigma2[usize::from(kp.octave)],
+                inv_sigma2: scales.information(kp.octave, refined, map.refined_sigma),
             };
-            problem.edges.push(BaEdge { pose, point: pi, obs });
+            let octave_chi2_scale = if refined { map.refined_sigma * map.refined_sigma } else { 1.0 };
+            problem.edges.push(BaEdge { pose, point: pi, obs, octave_chi2_scale });
             edge_keys.push((p, k));
         }
     }
@@ -544,8 +546,10 @@ pub fn solve_local_ba(mut job: BaJob) -> BaJob {
 fn apply_local_ba(map: &mut Map, job: &BaJob, scales: &Scales, report: &mut MapperReport) {
     let cam = job.cam;
     for (k, &(p, kf)) in job.edge_keys.iter().enumerate() {
-        let x2 = job.problem.edge_chi2(&cam, k);
         let e = &job.problem.edges[k];
+        // Observations leave the map by their χ² at the octave's σ: a refined one that fits to 2σ_r is no
+        // mismatch (it still weighs only as much as its precision in the next adjustment).
+        let x2 = job.problem.edge_chi2(&cam, k) * e.octave_chi2_scale;
         if (x2.is_nan() || x2 > if e.obs.is_stereo() { CHI2_STEREO } else { CHI2_MONO })
             && map.points[p].observations.contains_key(&kf)
         {

@@ -163,6 +163,11 @@ pub struct PoseOptimizer {
 }
 
 impl PoseOptimizer {
+    /// χ² of every edge of the last optimisation at its final pose (outliers included).
+    pub fn chi2(&self) -> &[f64] {
+        &self.chi2
+    }
+
     /// Optimises `pose` against fixed world points (§5.5): 4 rounds of 10 LM iterations, each round from the
     /// initial pose, edges re-classified after each round (χ² > 5.991 / 7.815 → outlier, excluded next round,
     /// and they may come back), no robust kernel in round 4. `outlier` is read as the starting classification
@@ -253,6 +258,9 @@ pub struct BaEdge {
     pub pose: usize,
     pub point: usize,
     pub obs: Observation,
+    /// χ² × this is the edge's χ² at its octave's σ: σ_r² for a refined measurement (σ_r relative to the
+    /// octave's), 1 otherwise. The map keeps or erases the observation by that χ², as if it were not refined.
+    pub octave_chi2_scale: f64,
 }
 
 /// A bundle adjustment problem: poses (some fixed), points, edges. Solved in place.
@@ -529,7 +537,7 @@ mod tests {
                 let (du, dv) = (n(), n());
                 let obs =
                     Observation { u: z.x + du, v: z.y + dv, u_right: Some(z.z + du + n() * 0.3), inv_sigma2: 1.0 };
-                edges.push(BaEdge { pose: i, point: p, obs });
+                edges.push(BaEdge { pose: i, point: p, obs, octave_chi2_scale: 1.0 });
             }
         }
         edges

@@ -6,6 +6,7 @@ use crate::geometry::{CameraFromWorld, StereoCamera};
 use crate::map::{KeyFrame, KfId, Map, PointId};
 use crate::mapper::{LocalMapper, MapperReport};
 use crate::optim::{Observation, PoseOptimizer};
+use crate::refine::{Aligner, Anchor, Unrefined};
 use crate::search::{Searcher, TH_HIGH, TH_LOW, frustum_check};
 use bdis_orb::{OrbError, OrbParams, hamming};
 use nalgebra::{Isometry3, Matrix3, Point3, Translation3, UnitQuaternion};
@@ -93,6 +94,14 @@ pub struct Tracker {
     /// The last frame's pose relative to its reference keyframe.
     last_from_reference: Option<(KfId, Isometry3<f64>)>,
     ransac_state: u64,
+    /// Sub-pixel measurements by patch alignment ([`crate::refine`]); on unless switched off.
+    refine: bool,
+    aligner: Aligner,
+    /// Keypoints of the current frame whose points get an anchor once the frame's pose is final.
+    to_anchor: Vec<usize>,
+    /// Per keypoint of the current frame: its right-image match was refined for a new point.
+    disparity_refined: Vec<bool>,
+    residual_scratch: Vec<f64>,
 }
 
 impl Tracker {
@@ -101,6 +110,12 @@ impl Tracker {
     /// keyframe). Set before the first frame.
     pub fn set_ba_mode(&mut self, mode: crate::mapper::BaMode) {
         self.mapper = LocalMapper::new(mode);
+    }
+
+    /// Whether matched keypoints are moved to sub-pixel positions by patch alignment before local-map pose
+    /// optimisation ([`crate::refine`]; on by default). Off gives ORB-SLAM2's whole-pixel measurements.
+    pub fn set_refinement(&mut self, on: bool) {
+        self.refine = on;
     }
 
     pub fn new(cam: StereoCamera, settings: TrackerSettings) -> Result<Self, TrackError> {
@@ -138,6 +153,11 @@ impl Tracker {
             records: Vec::with_capacity(1 << 17),
             last_from_reference: None,
             ransac_state: 0x005e_ed0f_7ac4,
+            refine: true,
+            aligner: Aligner::default(),
+            to_anchor: Vec::with_capacity(1 << 12),
+            disparity_refined: Vec::with_capacity(1 << 12),
+            residual_scratch: Vec::with_capacity(1 << 12),
         })
     }
 
@@ -245,6 +265,7 @@ impl Tracker {
 
     /// §5.2.
     fn initialise(&mut self, result: &mut FrameResult) {
+        self.refine_new_disparities();
         self.current.camera_from_world = Some(Isometry3::identity());
         let kf = self.map.add_keyframe(KeyFrame::from_frame(0, &self.current, Isometry3::identity()));
         for i in 0..self.current.len() {
@@ -253,6 +274,7 @@ impl Tracker {
             {
                 let p = self.map.new_point(x, kf, i, &self.scales);
                 self.current.points[i] = Some(p);
+                self.anchor_new_point(p, i, kf, Isometry3::identity());
             }
         }
         self.reference_kf = Some(kf);
@@ -291,7 +313,7 @@ impl Tracker {
                 u: f64::from(kp.x),
                 v: f64::from(kp.y),
                 u_right: (self.current.u_right[i] >= 0.0).then(|| f64::from(self.current.u_right[i])),
-                inv_sigma2: self.scales.inv_sigma2[usize::from(kp.octave)],
+                inv_sigma2: self.scales.information(kp.octave, self.current.refined[i], self.map.refined_sigma),
             });
             self.opt_index.push(i);
         }
@@ -404,7 +426,11 @@ impl Tracker {
             let th = if self.last_reloc_frame.is_some_and(|r| frame_id < r + 2) { 5.0 } else { 1.0 };
             self.searcher.local_points(&self.scales, &self.map, &mut self.current, &self.local_points, th);
         }
+        self.refine_measurements(&pose);
         self.optimise_current();
+        self.anchor_new_inliers();
+        self.update_refined_sigma();
+        self.reclassify_refined();
         let mut inliers = 0;
         for i in 0..self.current.len() {
             let Some(p) = self.current.points[i] else { continue };
@@ -421,6 +447,180 @@ impl Tracker {
         result.inliers = inliers;
         let needed = if self.last_reloc_frame.is_some_and(|r| frame_id < r + self.max_frames()) { 50 } else { 30 };
         inliers >= needed
+    }
+
+    /// Moves every matched keypoint whose point has an anchor to where the anchor's patch fits best
+    /// ([`crate::refine`]), its right-image match by the same shift (the disparity is kept); notes in
+    /// `to_anchor` the keypoints whose points need an anchor (none yet, or the view moved too far from it).
+    fn refine_measurements(&mut self, pose: &CameraFromWorld) {
+        self.to_anchor.clear();
+        if !self.refine {
+            return;
+        }
+        let (levels, right_levels) = (self.builder.left_levels(), self.builder.right_levels());
+        for i in 0..self.current.len() {
+            let Some(p) = self.current.points[i] else { continue };
+            let point = &self.map.points[p];
+            if point.bad {
+                continue;
+            }
+            let Some(anchor) = &point.anchor else {
+                self.to_anchor.push(i);
+                continue;
+            };
+            let kp = &mut self.current.keypoints[i];
+            let octave = usize::from(kp.octave);
+            let refined = self.aligner.refine(
+                &self.cam,
+                &levels[octave],
+                self.scales.scale[octave],
+                f64::from(kp.x),
+                f64::from(kp.y),
+                &point.position,
+                pose,
+                anchor,
+            );
+            match refined {
+                Ok((u, v)) => {
+                    self.current.refined[i] = true;
+                    let shift = u as f32 - kp.x;
+                    kp.x = u as f32;
+                    kp.y = v as f32;
+                    let u_right = &mut self.current.u_right[i];
+                    if *u_right >= 0.0 {
+                        // The same patch along the right image's row; failing that, the disparity is kept.
+                        *u_right = match self.aligner.refine_right(
+                            &right_levels[octave],
+                            self.scales.scale[octave],
+                            f64::from(*u_right + shift),
+                            v,
+                        ) {
+                            Ok(refined) if (u - refined) > 0.0 => refined as f32,
+                            _ => *u_right + shift,
+                        };
+                        self.current.depth[i] = (self.cam.bf / (u - f64::from(*u_right))) as f32;
+                    }
+                }
+                Err(Unrefined::OutOfAnchor) => self.to_anchor.push(i),
+                Err(Unrefined::Failed) => {}
+            }
+        }
+    }
+
+    /// Re-estimates the σ of refined measurements from this frame's residuals (median, so outliers do not
+    /// count) and moves the map's running value a tenth of the way to it: the alignment's precision depends
+    /// on the images (texture, noise, lighting), so it is measured rather than assumed.
+    fn update_refined_sigma(&mut self) {
+        let mut scaled = std::mem::take(&mut self.residual_scratch);
+        scaled.clear();
+        let sigma = self.map.refined_sigma;
+        for (k, &i) in self.opt_index.iter().enumerate() {
+            if !self.current.refined[i] {
+                continue;
+            }
+            let dof = if self.current.u_right[i] >= 0.0 { 3.0 } else { 2.0 };
+            // χ² in units of the octave's σ, per component: (e/s^o)²/dof = χ²·σ_r²/dof.
+            let chi2 = self.optimizer.chi2()[k];
+            if chi2.is_finite() {
+                scaled.push((chi2 * sigma * sigma / dof).sqrt());
+            }
+        }
+        if scaled.len() >= 20 {
+            let mid = scaled.len() / 2;
+            let (_, median, _) = scaled.select_nth_unstable_by(mid, f64::total_cmp);
+            // The median of sqrt(χ²_k/k) for k = 2–3 is ≈ 0.87 of the σ.
+            let measured = *median / 0.87;
+            self.map.refined_sigma = (0.9 * sigma + 0.1 * measured)
+                .clamp(crate::refine::MIN_REFINED_SIGMA, crate::refine::MAX_REFINED_SIGMA);
+        }
+        self.residual_scratch = scaled;
+    }
+
+    /// Refined measurements weigh by their precision in the pose, but stay linked (count as tracked, make
+    /// no new point at a keyframe) by the χ² gates at their octave's σ, as whole-pixel ones do: a refined
+    /// match 2σ_r off is a slightly worse measurement, not a mismatch. (Unlinking them at σ_r made a keyframe
+    /// nearly every other frame, and points twice.)
+    fn reclassify_refined(&mut self) {
+        let sigma2 = self.map.refined_sigma * self.map.refined_sigma;
+        for (k, &i) in self.opt_index.iter().enumerate() {
+            if !self.current.refined[i] {
+                continue;
+            }
+            let chi2 = self.optimizer.chi2()[k] * sigma2;
+            let gate = if self.current.u_right[i] >= 0.0 { crate::optim::CHI2_STEREO } else { crate::optim::CHI2_MONO };
+            self.current.outlier[i] = chi2.is_nan() || chi2 > gate;
+        }
+    }
+
+    /// Anchors the points noted by [`Self::refine_measurements`] that are inliers of the final pose, at their
+    /// keypoints in this frame.
+    fn anchor_new_inliers(&mut self) {
+        let Some(pose) = self.current.camera_from_world else { return };
+        let levels = self.builder.left_levels();
+        for &i in &self.to_anchor {
+            let Some(p) = self.current.points[i] else { continue };
+            if self.current.outlier[i] {
+                continue;
+            }
+            let kp = &self.current.keypoints[i];
+            let octave = usize::from(kp.octave);
+            let scale = self.scales.scale[octave];
+            self.map.points[p].anchor = Anchor::cut(&levels[octave], scale, f64::from(kp.x), f64::from(kp.y), pose);
+        }
+    }
+
+    /// Refines the right-image match of every stereo keypoint of the current frame without a point, by
+    /// aligning its own patch along the right image's row: the depth new points are made with.
+    fn refine_new_disparities(&mut self) {
+        self.disparity_refined.clear();
+        self.disparity_refined.resize(self.current.len(), false);
+        if !self.refine {
+            return;
+        }
+        let (levels, right_levels) = (self.builder.left_levels(), self.builder.right_levels());
+        for i in 0..self.current.len() {
+            let has_point = self.current.points[i].is_some_and(|p| !self.map.points[p].bad);
+            if self.current.u_right[i] < 0.0 || has_point {
+                continue;
+            }
+            let kp = &self.current.keypoints[i];
+            let octave = usize::from(kp.octave);
+            let scale = self.scales.scale[octave];
+            let (u, v) = (f64::from(kp.x), f64::from(kp.y));
+            let Some(anchor) = Anchor::cut(&levels[octave], scale, u, v, Isometry3::identity()) else { continue };
+            if self.aligner.load_unwarped(&anchor).is_err() {
+                continue;
+            }
+            let u_right = f64::from(self.current.u_right[i]);
+            if let Ok(refined) = self.aligner.refine_right(&right_levels[octave], scale, u_right, v)
+                && u - refined > 0.0
+            {
+                self.current.u_right[i] = refined as f32;
+                self.current.depth[i] = (self.cam.bf / (u - refined)) as f32;
+                self.disparity_refined[i] = true;
+            }
+        }
+    }
+
+    /// Anchors new point `p` at keypoint `i` of the current frame (keyframe `kf`), seen from `pose`. The
+    /// keyframe's measurement is then the anchor's centre itself, refined when its disparity was.
+    fn anchor_new_point(&mut self, p: PointId, i: usize, kf: KfId, pose: CameraFromWorld) {
+        if !self.refine {
+            return;
+        }
+        let kp = &self.current.keypoints[i];
+        let octave = usize::from(kp.octave);
+        let anchor = Anchor::cut(
+            &self.builder.left_levels()[octave],
+            self.scales.scale[octave],
+            f64::from(kp.x),
+            f64::from(kp.y),
+            pose,
+        );
+        let refined = anchor.is_some() && self.disparity_refined.get(i).copied().unwrap_or(false);
+        self.map.points[p].anchor = anchor;
+        self.current.refined[i] = refined;
+        self.map.keyframes[kf].refined[i] = refined;
     }
 
     /// The local keyframes (§5.6 step 1), with buffers indexed by keyframe id that only grow with the map.
@@ -547,6 +747,7 @@ impl Tracker {
     /// §5.9, then local mapping on the new keyframe.
     fn create_keyframe(&mut self, result: &mut FrameResult) {
         let Some(pose) = self.current.camera_from_world else { return };
+        self.refine_new_disparities();
         let kf = self.map.add_keyframe(KeyFrame::from_frame(0, &self.current, pose));
         // New stereo points, nearest first: every close keypoint, far ones until 100 have been covered.
         let mut by_depth: Vec<(f32, usize)> = (0..self.current.len())
@@ -563,6 +764,7 @@ impl Tracker {
                 let p = self.map.new_point(x, kf, i, &self.scales);
                 self.current.points[i] = Some(p);
                 self.current.outlier[i] = false;
+                self.anchor_new_point(p, i, kf, pose);
             }
             covered += 1;
             if f64::from(z) > close && covered > 100 {
