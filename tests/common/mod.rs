@@ -151,3 +151,16 @@ pub fn python_with_numpy() -> Option<String> {
         None
     }
 }
+
+/// ATE RMSE (mm) of a run's trajectory (`trajectory.tum`, SE(3)-aligned), and the ground-truth path length.
+pub fn ate(seq: &Path, run_dir: &Path) -> (f64, f64) {
+    let gt = bdis_core::formats::trajectory::read_tum(&seq.join("gt/poses.tum")).unwrap();
+    let est = bdis_core::formats::trajectory::read_tum(&run_dir.join("trajectory.tum")).unwrap();
+    assert_eq!(est.len(), gt.len(), "a pose for every frame");
+    let ate = bdis_eval::traj::ate(&gt, &est, 0.01).unwrap();
+    let length: f64 = gt
+        .windows(2)
+        .map(|w| (w[1].world_from_camera.translation.vector - w[0].world_from_camera.translation.vector).norm())
+        .sum();
+    (ate.translation.rmse, length)
+}

@@ -3,7 +3,8 @@
 //! matching, pose, local map, keyframes with their inline local mapping), single thread. Input: the first 40
 //! frames of the synthetic colon flight (`bdis-slam synth`, default rig), rendered into a temporary folder, or
 //! the folder in `BDIS_BENCH_SEQUENCE`. One iteration tracks all 40 frames with a new tracker; the figure per
-//! frame is the time divided by 40.
+//! frame is the time divided by 40. Both measurement modes: `aligned` (the default, `refine.rs`) and
+//! `whole-pixel` (ORB-SLAM2's).
 //!
 //! cargo bench -p bdis-track --bench tracking
 
@@ -41,14 +42,18 @@ fn bench(c: &mut Criterion) {
         .collect();
     let mut group = c.benchmark_group("tracking-640x480");
     group.sample_size(10);
-    group.bench_function(format!("{FRAMES}-frames"), |b| {
-        b.iter(|| {
-            let mut tracker = Tracker::new(cam, ts).expect("settings");
-            for (i, (l, r)) in frames.iter().enumerate() {
-                tracker.track(i as u64 * 33_333_333, l, r).expect("frame");
-            }
-        })
-    });
+    // The product's measurements (aligned to sub-pixel) and ORB-SLAM2's whole-pixel ones, side by side.
+    for (name, aligned) in [("aligned", true), ("whole-pixel", false)] {
+        group.bench_function(format!("{FRAMES}-frames-{name}"), |b| {
+            b.iter(|| {
+                let mut tracker = Tracker::new(cam, ts).expect("settings");
+                tracker.set_refinement(aligned);
+                for (i, (l, r)) in frames.iter().enumerate() {
+                    tracker.track(i as u64 * 33_333_333, l, r).expect("frame");
+                }
+            })
+        });
+    }
     group.finish();
     if std::env::var_os("BDIS_BENCH_SEQUENCE").is_none() {
         let _ = std::fs::remove_dir_all(&dir);

@@ -30,6 +30,7 @@ const ANCHOR_HALF: f64 = (ANCHOR_SIDE / 2) as f64;
 const TEMPLATE_HALF: i32 = 4;
 const SAMPLED_HALF: i32 = TEMPLATE_HALF + 1;
 const SAMPLED_SIDE: usize = (2 * SAMPLED_HALF + 1) as usize;
+const TEMPLATE_SIDE: usize = (2 * TEMPLATE_HALF + 1) as usize;
 /// Gauss–Newton iterations at most, and the step (level px) below which the alignment has converged.
 const MAX_ITERATIONS: usize = 10;
 const CONVERGED_STEP: f64 = 0.03;
@@ -103,6 +104,9 @@ pub enum Unrefined {
 #[derive(Debug, Clone)]
 pub struct Aligner {
     template: [f64; SAMPLED_SIDE * SAMPLED_SIDE],
+    /// The template's inner 9 × 9 values and their (∂T/∂x, ∂T/∂y, 1), row by row.
+    values: [f64; TEMPLATE_SIDE * TEMPLATE_SIDE],
+    jacobians: [Vector3<f64>; TEMPLATE_SIDE * TEMPLATE_SIDE],
     /// Inverse normal matrix of (x, y, brightness offset), and of (x, offset) for the right image's row.
     inverse_2d: Matrix3<f64>,
     inverse_1d: Matrix2<f64>,
@@ -112,6 +116,8 @@ impl Default for Aligner {
     fn default() -> Self {
         Self {
             template: [0.0; SAMPLED_SIDE * SAMPLED_SIDE],
+            values: [0.0; TEMPLATE_SIDE * TEMPLATE_SIDE],
+            jacobians: [Vector3::zeros(); TEMPLATE_SIDE * TEMPLATE_SIDE],
             inverse_2d: Matrix3::zeros(),
             inverse_1d: Matrix2::zeros(),
         }
@@ -177,6 +183,9 @@ impl Aligner {
         for r in -TEMPLATE_HALF..=TEMPLATE_HALF {
             for c in -TEMPLATE_HALF..=TEMPLATE_HALF {
                 let j = self.jacobian(c, r);
+                let k = (r + TEMPLATE_HALF) as usize * TEMPLATE_SIDE + (c + TEMPLATE_HALF) as usize;
+                self.values[k] = self.at(c, r);
+                self.jacobians[k] = j;
                 h2 += j * j.transpose();
                 let j1 = Vector2::new(j.x, 1.0);
                 h1 += j1 * j1.transpose();
@@ -210,11 +219,23 @@ impl Aligner {
             {
                 return Err(Unrefined::Failed);
             }
+            // Every sample of the window shares the position's fraction, so one set of bilinear weights.
+            let corner = position - Vector2::repeat(f64::from(TEMPLATE_HALF));
+            let (x0, y0) = (corner.x.floor(), corner.y.floor());
+            let (ax, ay) = (corner.x - x0, corner.y - y0);
+            let (w00, w10, w01, w11) = ((1.0 - ax) * (1.0 - ay), ax * (1.0 - ay), (1.0 - ax) * ay, ax * ay);
             let mut gradient = Vector3::<f64>::zeros();
-            for r in -TEMPLATE_HALF..=TEMPLATE_HALF {
-                for c in -TEMPLATE_HALF..=TEMPLATE_HALF {
-                    let image = bilinear(level, position.x + f64::from(c), position.y + f64::from(r));
-                    gradient += self.jacobian(c, r) * (image - self.at(c, r) - offset);
+            for r in 0..TEMPLATE_SIDE {
+                let top = (y0 as usize + r) * level.w + x0 as usize;
+                let (upper, lower) =
+                    (&level.data[top..top + TEMPLATE_SIDE + 1], &level.data[top + level.w..][..TEMPLATE_SIDE + 1]);
+                let row = r * TEMPLATE_SIDE;
+                for c in 0..TEMPLATE_SIDE {
+                    let image = w00 * f64::from(upper[c])
+                        + w10 * f64::from(upper[c + 1])
+                        + w01 * f64::from(lower[c])
+                        + w11 * f64::from(lower[c + 1]);
+                    gradient += self.jacobians[row + c] * (image - self.values[row + c] - offset);
                 }
             }
             let step = if horizontal {
