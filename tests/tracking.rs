@@ -262,8 +262,8 @@ fn tracks_the_synthetic_colon_deterministically_and_recovers_after_black_frames(
     let (rmse, length) = ate(&seq, &a);
     let relative = rmse / length;
     eprintln!("clean: ATE RMSE {rmse:.3} mm over {length:.1} mm ({:.3} %); {sa}", 100.0 * relative);
-    // The bound, 0.1 % of the path: 0.060 % measured at this resolution (0.162 mm; 0.11–0.12 % with
-    // ORB-SLAM2's whole-pixel measurements), 0.016 % at 640×480.
+    // The bound, 0.1 % of the path: 0.050 % measured at this resolution (0.136 mm; 0.11–0.12 % with
+    // ORB-SLAM2's whole-pixel measurements), 0.009 % at 640×480.
     assert!(relative < 0.001, "ATE {rmse} mm over {length} mm");
     assert_eq!(
         std::fs::read(a.join("trajectory.tum")).unwrap(),

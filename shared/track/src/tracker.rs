@@ -429,8 +429,9 @@ impl Tracker {
         self.refine_measurements(&pose);
         self.optimise_current();
         self.anchor_new_inliers();
-        self.update_refined_sigma();
+        // Both read the χ² of the optimisation, made with the σ before this frame's update.
         self.reclassify_refined();
+        self.update_refined_sigma();
         let mut inliers = 0;
         for i in 0..self.current.len() {
             let Some(p) = self.current.points[i] else { continue };
@@ -450,8 +451,9 @@ impl Tracker {
     }
 
     /// Moves every matched keypoint whose point has an anchor to where the anchor's patch fits best
-    /// ([`crate::refine`]), its right-image match by the same shift (the disparity is kept); notes in
-    /// `to_anchor` the keypoints whose points need an anchor (none yet, or the view moved too far from it).
+    /// ([`crate::refine`]) and its right-image match to where the same template fits along the row (failing
+    /// that, by the same shift); notes in `to_anchor` the keypoints whose points need an anchor (none yet, or
+    /// the view moved too far from it).
     fn refine_measurements(&mut self, pose: &CameraFromWorld) {
         self.to_anchor.clear();
         if !self.refine {
@@ -579,7 +581,9 @@ impl Tracker {
         }
         let (levels, right_levels) = (self.builder.left_levels(), self.builder.right_levels());
         for i in 0..self.current.len() {
-            let has_point = self.current.points[i].is_some_and(|p| !self.map.points[p].bad);
+            // The keypoints `create_keyframe` may make a point at.
+            let has_point =
+                self.current.points[i].is_some_and(|p| !self.map.points[p].bad && self.map.points[p].n_obs > 0);
             if self.current.u_right[i] < 0.0 || has_point {
                 continue;
             }
