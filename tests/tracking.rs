@@ -45,7 +45,7 @@ enum During {
     Nothing,
     /// [`swap_five_times`].
     Swaps,
-    /// The tracker is killed (kill -9) at frame ~120.
+    /// The tracker is killed (kill -9) at frame ~150.
     TrackerCrash,
 }
 
@@ -183,7 +183,8 @@ fn swap_five_times(prefix: &str, run_dir: &Path) {
 /// Kills the tracker with SIGKILL mid-run and waits until the launcher's replacement is up.
 fn crash_the_tracker(prefix: &str, run_dir: &Path) {
     let logs = run_dir.join("logs");
-    wait_for_line(&logs.join("tracking.log"), "frame 120:", Duration::from_secs(120));
+    // The tracker logs every 50th frame (and keyframes, which depend on the tracking): wait for one of those.
+    wait_for_line(&logs.join("tracking.log"), "frame 150:", Duration::from_secs(120));
     let tracker = pid_of("bdis-tracking", prefix);
     // SAFETY: kill with the pid of this run's tracking service.
     assert_eq!(unsafe { libc::kill(tracker, libc::SIGKILL) }, 0);
@@ -389,10 +390,10 @@ fn tracks_the_synthetic_colon_deterministically_and_recovers_after_black_frames(
     let sk = summary(&k);
     let mk = json_file(&k.join("mosaic.json"));
     let (rmse_crash, _) = ate(&seq, &k);
-    eprintln!("tracker killed at frame ~120: ATE RMSE {rmse_crash:.3} mm (clean {rmse:.3}); {sk}\n{mk}");
+    eprintln!("tracker killed at frame ~150: ATE RMSE {rmse_crash:.3} mm (clean {rmse:.3}); {sk}\n{mk}");
     assert!(rmse_crash <= 2.0 * rmse, "ATE {rmse_crash} mm after a tracker crash vs {rmse} mm without");
     assert_eq!(sk["frames"], FRAMES as u64, "{sk}");
-    assert!(sk["frames_of_earlier_instances"].as_u64().unwrap() >= 120, "{sk}");
+    assert!(sk["frames_of_earlier_instances"].as_u64().unwrap() >= 150, "{sk}");
     assert_eq!(mk["keyframes_in_map"], sk["keyframes_created"], "{mk}");
     assert_eq!(mk["keyframes_missing"], 0, "{mk}");
     let run = json_file(&k.join("latency.json"));
