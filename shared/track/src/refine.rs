@@ -44,9 +44,6 @@ const MAX_SHIFT: f64 = 1.5;
 pub struct Anchor {
     pub patch: [u8; ANCHOR_SIDE * ANCHOR_SIDE],
     pub scale: f64,
-    /// Level-0 pixel position of the patch centre in its frame.
-    pub u: f64,
-    pub v: f64,
     pub camera_from_world: CameraFromWorld,
 }
 
@@ -66,28 +63,25 @@ impl Anchor {
         let mut patch = [0u8; ANCHOR_SIDE * ANCHOR_SIDE];
         for (r, row) in patch.chunks_exact_mut(ANCHOR_SIDE).enumerate() {
             for (c, out) in row.iter_mut().enumerate() {
-                *out = bilinear(level, x0 + c as f64, y0 + r as f64).round() as u8;
+                *out = bilinear(&level.data, level.w, x0 + c as f64, y0 + r as f64).round() as u8;
             }
         }
-        Some(Self { patch, scale, u, v, camera_from_world })
+        Some(Self { patch, scale, camera_from_world })
     }
 
     fn sample(&self, x: f64, y: f64) -> f64 {
-        // The caller keeps (x, y) inside [0, side − 1).
-        let (xi, yi) = (x.floor(), y.floor());
-        let (ax, ay) = (x - xi, y - yi);
-        let at = |dx: usize, dy: usize| f64::from(self.patch[(yi as usize + dy) * ANCHOR_SIDE + xi as usize + dx]);
-        (1.0 - ay) * ((1.0 - ax) * at(0, 0) + ax * at(1, 0)) + ay * ((1.0 - ax) * at(0, 1) + ax * at(1, 1))
+        bilinear(&self.patch, ANCHOR_SIDE, x, y)
     }
 }
 
-/// Bilinear sample of a level at (x, y); the caller keeps (x, y) inside [0, w − 1) × [0, h − 1).
-fn bilinear(level: &Level, x: f64, y: f64) -> f64 {
+/// Bilinear sample at (x, y) of an image stored row by row with `stride`; the caller keeps (x, y) inside
+/// [0, w − 1) × [0, h − 1).
+fn bilinear(data: &[u8], stride: usize, x: f64, y: f64) -> f64 {
     let (xi, yi) = (x.floor(), y.floor());
     let (ax, ay) = (x - xi, y - yi);
-    let i = yi as usize * level.w + xi as usize;
-    let d = &level.data;
-    let (a, b, c, e) = (f64::from(d[i]), f64::from(d[i + 1]), f64::from(d[i + level.w]), f64::from(d[i + level.w + 1]));
+    let i = yi as usize * stride + xi as usize;
+    let (a, b, c, e) =
+        (f64::from(data[i]), f64::from(data[i + 1]), f64::from(data[i + stride]), f64::from(data[i + stride + 1]));
     (1.0 - ay) * ((1.0 - ax) * a + ax * b) + ay * ((1.0 - ax) * c + ax * e)
 }
 

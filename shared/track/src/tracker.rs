@@ -99,8 +99,9 @@ pub struct Tracker {
     aligner: Aligner,
     /// Keypoints of the current frame whose points get an anchor once the frame's pose is final.
     to_anchor: Vec<usize>,
-    /// Per keypoint of the current frame: its right-image match was refined for a new point.
-    disparity_refined: Vec<bool>,
+    /// Per keypoint of the current frame that may get a new point: its anchor (cut once, for the disparity
+    /// and then for the point) and whether its right-image match was refined.
+    new_point_anchors: Vec<Option<(Anchor, bool)>>,
     residual_scratch: Vec<f64>,
 }
 
@@ -156,7 +157,7 @@ impl Tracker {
             refine: true,
             aligner: Aligner::default(),
             to_anchor: Vec::with_capacity(1 << 12),
-            disparity_refined: Vec::with_capacity(1 << 12),
+            new_point_anchors: Vec::with_capacity(1 << 12),
             residual_scratch: Vec::with_capacity(1 << 12),
         })
     }
@@ -574,8 +575,8 @@ impl Tracker {
     /// Refines the right-image match of every stereo keypoint of the current frame without a point, by
     /// aligning its own patch along the right image's row: the depth new points are made with.
     fn refine_new_disparities(&mut self) {
-        self.disparity_refined.clear();
-        self.disparity_refined.resize(self.current.len(), false);
+        self.new_point_anchors.clear();
+        self.new_point_anchors.resize(self.current.len(), None);
         if !self.refine {
             return;
         }
@@ -591,38 +592,29 @@ impl Tracker {
             let octave = usize::from(kp.octave);
             let scale = self.scales.scale[octave];
             let (u, v) = (f64::from(kp.x), f64::from(kp.y));
+            // The pose is set when a point is made here.
             let Some(anchor) = Anchor::cut(&levels[octave], scale, u, v, Isometry3::identity()) else { continue };
-            if self.aligner.load_unwarped(&anchor).is_err() {
-                continue;
-            }
-            let u_right = f64::from(self.current.u_right[i]);
-            if let Ok(refined) = self.aligner.refine_right(&right_levels[octave], scale, u_right, v)
+            let mut disparity_refined = false;
+            if self.aligner.load_unwarped(&anchor).is_ok()
+                && let Ok(refined) =
+                    self.aligner.refine_right(&right_levels[octave], scale, f64::from(self.current.u_right[i]), v)
                 && u - refined > 0.0
             {
                 self.current.u_right[i] = refined as f32;
                 self.current.depth[i] = (self.cam.bf / (u - refined)) as f32;
-                self.disparity_refined[i] = true;
+                disparity_refined = true;
             }
+            self.new_point_anchors[i] = Some((anchor, disparity_refined));
         }
     }
 
-    /// Anchors new point `p` at keypoint `i` of the current frame (keyframe `kf`), seen from `pose`. The
-    /// keyframe's measurement is then the anchor's centre itself, refined when its disparity was.
+    /// Anchors new point `p` at keypoint `i` of the current frame (keyframe `kf`), seen from `pose`, with the
+    /// patch [`Self::refine_new_disparities`] cut there. The keyframe's measurement is then the anchor's centre
+    /// itself, refined when its disparity was.
     fn anchor_new_point(&mut self, p: PointId, i: usize, kf: KfId, pose: CameraFromWorld) {
-        if !self.refine {
-            return;
-        }
-        let kp = &self.current.keypoints[i];
-        let octave = usize::from(kp.octave);
-        let anchor = Anchor::cut(
-            &self.builder.left_levels()[octave],
-            self.scales.scale[octave],
-            f64::from(kp.x),
-            f64::from(kp.y),
-            pose,
-        );
-        let refined = anchor.is_some() && self.disparity_refined.get(i).copied().unwrap_or(false);
-        self.map.points[p].anchor = anchor;
+        let Some((mut anchor, refined)) = self.new_point_anchors.get_mut(i).and_then(Option::take) else { return };
+        anchor.camera_from_world = pose;
+        self.map.points[p].anchor = Some(anchor);
         self.current.refined[i] = refined;
         self.map.keyframes[kf].refined[i] = refined;
     }
