@@ -38,7 +38,7 @@ struct Args {
     #[arg(long, default_value = "worker", value_parser = ["worker", "inline"])]
     ba: String,
     /// Keypoint measurements: `aligned` (each match moved to sub-pixel precision by aligning the patch its map
-    /// point was first seen with; ATE 2–8× lower on the synthetic sequences, +2 ms per frame) or `whole-pixel`
+    /// point was first seen with; ATE 2–8× lower on the synthetic sequences, +1–2 ms per frame) or `whole-pixel`
     /// (ORB-SLAM2's FAST positions as they are).
     #[arg(long, default_value = "aligned", value_parser = ["aligned", "whole-pixel"])]
     measurements: String,
