@@ -181,7 +181,7 @@ pub fn eval(command: EvalCommand) -> Result<()> {
                 }
                 None => vec![true; est.data.len()],
             };
-            let mut score = bdis_stereo::eval::StereoScore::new();
+            let mut score = bdis_eval::stereo::StereoScore::new();
             score.add(&est.data, &gt_depth, &region, a.bf as f32);
             let s = score.summary();
             if a.json {

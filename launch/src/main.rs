@@ -88,7 +88,7 @@ struct DemoArgs {
     out: Option<PathBuf>,
     /// Pacing: on-demand (as fast as the pipeline consumes), recorded (30 fps), or a rate such as 60hz.
     #[arg(long, default_value = "on-demand")]
-    pacing: bdis_acquisition::Pacing,
+    pacing: bdis_source::Pacing,
 }
 
 #[derive(Debug, clap::Args)]
@@ -106,7 +106,7 @@ struct RunArgs {
     /// Pacing for --sequence: on-demand, recorded, a rate such as 30hz (frames a slow consumer misses are
     /// dropped, as with a live camera), or on-demand:30hz (a live camera's pace that never drops a frame).
     #[arg(long, default_value = "on-demand", requires = "sequence")]
-    pacing: bdis_acquisition::Pacing,
+    pacing: bdis_source::Pacing,
     /// Have the probe checksum every frame's pixels (for integrity checks; costs ~1 ms per VGA frame).
     #[arg(long, requires = "sequence")]
     checksums: bool,
@@ -168,7 +168,7 @@ fn main() -> ExitCode {
 fn plan_for_sequence(
     sequence: &Path,
     settings: Option<&Path>,
-    pacing: bdis_acquisition::Pacing,
+    pacing: bdis_source::Pacing,
     checksums: bool,
     stereo_every: Option<u64>,
     track: bool,
@@ -177,17 +177,17 @@ fn plan_for_sequence(
     use bdis_slam::launch_file::{LaunchFile, RunSection, ServiceSpec};
     // Check the input before anything starts: a bad sequence or settings file is reported here, by file and
     // field, and no process or shared memory is created.
-    let input = bdis_acquisition::check_input(sequence, settings)?;
+    let input = bdis_source::check_input(sequence, settings)?;
     let absolute = |p: &Path| std::fs::canonicalize(p).with_context(|| format!("{}: cannot resolve", p.display()));
     let mut acquisition_args = vec!["--sequence".to_string(), absolute(&input.sequence.root)?.display().to_string()];
     if let Some(settings) = &input.settings_path {
         acquisition_args.extend(["--settings".to_string(), absolute(settings)?.display().to_string()]);
     }
     let pacing = match pacing {
-        bdis_acquisition::Pacing::OnDemand => "on-demand".to_string(),
-        bdis_acquisition::Pacing::Recorded => "recorded".to_string(),
-        bdis_acquisition::Pacing::Fixed(hz) => format!("{hz}hz"),
-        bdis_acquisition::Pacing::OnDemandAtMost(hz) => format!("on-demand:{hz}hz"),
+        bdis_source::Pacing::OnDemand => "on-demand".to_string(),
+        bdis_source::Pacing::Recorded => "recorded".to_string(),
+        bdis_source::Pacing::Fixed(hz) => format!("{hz}hz"),
+        bdis_source::Pacing::OnDemandAtMost(hz) => format!("on-demand:{hz}hz"),
     };
     acquisition_args.extend(["--pacing".to_string(), pacing]);
     let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
@@ -285,7 +285,7 @@ fn run(args: RunArgs) -> Result<ExitCode> {
     use bdis_slam::launch_file::LaunchFile;
     // A synthetic source is rendered here first (with a progress bar), then streamed like any sequence.
     let mut rendered: Option<(PathBuf, PathBuf)> = None;
-    if let Some(request) = args.sequence.as_ref().and_then(|s| s.to_str()).and_then(bdis_acquisition::parse_synthetic) {
+    if let Some(request) = args.sequence.as_ref().and_then(|s| s.to_str()).and_then(bdis_source::parse_synthetic) {
         let request = request.map_err(anyhow::Error::msg)?;
         let run_dir = make_run_dir(args.out.as_deref(), &format!("synthetic-{}", request.scene))?;
         let sequence = run_dir.join("sequence");
@@ -590,7 +590,7 @@ fn bench_isolation(args: IsolationArgs) -> Result<ExitCode> {
     anyhow::ensure!((1..=50).contains(&args.pairs), "--pairs: give 1 to 50");
     let settings = args.settings.clone().unwrap_or_else(|| args.sequence.join("settings.yaml"));
     let full =
-        plan_for_sequence(&args.sequence, Some(&settings), bdis_acquisition::Pacing::OnDemand, false, None, true, &[])?;
+        plan_for_sequence(&args.sequence, Some(&settings), bdis_source::Pacing::OnDemand, false, None, true, &[])?;
     let mut alone = full.clone();
     alone.services.retain(|s| s.name == "acquisition" || s.name == "tracking");
     let root = make_run_dir(args.out.as_deref(), "isolation")?;

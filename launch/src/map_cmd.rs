@@ -53,7 +53,7 @@ pub fn map(args: MapArgs) -> Result<()> {
     params.apply_overrides(&args.map_params).map_err(|e| anyhow::anyhow!("--map-param {e}"))?;
     let settings = bdis_core::Settings::load(&args.settings)?;
     let camera = settings.camera;
-    let sequence = bdis_acquisition::Sequence::open(&args.sequence)?;
+    let sequence = bdis_source::Sequence::open(&args.sequence)?;
     let mut poses = trajectory::read_tum(&args.poses)?;
     poses.sort_by(|a, b| a.t_s.total_cmp(&b.t_s));
     let chosen: Vec<usize> = match &args.keyframes {

@@ -61,7 +61,7 @@ pub(crate) fn load(path: &Path) -> Result<(image::GrayImage, image::RgbImage)> {
     let rgb = image::open(path).with_context(|| format!("{}: cannot read the image", path.display()))?.to_rgb8();
     let gray = image::GrayImage::from_fn(rgb.width(), rgb.height(), |x, y| {
         let p = rgb.get_pixel(x, y);
-        image::Luma([bdis_acquisition::decode::gray_of(p[0], p[1], p[2])])
+        image::Luma([bdis_source::decode::gray_of(p[0], p[1], p[2])])
     });
     Ok((gray, rgb))
 }
@@ -123,7 +123,7 @@ pub fn stereo(args: StereoArgs) -> Result<()> {
         return Ok(());
     }
     let Some(sequence) = &args.sequence else { bail!("give --left and --right, or --sequence") };
-    let sequence = bdis_acquisition::Sequence::open(sequence)?;
+    let sequence = bdis_source::Sequence::open(sequence)?;
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("{}: cannot create the output folder", args.out.display()))?;
     let bar = bdis_slam::progress::bar(sequence.len() as u64, "matching {bar:40} {pos}/{len} pairs ({eta} left)");

@@ -3,7 +3,6 @@
 
 pub mod frame;
 pub mod geometry;
-pub mod journal;
 pub mod map;
 pub mod mapper;
 pub mod optim;

@@ -395,6 +395,27 @@ impl Map {
         k.bad = true;
     }
 
+    /// The culled keyframes whose pose moved with `moved`: a culled keyframe's pose follows its first live
+    /// ancestor up the parent chain ([`Map::keyframe_pose`]), so when that ancestor moved, so did it. A consumer
+    /// that keeps culled keyframes (the dense map keeps their points) needs their corrections too.
+    pub fn culled_following(&self, moved: &[KfId]) -> Vec<KfId> {
+        let moved: std::collections::BTreeSet<KfId> = moved.iter().copied().collect();
+        let keyframes = &self.keyframes;
+        (0..keyframes.len())
+            .filter(|&k| keyframes[k].bad)
+            .filter(|&k| {
+                let mut ancestor = keyframes[k].parent;
+                for _ in 0..keyframes.len() {
+                    match ancestor {
+                        Some(a) if keyframes[a].bad => ancestor = keyframes[a].parent,
+                        _ => break,
+                    }
+                }
+                ancestor.is_some_and(|a| moved.contains(&a))
+            })
+            .collect()
+    }
+
     /// The current `camera_from_world` of keyframe `kf`, following parents through culled keyframes.
     pub fn keyframe_pose(&self, mut kf: KfId) -> CameraFromWorld {
         let mut camera_from_x = Isometry3::identity();

@@ -4,7 +4,7 @@
 
 mod common;
 
-use bdis_stereo::eval::StereoScore;
+use bdis_eval::stereo::StereoScore;
 use bdis_stereo::{Algorithm, GrayImage, Matcher, Params};
 use common::*;
 
@@ -12,7 +12,7 @@ fn view(img: &image::GrayImage) -> GrayImage<'_> {
     GrayImage { width: img.width() as usize, height: img.height() as usize, data: img.as_raw() }
 }
 
-fn score_set31(params: Params) -> bdis_stereo::eval::ScoreSummary {
+fn score_set31(params: Params) -> bdis_eval::stereo::ScoreSummary {
     let set = data_set("31").unwrap();
     let mut matcher = Matcher::new(params).unwrap();
     let mut score = StereoScore::new();

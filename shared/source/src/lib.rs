@@ -1,5 +1,6 @@
-//! Acquisition: stereo sources and frame decoding, with no knowledge of processes or transport. The
-//! `bdis-acquisition` binary wires this to shared memory.
+//! Stereo sources: sequence layouts, frame decoding straight into the shared-memory frame layout, pacing and
+//! the input checks, with no knowledge of processes or transport. The `bdis-acquisition` service and the
+//! launcher's offline commands use it.
 
 pub mod decode;
 pub mod pacing;

@@ -1,6 +1,6 @@
 #![allow(clippy::unwrap_used, clippy::expect_used)] // test code: a panic is the failure report
 //! Prints the set-31 scores of BDIS and plain DIS (development aid; the CI test asserts them).
-use bdis_stereo::eval::StereoScore;
+use bdis_eval::stereo::StereoScore;
 use bdis_stereo::{Algorithm, GrayImage, Matcher, Params};
 
 fn gray(path: &std::path::Path) -> (Vec<u8>, Vec<bool>, usize, usize) {

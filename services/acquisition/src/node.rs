@@ -1,0 +1,193 @@
+//! The acquisition node: for each frame, wait until it is due (a consumer's credit on demand, its time when
+//! paced by a rate), decode it straight into a loaned sample, send, notify, record timings. The end of the
+//! stream is a last sample flagged `END_OF_STREAM`, so consumers finish cleanly, also after an error or a stop
+//! request.
+
+use std::time::Duration;
+
+use anyhow::Result;
+use bdis_ipc::telemetry::MessageTiming;
+use bdis_ipc::{FrameHeader, FrameLayout, Ipc, TelemetryPublisher, Topic, event_id, monotonic_ns};
+use bdis_source::{CheckedInput, FrameDecoder, Pacing, Schedule};
+use iceoryx2::prelude::*;
+use iceoryx2::waitset::WaitSetRunResult;
+
+use crate::credits::{ConsumerEvents, Credits};
+
+/// The checked input of one acquisition instance.
+#[derive(Debug)]
+pub struct Config {
+    pub input: CheckedInput,
+    pub layout: FrameLayout,
+    /// Frames to publish (the sequence, or fewer with `--max-frames`).
+    pub frame_count: usize,
+    pub pacing: Pacing,
+    /// The frame rate a fixed-rate schedule falls back to without timestamps.
+    pub schedule_fps: f64,
+    pub name: String,
+    pub ipc_prefix: String,
+}
+
+/// How the stream ended.
+#[derive(Debug)]
+enum End {
+    Completed,
+    StopRequested,
+    Failed(anyhow::Error),
+}
+
+pub fn run(config: Config) -> Result<()> {
+    let Config { input, layout, frame_count, pacing, schedule_fps, name, ipc_prefix } = config;
+    let sequence = &input.sequence;
+    let ipc = Ipc::open(&name, &ipc_prefix)?;
+    let frames = ipc.frames()?;
+    let frame_bytes = layout.payload_len();
+    let publisher = ipc.frame_publisher(&frames, frame_bytes)?;
+    let notifier = ipc.notifier(&ipc.events(Topic::Frames)?)?;
+    let consumed = ipc.listener(&ipc.frames_consumed()?)?;
+    let mut telemetry = TelemetryPublisher::new(&ipc, &name, None, Some(Topic::Frames))?;
+    // Acquisition waits on its consumers' credits with a timeout of its own (a frame's due time), so it keeps
+    // its own WaitSet rather than `bdis_node::serve`.
+    let waitset = WaitSetBuilder::new().create::<ipc::Service>().map_err(bdis_node::NodeError::WaitSet)?;
+    let consumed_guard = waitset.attach_notification(&consumed).map_err(bdis_node::NodeError::Attach)?;
+    telemetry.ready();
+    tracing::info!(
+        "streaming {frame_count} frames of {}×{} from {} ({pacing:?} pacing, prefix {ipc_prefix})",
+        sequence.width,
+        sequence.height,
+        sequence.root.display(),
+    );
+
+    let schedule = Schedule::new(pacing, sequence.frames[0].t_source_s, schedule_fps);
+    let mut decoder = FrameDecoder::new();
+    let on_demand = pacing.waits_for_consumer();
+    let mut credits = Credits::new(on_demand, frames.dynamic_config().number_of_subscribers() > 0);
+    let t_start_ns = monotonic_ns();
+    let mut published: u64 = 0;
+    let mut end = End::Completed;
+    let mut index = 0usize;
+
+    'frames: while index < frame_count {
+        let entry = &sequence.frames[index];
+        // Wait until the frame is due: a consumer's credit (on demand) or its time (recorded / fixed rate).
+        let due_ns = schedule.due_offset_ns(index, entry.t_source_s).map(|offset| t_start_ns + offset);
+        let mut waited_ms: u64 = 0;
+        loop {
+            let now = monotonic_ns();
+            let timeout = match due_ns {
+                _ if credits.waiting_for_consumer() => Duration::from_secs(1),
+                None => Duration::ZERO,
+                Some(due) => Duration::from_nanos(due.saturating_sub(now)),
+            };
+            let mut events = ConsumerEvents::default();
+            let result = waitset
+                .wait_and_process_once_with_timeout(
+                    |id| {
+                        if id.has_event_from(&consumed_guard) {
+                            let _ = consumed.try_wait(|activation| match activation.id.as_value() {
+                                event_id::CONSUMED => events.released += activation.count,
+                                event_id::JOINED => events.joined += activation.count,
+                                event_id::NOTIFIER_DEAD => events.died += activation.count,
+                                _ => {}
+                            });
+                        }
+                        CallbackProgression::Continue
+                    },
+                    timeout,
+                )
+                .map_err(bdis_node::NodeError::Wait)?;
+            let replay_from = credits.on_events(events);
+            telemetry.keepalive();
+            if matches!(result, WaitSetRunResult::TerminationRequest | WaitSetRunResult::Interrupt) {
+                end = End::StopRequested;
+                break 'frames;
+            }
+            if let Some(first) = replay_from {
+                tracing::info!("a consumer replaced one that died: sending frames {first}..{index} again");
+                index = first;
+                continue 'frames;
+            }
+            // Due when a consumer has asked for it (on demand) and its time has come (a rate).
+            if credits.waiting_for_consumer() {
+                waited_ms += timeout.as_millis() as u64;
+                if waited_ms > 0 && waited_ms.is_multiple_of(5000) {
+                    tracing::warn!("no consumer has asked for frame {index} for {} s", waited_ms / 1000);
+                    ipc.cleanup_dead_nodes();
+                }
+                continue;
+            }
+            if due_ns.is_none_or(|due| monotonic_ns() >= due) {
+                credits.spend();
+                break;
+            }
+        }
+
+        let t_capture_ns = monotonic_ns();
+        let mut sample = match publisher.loan_slice_uninit(frame_bytes) {
+            Ok(s) => s,
+            Err(e) => {
+                end = End::Failed(anyhow::Error::new(e).context("loan a shared-memory frame"));
+                break;
+            }
+        };
+        if let Err(e) = decoder.decode_pair_into(&entry.left, &entry.right, &layout, sample.payload_mut()) {
+            end = End::Failed(e.into());
+            break;
+        }
+        // SAFETY: decode_pair_into wrote every byte of the packed layout, which is the whole loaned slice.
+        let mut sample = unsafe { sample.assume_init() };
+        let header = sample.user_header_mut();
+        *header = FrameHeader {
+            frame_seq: index as u64,
+            t_capture_ns,
+            t_source_ns: entry.t_source_s.map_or(0, |t| (t * 1e9) as u64),
+            source_index: entry.source_index,
+            ..Default::default()
+        };
+        layout.write_into(header);
+        let t_publish_ns = monotonic_ns();
+        header.t_publish_ns = t_publish_ns;
+        if let Err(e) = sample.send() {
+            end = End::Failed(anyhow::Error::new(e).context(format!("send frame {index}")));
+            break;
+        }
+        if let Err(e) = bdis_ipc::notify(&notifier, event_id::NEW_SAMPLE) {
+            tracing::warn!("frame {index}: {e}");
+        }
+        published += 1;
+        telemetry.message(
+            MessageTiming { frame_seq: index as u64, t_capture_ns, t_done_ns: t_publish_ns, ..Default::default() },
+            0,
+        );
+        credits.sent(index);
+        index += 1;
+    }
+
+    // End of stream in every case, so consumers stop cleanly and keep what they have. Its sequence number is
+    // the number of frames of the stream (replays sent some twice; they count once).
+    let eos_sent = bdis_node::send_end_of_stream(
+        &publisher,
+        FrameHeader {
+            frame_seq: index as u64,
+            flags: FrameHeader::END_OF_STREAM,
+            t_capture_ns: monotonic_ns(),
+            t_publish_ns: monotonic_ns(),
+            ..Default::default()
+        },
+    );
+    if let Err(e) = bdis_ipc::notify(&notifier, event_id::END_OF_STREAM) {
+        tracing::warn!("end of stream: {e}");
+    }
+    match end {
+        End::Completed | End::StopRequested => {
+            telemetry.finished();
+            let how = if matches!(end, End::StopRequested) { "stop requested: " } else { "" };
+            tracing::info!("{how}published {published} frames; end of stream");
+            Ok(eos_sent?)
+        }
+        End::Failed(e) => {
+            telemetry.failed();
+            Err(e.context(format!("stopped after {published} frames")))
+        }
+    }
+}

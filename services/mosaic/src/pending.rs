@@ -1,0 +1,106 @@
+//! Pose corrections received but not applied yet. A depth keyframe says which correction generation the tracker
+//! had reached when it made the keyframe; applying exactly those before inserting it makes the map's removal
+//! decisions, and so the map, the same in every run, whatever the timing between the two topics.
+
+use std::collections::VecDeque;
+
+use bdis_ipc::KeyframePose;
+use bdis_ipc::track::pose_from_array;
+use bdis_mosaic::Mosaic;
+
+#[derive(Debug, Default)]
+pub struct PendingCorrections {
+    queue: VecDeque<KeyframePose>,
+}
+
+impl PendingCorrections {
+    /// A correction as it arrived (the tracker sends them in generation order).
+    pub fn push(&mut self, record: KeyframePose) {
+        self.queue.push_back(record);
+    }
+
+    /// Applies the corrections up to `generation` (all of them with `u64::MAX`); returns how many moved a
+    /// keyframe's pose. One that is not a rigid pose, or that the map refuses, is reported and dropped.
+    pub fn apply_up_to(&mut self, generation: u64, mosaic: &mut Mosaic) -> u64 {
+        let mut applied = 0;
+        while self.queue.front().is_some_and(|c| c.generation <= generation) {
+            let Some(record) = self.queue.pop_front() else { break };
+            match pose_from_array(&record.world_from_camera) {
+                Some(pose) => match mosaic.correct_pose(record.kf_id, pose) {
+                    Ok(_) => applied += 1,
+                    Err(e) => tracing::warn!("correction ignored: {e}"),
+                },
+                None => tracing::warn!("correction of keyframe {} ignored: not a rigid pose", record.kf_id),
+            }
+        }
+        applied
+    }
+
+    #[cfg(test)]
+    pub fn len(&self) -> usize {
+        self.queue.len()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use bdis_mosaic::{DepthKeyframe, Intrinsics, MosaicParams};
+    use nalgebra::{Isometry3, Translation3, UnitQuaternion};
+
+    fn correction(kf_id: u64, generation: u64, x: f64) -> KeyframePose {
+        KeyframePose { kf_id, world_from_camera: [x, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0], generation, culled: 0, reserved: 0 }
+    }
+
+    /// A map with keyframe 0: a flat patch 50 units in front of the camera.
+    fn map_with_one_keyframe() -> Mosaic {
+        let (w, h) = (16u32, 12u32);
+        let n = (w * h) as usize;
+        let disparity = vec![20.0f32; n];
+        let confidence = vec![1.0f32; n];
+        let rgb = vec![128u8; 3 * n];
+        let mut mosaic = Mosaic::new(MosaicParams::default());
+        let kf = DepthKeyframe {
+            kf_id: 0,
+            t_capture_ns: 0,
+            world_from_camera: Isometry3::identity(),
+            intrinsics: Intrinsics { fx: 20.0, fy: 20.0, cx: 8.0, cy: 6.0, bf: 1000.0, width: w, height: h },
+            disparity: &disparity,
+            confidence: &confidence,
+            rgb: &rgb,
+        };
+        mosaic.insert(&kf).unwrap();
+        mosaic
+    }
+
+    #[test]
+    fn corrections_apply_up_to_the_keyframes_generation_in_order() {
+        let mut mosaic = map_with_one_keyframe();
+        let mut pending = PendingCorrections::default();
+        for (generation, x) in [(1, 1.0), (2, 2.0), (3, 3.0)] {
+            pending.push(correction(0, generation, x));
+        }
+        assert_eq!(pending.apply_up_to(2, &mut mosaic), 2);
+        assert_eq!(pending.len(), 1, "generation 3 waits for a keyframe made after it");
+        let x = mosaic.keyframes().next().unwrap().world_from_camera.translation.x;
+        assert_eq!(x, 2.0, "the last applied correction wins");
+        assert_eq!(pending.apply_up_to(u64::MAX, &mut mosaic), 1);
+        assert_eq!(pending.len(), 0);
+    }
+
+    #[test]
+    fn a_correction_that_is_not_a_rigid_pose_is_dropped_not_applied() {
+        let mut mosaic = map_with_one_keyframe();
+        let mut pending = PendingCorrections::default();
+        let mut bad = correction(0, 1, 0.0);
+        bad.world_from_camera = [0.0; 7];
+        pending.push(bad);
+        let mut nan = correction(0, 1, f64::NAN);
+        nan.world_from_camera[6] = 1.0;
+        pending.push(nan);
+        pending.push(correction(0, 2, 5.0));
+        assert_eq!(pending.apply_up_to(u64::MAX, &mut mosaic), 1);
+        let pose = mosaic.keyframes().next().unwrap().world_from_camera;
+        assert_eq!(pose, Isometry3::from_parts(Translation3::new(5.0, 0.0, 0.0), UnitQuaternion::identity()));
+    }
+}

@@ -1,0 +1,405 @@
+//! The stereo service's node: its ports, the keyframe loop over either input, and the depth keyframe written
+//! once into a loaned sample. The matching itself is `bdis_stereo`; the loop is `bdis_node::serve`.
+
+use std::path::PathBuf;
+
+use anyhow::{Context, Result, anyhow, bail};
+use bdis_core::StereoCamera;
+use bdis_ipc::telemetry::MessageTiming;
+use bdis_ipc::{
+    DepthHeader, FrameHeader, FrameView, Ipc, KeyframeHeader, TelemetryPublisher, Topic, event_id, monotonic_ns,
+};
+use bdis_node::{Ended, Flow};
+use bdis_stereo::{Algorithm, DisparityMap, GrayImage, Matcher};
+use iceoryx2::prelude::*;
+
+/// Where keyframes come from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Input {
+    /// Every `every`-th frame from acquisition (no tracker), with on-demand credits.
+    Frames { every: u64 },
+    /// The tracker's keyframes, with their poses; `standby` waits for the launcher's activation first.
+    Keyframes { standby: bool },
+}
+
+/// The checked input of one service instance.
+#[derive(Debug)]
+pub struct Config {
+    pub matcher: Matcher,
+    pub camera: StereoCamera,
+    pub width: u32,
+    pub height: u32,
+    pub input: Input,
+    /// The settings file, named in errors about frame sizes.
+    pub settings: PathBuf,
+    pub name: String,
+    pub ipc_prefix: String,
+}
+
+/// What one keyframe's depth is published with, whichever topic it came from.
+struct DepthOutput {
+    matcher: Matcher,
+    out: DisparityMap,
+    publisher: iceoryx2::port::publisher::Publisher<ipc::Service, [u8], DepthHeader>,
+    events: iceoryx2::port::notifier::Notifier<ipc::Service>,
+    width: u32,
+    height: u32,
+    settings: PathBuf,
+}
+
+impl DepthOutput {
+    /// Matches the view's grey images in place and publishes disparity, confidence and RGB with `dh`'s ids,
+    /// pose and intrinsics. Returns the density.
+    fn publish(&mut self, view: &FrameView, mut dh: DepthHeader) -> Result<f64> {
+        let header = view.header;
+        if (header.width, header.height) != (self.width, self.height) {
+            bail!(
+                "frame {} is {}×{}, but {} says Camera.width × Camera.height = {}×{}",
+                header.frame_seq,
+                header.width,
+                header.height,
+                self.settings.display(),
+                self.width,
+                self.height
+            );
+        }
+        let (w, h) = (header.width as usize, header.height as usize);
+        // The matcher reads the grey images in place, in shared memory.
+        self.matcher
+            .compute_into(
+                GrayImage { width: w, height: h, data: view.left_gray },
+                GrayImage { width: w, height: h, data: view.right_gray },
+                &mut self.out,
+            )
+            .with_context(|| format!("frame {}", header.frame_seq))?;
+        let n = w * h;
+        // The matcher's output has one value per pixel; the writes below fill the payload only if it does.
+        if self.out.disparity.len() != n || self.out.confidence.len() != n || view.left_rgb.len() != 3 * n {
+            bail!("frame {}: the matcher's output does not cover the {w}×{h} image", header.frame_seq);
+        }
+        let bytes = DepthHeader::payload_len(self.width, self.height);
+        let mut loan = self.publisher.loan_slice_uninit(bytes).context("loan a depth keyframe")?;
+        dh.density_permille = (self.out.density() * 1000.0).round() as u32;
+        dh.set_layout(header.width, header.height);
+        let payload = loan.payload_mut();
+        let (d, c, r) = (dh.disparity_offset as usize, dh.confidence_offset as usize, dh.rgb_offset as usize);
+        let written = bdis_node::copy_floats_into(&mut payload[d..d + 4 * n], &self.out.disparity)
+            + bdis_node::copy_floats_into(&mut payload[c..c + 4 * n], &self.out.confidence)
+            + bdis_node::copy_into(&mut payload[r..r + 3 * n], view.left_rgb);
+        if written != bytes {
+            bail!("frame {}: wrote {written} of the depth keyframe's {bytes} bytes", header.frame_seq);
+        }
+        // SAFETY: the three arrays above filled every byte of the payload (payload_len = 8n + 3n, checked).
+        let mut depth_sample = unsafe { loan.assume_init() };
+        dh.t_publish_ns = monotonic_ns();
+        *depth_sample.user_header_mut() = dh;
+        depth_sample.send().with_context(|| format!("send depth keyframe {}", dh.kf_id))?;
+        bdis_ipc::notify(&self.events, event_id::NEW_SAMPLE)?;
+        Ok(self.out.density())
+    }
+
+    /// The end of the depth stream, after the end of the input stream.
+    fn end_of_stream(&self, frame_seq: u64) -> Result<()> {
+        bdis_node::send_end_of_stream(
+            &self.publisher,
+            DepthHeader {
+                frame_seq,
+                flags: DepthHeader::END_OF_STREAM,
+                t_publish_ns: monotonic_ns(),
+                ..Default::default()
+            },
+        )?;
+        bdis_ipc::notify(&self.events, event_id::END_OF_STREAM)?;
+        Ok(())
+    }
+}
+
+/// The depth header every keyframe of this instance starts from: intrinsics from the settings, the algorithm.
+fn base_header(camera: &StereoCamera, algorithm: Algorithm) -> DepthHeader {
+    DepthHeader {
+        fx: camera.fx,
+        fy: camera.fy,
+        cx: camera.cx,
+        cy: camera.cy,
+        bf: camera.bf,
+        algorithm: if algorithm == Algorithm::Bdis { DepthHeader::BDIS } else { DepthHeader::DIS },
+        ..Default::default()
+    }
+}
+
+/// A keyframe picked from acquisition's frames: its id is the frame's sequence number, it has no pose.
+fn header_for_frame(base: DepthHeader, frame: &FrameHeader) -> DepthHeader {
+    DepthHeader { kf_id: frame.frame_seq, frame_seq: frame.frame_seq, t_capture_ns: frame.t_capture_ns, ..base }
+}
+
+/// A tracker keyframe: its id, pose, intrinsics and correction generation travel on to the map.
+fn header_for_keyframe(base: DepthHeader, kh: &KeyframeHeader) -> DepthHeader {
+    DepthHeader {
+        kf_id: kh.kf_id,
+        frame_seq: kh.frame.frame_seq,
+        t_capture_ns: kh.frame.t_capture_ns,
+        world_from_camera: kh.world_from_camera,
+        fx: kh.fx,
+        fy: kh.fy,
+        cx: kh.cx,
+        cy: kh.cy,
+        bf: kh.bf,
+        corrections_generation: kh.corrections_generation,
+        ..base
+    }
+}
+
+/// With frames as input: frame `frame_seq` is a keyframe when it is every `every`-th and this instance has not
+/// done it (acquisition replays frames to a consumer that joins).
+fn is_new_keyframe(frame_seq: u64, every: u64, last_kf: Option<u64>) -> bool {
+    frame_seq.is_multiple_of(every) && last_kf.is_none_or(|k| frame_seq > k)
+}
+
+pub fn run(config: Config) -> Result<()> {
+    let algorithm = config.matcher.params().algorithm;
+    let ipc = Ipc::open(&config.name, &config.ipc_prefix)?;
+    let depth = ipc.depth()?;
+    let input_topic = match config.input {
+        Input::Frames { .. } => Topic::Frames,
+        Input::Keyframes { .. } => Topic::Keyframes,
+    };
+    let mut telemetry = TelemetryPublisher::new(&ipc, &config.name, Some(input_topic), Some(Topic::Depth))?;
+    let mut output = DepthOutput {
+        matcher: config.matcher,
+        out: DisparityMap::default(),
+        publisher: ipc.depth_publisher(&depth, DepthHeader::payload_len(config.width, config.height))?,
+        events: ipc.notifier(&ipc.events(Topic::Depth)?)?,
+        width: config.width,
+        height: config.height,
+        settings: config.settings,
+    };
+    let base = base_header(&config.camera, algorithm);
+    let published = match config.input {
+        Input::Keyframes { standby } => {
+            // The subscription exists before ready is reported: nothing sent from now on is missed, and the
+            // tracker's history brings the last keyframes before it.
+            let keyframes = ipc.keyframes()?;
+            let subscriber = ipc.keyframe_subscriber(&keyframes)?;
+            let mut resume_after = None;
+            if standby {
+                let standby = bdis_ipc::control::Standby::open(&ipc)?;
+                telemetry.ready();
+                tracing::info!("stereo ({algorithm:?}, the tracker's keyframes) in standby");
+                match standby.wait(|| telemetry.keepalive())? {
+                    None => {
+                        tracing::info!("stop requested in standby");
+                        telemetry.finished();
+                        return Ok(());
+                    }
+                    Some(after) => {
+                        resume_after = (after != bdis_ipc::control::Activation::RESUME_FROM_START).then_some(after);
+                        tracing::info!(
+                            "activated{}",
+                            resume_after.map_or(String::new(), |k| format!(": resuming after keyframe {k}"))
+                        );
+                    }
+                }
+            } else {
+                telemetry.ready();
+                tracing::info!("stereo ({algorithm:?}, the tracker's keyframes) ready");
+            }
+            from_keyframes(&ipc, &subscriber, &mut output, &mut telemetry, base, resume_after)?
+        }
+        Input::Frames { every } => {
+            tracing::info!("stereo ({algorithm:?}, every {every} frames) ready");
+            from_frames(&ipc, &mut output, &mut telemetry, base, every)?
+        }
+    };
+    tracing::info!("{published} keyframes");
+    telemetry.finished();
+    Ok(())
+}
+
+/// Keyframes picked from acquisition's frames (no tracker), with on-demand credits.
+fn from_frames(
+    ipc: &Ipc,
+    output: &mut DepthOutput,
+    telemetry: &mut TelemetryPublisher,
+    base: DepthHeader,
+    every: u64,
+) -> Result<u64> {
+    let frames = ipc.frames()?;
+    let subscriber = ipc.frame_subscriber(&frames)?;
+    let frame_events = ipc.listener(&ipc.events(Topic::Frames)?)?;
+    let credits = ipc.notifier(&ipc.frames_consumed()?)?;
+    let mut last_kf: Option<u64> = None;
+    let mut published = 0u64;
+    telemetry.ready();
+    // Ready for a frame. An on-demand acquisition that is already running sends again what it sent but nobody
+    // released: the frame a killed predecessor was working on.
+    bdis_ipc::notify(&credits, event_id::JOINED)?;
+    let ended = bdis_node::serve(&[&frame_events], telemetry, |telemetry| -> Result<Flow> {
+        while let Some(sample) = subscriber.receive().context("receive a frame")? {
+            let t_receive_ns = monotonic_ns();
+            let header = *sample.user_header();
+            if header.is_end_of_stream() {
+                output.end_of_stream(header.frame_seq)?;
+                tracing::info!("end of stream: {published} keyframes");
+                return Ok(Flow::Finished);
+            }
+            // A frame that is not a keyframe, or one this instance already did (replay), is released at once.
+            if !is_new_keyframe(header.frame_seq, every, last_kf) {
+                drop(sample);
+                bdis_ipc::notify(&credits, event_id::CONSUMED)?;
+                continue;
+            }
+            let view = frame_view(sample.user_header(), sample.payload())?;
+            let density = output.publish(&view, header_for_frame(base, &header))?;
+            let t_done_ns = monotonic_ns();
+            drop(sample);
+            bdis_ipc::notify(&credits, event_id::CONSUMED)?;
+            last_kf = Some(header.frame_seq);
+            published += 1;
+            report(telemetry, header.frame_seq, header.frame_seq, &header, t_receive_ns, t_done_ns, density);
+        }
+        Ok(Flow::Continue)
+    })?;
+    if ended == Ended::StopRequested {
+        tracing::info!("stop requested after {published} keyframes");
+    }
+    Ok(published)
+}
+
+/// The tracker's keyframes, with their poses. The tracker does not wait for this service (its topic overflows
+/// safely), so nothing is acknowledged.
+fn from_keyframes(
+    ipc: &Ipc,
+    subscriber: &iceoryx2::port::subscriber::Subscriber<ipc::Service, [u8], KeyframeHeader>,
+    output: &mut DepthOutput,
+    telemetry: &mut TelemetryPublisher,
+    base: DepthHeader,
+    resume_after: Option<u64>,
+) -> Result<u64> {
+    let events = ipc.listener(&ipc.events(Topic::Keyframes)?)?;
+    // Keyframes up to `resume_after` were done by a predecessor (history replays them).
+    let mut last_kf: Option<u64> = resume_after;
+    let mut published = 0u64;
+    let ended = bdis_node::serve(&[&events], telemetry, |telemetry| -> Result<Flow> {
+        while let Some(sample) = subscriber.receive().context("receive a keyframe")? {
+            let t_receive_ns = monotonic_ns();
+            let kh = *sample.user_header();
+            if kh.frame.is_end_of_stream() {
+                output.end_of_stream(kh.frame.frame_seq)?;
+                tracing::info!("end of stream: {published} keyframes");
+                return Ok(Flow::Finished);
+            }
+            if last_kf.is_some_and(|k| kh.kf_id <= k) {
+                continue;
+            }
+            let view = frame_view(&sample.user_header().frame, sample.payload())?;
+            let density = output.publish(&view, header_for_keyframe(base, &kh))?;
+            let t_done_ns = monotonic_ns();
+            last_kf = Some(kh.kf_id);
+            published += 1;
+            report(telemetry, kh.kf_id, kh.frame.frame_seq, &kh.frame, t_receive_ns, t_done_ns, density);
+        }
+        Ok(Flow::Continue)
+    })?;
+    if ended == Ended::StopRequested {
+        tracing::info!("stop requested after {published} keyframes");
+    }
+    Ok(published)
+}
+
+fn frame_view<'a>(header: &'a FrameHeader, payload: &'a [u8]) -> Result<FrameView<'a>> {
+    match FrameView::new(header, payload) {
+        Ok(v) if v.header.gray_stride == v.header.width => Ok(v),
+        Ok(_) => bail!("frame {}: padded grey rows are not supported", header.frame_seq),
+        Err(e) => Err(anyhow!("{e}")),
+    }
+}
+
+fn report(
+    telemetry: &mut TelemetryPublisher,
+    kf_id: u64,
+    frame_seq: u64,
+    header: &FrameHeader,
+    t_receive_ns: u64,
+    t_done_ns: u64,
+    density: f64,
+) {
+    tracing::info!(
+        "keyframe {kf_id} (frame {frame_seq}): density {:.1} %, {:.1} ms",
+        density * 100.0,
+        (t_done_ns - t_receive_ns) as f64 / 1e6
+    );
+    telemetry.message(
+        MessageTiming {
+            // The keyframe id: the launcher resumes a replacement after the last one done.
+            frame_seq: kf_id,
+            t_capture_ns: header.t_capture_ns,
+            t_upstream_publish_ns: header.t_publish_ns,
+            t_receive_ns,
+            t_done_ns,
+        },
+        0,
+    );
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn camera() -> StereoCamera {
+        StereoCamera {
+            fx: 500.0,
+            fy: 501.0,
+            cx: 320.0,
+            cy: 240.0,
+            bf: 2500.0,
+            distortion: Default::default(),
+            width: None,
+            height: None,
+        }
+    }
+
+    #[test]
+    fn a_tracker_keyframe_carries_its_id_pose_intrinsics_and_generation_to_the_map() {
+        let base = base_header(&camera(), Algorithm::Bdis);
+        assert_eq!(base.algorithm, DepthHeader::BDIS);
+        let kh = KeyframeHeader {
+            frame: FrameHeader { frame_seq: 77, t_capture_ns: 123, ..Default::default() },
+            kf_id: 9,
+            world_from_camera: [1.0, 2.0, 3.0, 0.0, 0.0, 0.0, 1.0],
+            fx: 250.0,
+            fy: 251.0,
+            cx: 160.0,
+            cy: 120.0,
+            bf: 1250.0,
+            corrections_generation: 4,
+        };
+        let dh = header_for_keyframe(base, &kh);
+        assert_eq!((dh.kf_id, dh.frame_seq, dh.t_capture_ns, dh.corrections_generation), (9, 77, 123, 4));
+        assert_eq!(dh.world_from_camera, kh.world_from_camera);
+        // The keyframe's own intrinsics win over the settings' (a tracker may run at another size).
+        assert_eq!((dh.fx, dh.fy, dh.cx, dh.cy, dh.bf), (250.0, 251.0, 160.0, 120.0, 1250.0));
+        assert_eq!(dh.algorithm, DepthHeader::BDIS);
+        assert!(!dh.is_end_of_stream());
+    }
+
+    #[test]
+    fn a_frame_keyframe_has_the_settings_intrinsics_and_no_pose() {
+        let base = base_header(&camera(), Algorithm::Dis);
+        let dh = header_for_frame(base, &FrameHeader { frame_seq: 10, t_capture_ns: 5, ..Default::default() });
+        assert_eq!((dh.kf_id, dh.frame_seq, dh.t_capture_ns), (10, 10, 5));
+        assert_eq!((dh.fx, dh.bf), (500.0, 2500.0));
+        assert_eq!(dh.algorithm, DepthHeader::DIS);
+        // All zero: not a rigid pose, so the mosaic skips it rather than placing it at the origin.
+        assert_eq!(dh.world_from_camera, [0.0; 7]);
+    }
+
+    #[test]
+    fn every_nth_frame_once_even_when_acquisition_replays() {
+        let picked: Vec<u64> = (0..12).filter(|&s| is_new_keyframe(s, 5, None)).collect();
+        assert_eq!(picked, [0, 5, 10]);
+        // After keyframe 5, a replay of frames 0..=5 picks nothing again; 10 is new.
+        assert!(!is_new_keyframe(5, 5, Some(5)));
+        assert!(!is_new_keyframe(0, 5, Some(5)));
+        assert!(is_new_keyframe(10, 5, Some(5)));
+    }
+}

@@ -1,0 +1,388 @@
+//! The tracking node: its ports, the per-frame loop (track, publish the pose, a new keyframe with its images,
+//! the corrections bundle adjustment made), the end of the stream, and the trajectories and summary written at
+//! the end. The tracker itself is `bdis_track`; the loop is `bdis_node::serve`. It never waits for a consumer
+//! of its outputs: their topics overflow safely.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result, bail};
+use bdis_core::StereoCamera;
+use bdis_core::geometry::StampedPose;
+use bdis_ipc::telemetry::MessageTiming;
+use bdis_ipc::track::{pose_to_array, tracking_state};
+use bdis_ipc::{
+    FrameHeader, FrameView, Ipc, KeyframeHeader, KeyframePose, PoseRecord, TelemetryPublisher, Topic, event_id,
+    monotonic_ns,
+};
+use bdis_node::{Ended, Flow};
+use bdis_track::mapper::MapperReport;
+use bdis_track::{Tracker, TrackingState};
+use iceoryx2::port::notifier::Notifier;
+use iceoryx2::port::publisher::Publisher;
+use iceoryx2::port::update_connections::UpdateConnections;
+use iceoryx2::prelude::*;
+use nalgebra::Isometry3;
+
+use crate::journal::{self, Continuation, JournalWriter};
+use crate::world::WorldFrame;
+
+/// A checked tracker, ready to run, and what earlier instances of the run published.
+#[derive(Debug)]
+pub struct Config {
+    pub tracker: Tracker,
+    pub earlier: Continuation,
+    pub world: WorldFrame,
+    pub journal: JournalWriter,
+    /// The settings' camera: its intrinsics go out with every keyframe.
+    pub camera: StereoCamera,
+    pub width: u32,
+    pub height: u32,
+    pub n_features: u32,
+    /// The settings file, named in errors about frame sizes.
+    pub settings: PathBuf,
+    pub out_dir: PathBuf,
+    pub name: String,
+    pub ipc_prefix: String,
+}
+
+fn state_code(state: TrackingState) -> u32 {
+    match state {
+        TrackingState::NotInitialized => tracking_state::NOT_INITIALIZED,
+        TrackingState::Ok => tracking_state::OK,
+        TrackingState::Lost => tracking_state::LOST,
+    }
+}
+
+/// The tracker's three outputs, in the run's world frame, each journalled before it goes out.
+struct Outputs {
+    poses: Publisher<ipc::Service, PoseRecord, ()>,
+    pose_events: Notifier<ipc::Service>,
+    keyframes: Publisher<ipc::Service, [u8], KeyframeHeader>,
+    keyframe_events: Notifier<ipc::Service>,
+    corrections: Publisher<ipc::Service, KeyframePose, ()>,
+    correction_events: Notifier<ipc::Service>,
+    world: WorldFrame,
+    journal: JournalWriter,
+    /// The generation of the last correction sent.
+    generation: u64,
+    camera: StereoCamera,
+    /// Bytes of one packed frame of the run's size: what a keyframe sample carries.
+    frame_bytes: usize,
+}
+
+impl Outputs {
+    /// A new keyframe with its images (copied from the frame, which goes back to acquisition).
+    fn keyframe(&mut self, tracker: &Tracker, kf: usize, header: &FrameHeader, payload: &[u8]) -> Result<()> {
+        let pose = self.world.to_world(&tracker.map.keyframes[kf].camera_from_world.inverse());
+        let kf_id = self.world.kf_id(kf);
+        // Journalled before it goes out: a crash in between leaves a gap in the ids, never a reused id.
+        self.journal.write(|line| journal::keyframe_line(line, kf_id, header.t_source_ns, &pose));
+        let mut loan = self.keyframes.loan_slice_uninit(self.frame_bytes).context("loan a keyframe sample")?;
+        if bdis_node::copy_into(loan.payload_mut(), payload) != self.frame_bytes {
+            bail!("frame {}: {} payload bytes, a keyframe needs {}", header.frame_seq, payload.len(), self.frame_bytes);
+        }
+        // SAFETY: all frame_bytes bytes of the loan were written (counted just above).
+        let mut sample = unsafe { loan.assume_init() };
+        *sample.user_header_mut() = KeyframeHeader {
+            frame: FrameHeader { t_publish_ns: monotonic_ns(), ..*header },
+            kf_id,
+            world_from_camera: pose_to_array(&pose),
+            fx: self.camera.fx,
+            fy: self.camera.fy,
+            cx: self.camera.cx,
+            cy: self.camera.cy,
+            bf: self.camera.bf,
+            corrections_generation: self.generation,
+        };
+        sample.send().with_context(|| format!("send keyframe {kf_id}"))?;
+        bdis_ipc::notify(&self.keyframe_events, event_id::NEW_SAMPLE)?;
+        Ok(())
+    }
+
+    /// Corrections for every keyframe bundle adjustment moved, and for the culled keyframes that moved with
+    /// them, as one new generation.
+    fn corrections(&mut self, tracker: &Tracker, report: &MapperReport) -> Result<()> {
+        if report.moved.is_empty() {
+            return Ok(());
+        }
+        self.generation += 1;
+        let culled = tracker.map.culled_following(&report.moved);
+        let moved = report.moved.iter().map(|&k| (k, 0)).chain(culled.into_iter().map(|k| (k, 1)));
+        for (k, culled) in moved {
+            let pose = self.world.to_world(&tracker.map.keyframe_pose(k).inverse());
+            let kf_id = self.world.kf_id(k);
+            let record = KeyframePose {
+                kf_id,
+                world_from_camera: pose_to_array(&pose),
+                generation: self.generation,
+                culled,
+                reserved: 0,
+            };
+            self.corrections.send_copy(record).context("send a correction")?;
+            let generation = self.generation;
+            self.journal.write(|line| journal::correction_line(line, kf_id, generation, &pose));
+        }
+        bdis_ipc::notify(&self.correction_events, event_id::NEW_SAMPLE)?;
+        Ok(())
+    }
+
+    /// The end of the keyframe and pose streams, after the input's.
+    fn end_of_stream(&self, header: &FrameHeader) -> Result<()> {
+        bdis_node::send_end_of_stream(&self.keyframes, KeyframeHeader { frame: *header, ..Default::default() })?;
+        bdis_ipc::notify(&self.keyframe_events, event_id::END_OF_STREAM)?;
+        let record =
+            PoseRecord { frame_seq: header.frame_seq, state: tracking_state::END_OF_STREAM, ..Default::default() };
+        self.poses.send_copy(record).context("send the end-of-stream pose")?;
+        bdis_ipc::notify(&self.pose_events, event_id::END_OF_STREAM)?;
+        Ok(())
+    }
+}
+
+/// Per-run counts and CPU times for tracking.json.
+#[derive(Debug, Default)]
+struct Counts {
+    frames: u64,
+    keyframes: u64,
+    lost: u64,
+    relocalised: u64,
+    /// Per-frame CPU (frames without a new keyframe) and per-keyframe CPU (tracking plus local mapping), ms.
+    frame_ms: Vec<f64>,
+    keyframe_ms: Vec<f64>,
+}
+
+pub fn run(config: Config) -> Result<()> {
+    let Config {
+        mut tracker,
+        earlier,
+        world,
+        journal,
+        camera,
+        width,
+        height,
+        n_features,
+        settings,
+        out_dir,
+        name,
+        ipc_prefix,
+    } = config;
+    let ipc = Ipc::open(&name, &ipc_prefix)?;
+    let frames = ipc.frames()?;
+    let subscriber = ipc.frame_subscriber(&frames)?;
+    let frame_events = ipc.listener(&ipc.events(Topic::Frames)?)?;
+    let credits = ipc.notifier(&ipc.frames_consumed()?)?;
+    let frame_bytes = bdis_ipc::FrameLayout::packed(width, height)
+        .with_context(|| format!("{width}×{height}: no frame layout"))?
+        .payload_len();
+    let keyframes = ipc.keyframes()?;
+    let mut out = Outputs {
+        poses: ipc.poses()?.publisher_builder().create().context("create the poses publisher")?,
+        pose_events: ipc.notifier(&ipc.events(Topic::Poses)?)?,
+        keyframes: ipc.keyframe_publisher(&keyframes, frame_bytes)?,
+        keyframe_events: ipc.notifier(&ipc.events(Topic::Keyframes)?)?,
+        corrections: ipc.corrections()?.publisher_builder().create().context("create the corrections publisher")?,
+        correction_events: ipc.notifier(&ipc.events(Topic::Corrections)?)?,
+        world,
+        journal,
+        generation: earlier.generation,
+        camera,
+        frame_bytes,
+    };
+    // Its declared output is the keyframes topic: that is what the dense stereo consumes (poses and corrections
+    // have no process downstream yet).
+    let mut telemetry = TelemetryPublisher::new(&ipc, &name, Some(Topic::Frames), Some(Topic::Keyframes))?;
+
+    let mut finished = false;
+    let mut last_seq: Option<u64> = earlier.last_frame_seq();
+    let mut counts =
+        Counts { frame_ms: Vec::with_capacity(4096), keyframe_ms: Vec::with_capacity(1024), ..Default::default() };
+    telemetry.ready();
+    bdis_ipc::notify(&credits, event_id::JOINED)?;
+    tracing::info!("tracking ready ({width}×{height}, {n_features} features)");
+
+    let ended = bdis_node::serve(&[&frame_events], &mut telemetry, |telemetry| -> Result<Flow> {
+        // A stereo instance that joined since the last wake-up (a swap, a restart) receives the keyframe history
+        // now rather than at the next keyframe, which may be seconds away while the endoscope hovers. Cheap when
+        // nothing changed (a generation counter compare).
+        if let Err(e) = out.keyframes.update_connections() {
+            tracing::warn!("keyframes: connecting a new subscriber: {e:?}");
+        }
+        while let Some(sample) = subscriber.receive().context("receive a frame")? {
+            let t_receive_ns = monotonic_ns();
+            let header = *sample.user_header();
+            if header.is_end_of_stream() {
+                // The last bundle adjustment's corrections go out before the end of the stream, so the mosaic,
+                // which stops at the end of the depth stream, has applied them when it writes the map.
+                let last = tracker.finish();
+                out.corrections(&tracker, &last)?;
+                finished = true;
+                out.end_of_stream(&header)?;
+                tracing::info!("end of stream after {} frames", counts.frames);
+                return Ok(Flow::Finished);
+            }
+            // A frame sent again after a consumer joined (on-demand replay) that this instance already tracked.
+            if last_seq.is_some_and(|l| header.frame_seq <= l) {
+                drop(sample);
+                bdis_ipc::notify(&credits, event_id::CONSUMED)?;
+                continue;
+            }
+            let view = match FrameView::new(sample.user_header(), sample.payload()) {
+                Ok(v) if v.header.gray_stride == v.header.width => v,
+                Ok(_) => bail!("frame {}: padded grey rows are not supported", header.frame_seq),
+                Err(e) => bail!("{e}"),
+            };
+            if (header.width, header.height) != (width, height) {
+                bail!(
+                    "frame {} is {}×{}, but {} says Camera.width × Camera.height = {width}×{height}",
+                    header.frame_seq,
+                    header.width,
+                    header.height,
+                    settings.display()
+                );
+            }
+            // The tracking thread's CPU (bundle adjustment runs on a worker thread and is not part of it).
+            let cpu_start = bdis_ipc::clock::thread_cpu_ns();
+            let result = tracker
+                .track(header.t_source_ns, view.left_gray, view.right_gray)
+                .with_context(|| format!("frame {}", header.frame_seq))?;
+            let cpu_ns = bdis_ipc::clock::thread_cpu_ns().saturating_sub(cpu_start);
+            // A restarted tracker's new map is placed where its predecessor's motion says this frame is.
+            if let Some(camera_from_map) = &result.camera_from_world {
+                out.world.anchor(&earlier, header.frame_seq, &camera_from_map.inverse());
+            }
+            if let Some(kf) = result.new_keyframe {
+                out.keyframe(&tracker, kf, &header, sample.payload())?;
+                counts.keyframes += 1;
+            }
+            drop(sample);
+            bdis_ipc::notify(&credits, event_id::CONSUMED)?;
+            if let Some(report) = &result.mapper {
+                out.corrections(&tracker, report)?;
+            }
+            let world_from_camera = result.camera_from_world.map(|p| out.world.to_world(&p.inverse()));
+            let t_publish_ns = monotonic_ns();
+            let record = PoseRecord {
+                frame_seq: header.frame_seq,
+                t_capture_ns: header.t_capture_ns,
+                t_source_ns: header.t_source_ns,
+                t_publish_ns,
+                world_from_camera: world_from_camera.map(|p| pose_to_array(&p)).unwrap_or([0.0; 7]),
+                state: state_code(result.state),
+                inliers: result.inliers as u32,
+                new_keyframe: result.new_keyframe.map_or(u64::MAX, |k| out.world.kf_id(k)),
+                cpu_ns,
+            };
+            out.poses.send_copy(record).with_context(|| format!("send pose {}", header.frame_seq))?;
+            bdis_ipc::notify(&out.pose_events, event_id::NEW_SAMPLE)?;
+            out.journal.write(|line| {
+                journal::frame_line(line, header.frame_seq, header.t_source_ns, world_from_camera.as_ref())
+            });
+            counts.frames += 1;
+            counts.lost += u64::from(result.state == TrackingState::Lost);
+            counts.relocalised += u64::from(result.relocalised);
+            if result.new_keyframe.is_some() {
+                counts.keyframe_ms.push(cpu_ns as f64 / 1e6);
+            } else {
+                counts.frame_ms.push(cpu_ns as f64 / 1e6);
+            }
+            last_seq = Some(header.frame_seq);
+            if result.state != TrackingState::Ok || result.new_keyframe.is_some() || header.frame_seq % 50 == 0 {
+                tracing::info!(
+                    "frame {}: {:?}, {} inliers{}, {:.1} ms CPU",
+                    header.frame_seq,
+                    result.state,
+                    result.inliers,
+                    result.new_keyframe.map(|k| format!(", keyframe {k}")).unwrap_or_default(),
+                    cpu_ns as f64 / 1e6
+                );
+            }
+            telemetry.message(
+                MessageTiming {
+                    frame_seq: header.frame_seq,
+                    t_capture_ns: header.t_capture_ns,
+                    t_upstream_publish_ns: header.t_publish_ns,
+                    t_receive_ns,
+                    t_done_ns: t_publish_ns,
+                },
+                // The tracker takes every frame: nothing dropped (a slow tracker slows on-demand acquisition).
+                0,
+            );
+        }
+        Ok(Flow::Continue)
+    })?;
+    if ended == Ended::StopRequested {
+        tracing::info!("stop requested after {} frames", counts.frames);
+    }
+    // The last keyframe's bundle adjustment (unless the end of the stream did it), then the trajectories from
+    // the final keyframe poses.
+    if !finished {
+        let last = tracker.finish();
+        out.corrections(&tracker, &last)?;
+    }
+    write_trajectories(&tracker, &earlier, &out.world, &out_dir)?;
+    write_summary(&tracker, &earlier, &out.world, &mut counts, &out_dir)?;
+    tracing::info!(
+        "{} frames, {} keyframes, {} lost; trajectories in {}",
+        counts.frames,
+        counts.keyframes,
+        counts.lost,
+        out_dir.display()
+    );
+    telemetry.finished();
+    Ok(())
+}
+
+/// tracking.json: what this run of the tracker did, over every instance.
+fn write_summary(
+    tracker: &Tracker,
+    earlier: &Continuation,
+    world: &WorldFrame,
+    counts: &mut Counts,
+    dir: &Path,
+) -> Result<()> {
+    let median = |v: &mut Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        v.get(v.len() / 2).copied()
+    };
+    let p99 = |v: &[f64]| v.get(((v.len() as f64 * 0.99) as usize).min(v.len().saturating_sub(1))).copied();
+    let summary = serde_json::json!({
+        "schema": "bdis.v1.tracking",
+        "frames": earlier.frames.len() as u64 + counts.frames,
+        "frames_of_earlier_instances": earlier.frames.len(),
+        "lost": counts.lost,
+        "relocalisations": counts.relocalised,
+        "keyframes_created": world.kf_offset + counts.keyframes,
+        "keyframes_in_map": tracker.map.n_good_keyframes(),
+        "map_points": tracker.map.points.iter().filter(|p| !p.bad).count(),
+        "frame_cpu_ms_p50": median(&mut counts.frame_ms),
+        "frame_cpu_ms_p99": p99(&counts.frame_ms),
+        "keyframe_cpu_ms_p50": median(&mut counts.keyframe_ms),
+        "keyframe_cpu_ms_p99": p99(&counts.keyframe_ms),
+    });
+    let path = dir.join("tracking.json");
+    std::fs::write(&path, serde_json::to_string_pretty(&summary)?)
+        .with_context(|| format!("{}: cannot write", path.display()))?;
+    Ok(())
+}
+
+/// trajectory.tum / trajectory.kitti (every tracked frame, from the final keyframe poses; frames of crashed
+/// earlier instances as they were published) and keyframes.tum.
+fn write_trajectories(tracker: &Tracker, earlier: &Continuation, world: &WorldFrame, dir: &Path) -> Result<()> {
+    use bdis_core::formats::trajectory::{write_kitti, write_tum};
+    let stamped = |t_ns: u64, pose: Isometry3<f64>| StampedPose { t_s: t_ns as f64 * 1e-9, world_from_camera: pose };
+    let mut frames: Vec<StampedPose> = Vec::with_capacity(earlier.frames.len() + 4096);
+    // An earlier frame without a pose (lost, not initialised) keeps the last pose before it.
+    let mut last = Isometry3::identity();
+    for &(_, t_ns, pose) in &earlier.frames {
+        last = pose.unwrap_or(last);
+        frames.push(stamped(t_ns, last));
+    }
+    frames.extend(tracker.trajectory().into_iter().map(|(t_ns, pose, _lost)| stamped(t_ns, world.to_world(&pose))));
+    write_tum(&dir.join("trajectory.tum"), &frames)?;
+    let kitti: Vec<_> = frames.iter().map(|p| p.world_from_camera).collect();
+    write_kitti(&dir.join("trajectory.kitti"), &kitti)?;
+    let mut keyframes: Vec<StampedPose> = earlier.keyframes.values().map(|&(t_ns, pose)| stamped(t_ns, pose)).collect();
+    keyframes
+        .extend(tracker.keyframe_trajectory().into_iter().map(|(t_ns, pose)| stamped(t_ns, world.to_world(&pose))));
+    write_tum(&dir.join("keyframes.tum"), &keyframes)?;
+    Ok(())
+}
