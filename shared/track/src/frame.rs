@@ -1,7 +1,7 @@
 //! A stereo frame: ORB features of the left image, their stereo matches and depths, the grid (§2, §3.1).
 
 use crate::geometry::{CameraFromWorld, StereoCamera};
-use crate::map::PointId;
+use crate::ids::PointId;
 use bdis_orb::{FeatureGrid, Features, KeyPoint, OrbError, OrbExtractor, OrbParams, StereoFeatures, StereoMatcher};
 
 /// The pyramid's scales and the information of each octave (σ⁻² = s^−2o).

@@ -3,6 +3,7 @@
 
 pub mod frame;
 pub mod geometry;
+pub mod ids;
 pub mod map;
 pub mod mapper;
 pub mod optim;

@@ -8,8 +8,7 @@ use bdis_orb::{FeatureGrid, KeyPoint, hamming};
 use nalgebra::{Isometry3, Point3, Vector3};
 use std::collections::{BTreeMap, BTreeSet};
 
-pub type KfId = usize;
-pub type PointId = usize;
+pub use crate::ids::{KfId, PointId};
 
 /// Covisibility weight from which a neighbour is kept in the ordered list (§3.2).
 const COVIS_MIN_WEIGHT: u32 = 15;

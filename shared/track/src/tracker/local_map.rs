@@ -1,0 +1,139 @@
+//! Tracking the local map (§5.6): the local keyframes (covisibility) and their points, projected into the frame
+//! and searched, then the pose optimised against all of them.
+
+use super::*;
+
+impl Tracker {
+    /// §5.6.
+    pub(super) fn track_local_map(&mut self, result: &mut FrameResult) -> bool {
+        self.update_local_keyframes();
+        self.update_local_points();
+        let frame_id = self.current.id;
+        let Some(pose) = self.current.camera_from_world else { return false };
+        // Visibility: points already linked count as seen; the others go through the frustum test.
+        for p in self.current.points.iter().flatten() {
+            let point = &mut self.map.points[*p];
+            point.visible += 1;
+            point.cache.last_seen_frame = Some(frame_id);
+            point.cache.in_view = false;
+        }
+        let mut to_match = 0;
+        for k in 0..self.local_points.len() {
+            let p = self.local_points[k];
+            if self.map.points[p].bad || self.map.points[p].cache.last_seen_frame == Some(frame_id) {
+                continue;
+            }
+            if frustum_check(&self.cam, &self.scales, &mut self.map, p, &pose) {
+                self.map.points[p].visible += 1;
+                to_match += 1;
+            }
+        }
+        if to_match > 0 {
+            let th = if self.last_reloc_frame.is_some_and(|r| frame_id < r + 2) { 5.0 } else { 1.0 };
+            self.searcher.local_points(&self.scales, &self.map, &mut self.current, &self.local_points, th);
+        }
+        self.refine_measurements(&pose);
+        self.optimise_current();
+        self.anchor_new_inliers();
+        // Both read the χ² of the optimisation, made with the σ before this frame's update.
+        self.reclassify_refined();
+        self.update_refined_sigma();
+        let mut inliers = 0;
+        for i in 0..self.current.len() {
+            let Some(p) = self.current.points[i] else { continue };
+            if !self.current.outlier[i] {
+                self.map.points[p].found += 1;
+                if self.map.points[p].n_obs > 0 {
+                    inliers += 1;
+                }
+            } else if self.current.u_right[i] >= 0.0 {
+                self.current.points[i] = None;
+                self.current.outlier[i] = false;
+            }
+        }
+        result.inliers = inliers;
+        let needed = if self.last_reloc_frame.is_some_and(|r| frame_id < r + self.max_frames()) { 50 } else { 30 };
+        inliers >= needed
+    }
+
+    /// The local keyframes (§5.6 step 1), with buffers indexed by keyframe id that only grow with the map.
+    pub(super) fn update_local_keyframes(&mut self) {
+        let n = self.map.keyframes.len();
+        if self.kf_votes.len() < n {
+            self.kf_votes.resize(n, 0);
+            self.kf_stamp.resize(n, u64::MAX);
+        }
+        self.voters.clear();
+        for i in 0..self.current.len() {
+            let Some(p) = self.current.points[i] else { continue };
+            if self.map.points[p].bad {
+                self.current.points[i] = None;
+                continue;
+            }
+            for &k in self.map.points[p].observations.keys() {
+                if self.kf_votes[k] == 0 {
+                    self.voters.push(k);
+                }
+                self.kf_votes[k] += 1;
+            }
+        }
+        if self.voters.is_empty() {
+            return;
+        }
+        self.voters.sort_unstable();
+        let stamp = self.current.id;
+        let (map, local, marks) = (&self.map, &mut self.local_kfs, &mut self.kf_stamp);
+        local.clear();
+        for &k in &self.voters {
+            if !map.keyframes[k].bad {
+                local.push(k);
+                marks[k] = stamp;
+            }
+        }
+        // Neighbours of the voters (the intended behaviour: adding a parent does not end the walk, §10.1 #7).
+        let voters = local.len();
+        for idx in 0..voters {
+            if local.len() > 80 {
+                break;
+            }
+            let kf = &map.keyframes[local[idx]];
+            let fresh = |k: &KfId| marks[*k] != stamp && !map.keyframes[*k].bad;
+            let covisible = kf.best_covisibles(10).find(|k| fresh(k));
+            let child = kf.children.iter().copied().find(|k| fresh(k));
+            let parent = kf.parent.filter(|k| fresh(k));
+            for k in [covisible, child, parent].into_iter().flatten() {
+                if marks[k] != stamp {
+                    marks[k] = stamp;
+                    local.push(k);
+                }
+            }
+        }
+        let votes = &self.kf_votes;
+        if let Some(&best) = self
+            .voters
+            .iter()
+            .filter(|&&k| !self.map.keyframes[k].bad)
+            .max_by_key(|&&k| (votes[k], std::cmp::Reverse(k)))
+        {
+            self.reference_kf = Some(best);
+        }
+        for &k in &self.voters {
+            self.kf_votes[k] = 0;
+        }
+    }
+
+    pub(super) fn update_local_points(&mut self) {
+        self.local_points.clear();
+        let frame_id = self.current.id;
+        for &k in &self.local_kfs {
+            for p in self.map.keyframes[k].points.iter().flatten() {
+                let point = &mut self.map.points[*p];
+                if point.bad || point.cache.local_for_frame == Some(frame_id) {
+                    continue;
+                }
+                point.cache.local_for_frame = Some(frame_id);
+                self.local_points.push(*p);
+            }
+        }
+    }
+}

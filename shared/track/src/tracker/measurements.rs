@@ -1,0 +1,174 @@
+//! Sub-pixel measurements (not in ORB-SLAM2): matches aligned to the patch their map point was first seen with,
+//! the σ of aligned measurements measured from the residuals, new points' anchors and refined disparities.
+
+use super::*;
+
+impl Tracker {
+    /// Moves every matched keypoint whose point has an anchor to where the anchor's patch fits best
+    /// ([`crate::refine`]) and its right-image match to where the same template fits along the row (failing
+    /// that, by the same shift); notes in `to_anchor` the keypoints whose points need an anchor (none yet, or
+    /// the view moved too far from it).
+    pub(super) fn refine_measurements(&mut self, pose: &CameraFromWorld) {
+        self.to_anchor.clear();
+        if !self.refine {
+            return;
+        }
+        let (levels, right_levels) = (self.builder.left_levels(), self.builder.right_levels());
+        for i in 0..self.current.len() {
+            let Some(p) = self.current.points[i] else { continue };
+            let point = &self.map.points[p];
+            if point.bad {
+                continue;
+            }
+            let Some(anchor) = &point.anchor else {
+                self.to_anchor.push(i);
+                continue;
+            };
+            let kp = &mut self.current.keypoints[i];
+            let octave = usize::from(kp.octave);
+            let refined = self.aligner.refine(
+                &self.cam,
+                &levels[octave],
+                self.scales.scale[octave],
+                f64::from(kp.x),
+                f64::from(kp.y),
+                &point.position,
+                pose,
+                anchor,
+            );
+            match refined {
+                Ok((u, v)) => {
+                    self.current.refined[i] = true;
+                    let shift = u as f32 - kp.x;
+                    kp.x = u as f32;
+                    kp.y = v as f32;
+                    let u_right = &mut self.current.u_right[i];
+                    if *u_right >= 0.0 {
+                        // The same patch along the right image's row; failing that, the disparity is kept.
+                        *u_right = match self.aligner.refine_right(
+                            &right_levels[octave],
+                            self.scales.scale[octave],
+                            f64::from(*u_right + shift),
+                            v,
+                        ) {
+                            Ok(refined) if (u - refined) > 0.0 => refined as f32,
+                            _ => *u_right + shift,
+                        };
+                        self.current.depth[i] = (self.cam.bf / (u - f64::from(*u_right))) as f32;
+                    }
+                }
+                Err(Unrefined::OutOfAnchor) => self.to_anchor.push(i),
+                Err(Unrefined::Failed) => {}
+            }
+        }
+    }
+
+    /// Re-estimates the σ of refined measurements from this frame's residuals (median, so outliers do not
+    /// count) and moves the map's running value a tenth of the way to it: the alignment's precision depends
+    /// on the images (texture, noise, lighting), so it is measured rather than assumed.
+    pub(super) fn update_refined_sigma(&mut self) {
+        let mut scaled = std::mem::take(&mut self.residual_scratch);
+        scaled.clear();
+        let sigma = self.map.refined_sigma;
+        for (k, &i) in self.opt_index.iter().enumerate() {
+            if !self.current.refined[i] {
+                continue;
+            }
+            let dof = if self.current.u_right[i] >= 0.0 { 3.0 } else { 2.0 };
+            // χ² in units of the octave's σ, per component: (e/s^o)²/dof = χ²·σ_r²/dof.
+            let chi2 = self.optimizer.chi2()[k];
+            if chi2.is_finite() {
+                scaled.push((chi2 * sigma * sigma / dof).sqrt());
+            }
+        }
+        if scaled.len() >= 20 {
+            let mid = scaled.len() / 2;
+            let (_, median, _) = scaled.select_nth_unstable_by(mid, f64::total_cmp);
+            // The median of sqrt(χ²_k/k) for k = 2–3 is ≈ 0.87 of the σ.
+            let measured = *median / 0.87;
+            self.map.refined_sigma = (0.9 * sigma + 0.1 * measured)
+                .clamp(crate::refine::MIN_REFINED_SIGMA, crate::refine::MAX_REFINED_SIGMA);
+        }
+        self.residual_scratch = scaled;
+    }
+
+    /// Refined measurements weigh by their precision in the pose, but stay linked (count as tracked, make
+    /// no new point at a keyframe) by the χ² gates at their octave's σ, as whole-pixel ones do: a refined
+    /// match 2σ_r off is a slightly worse measurement, not a mismatch. (Unlinking them at σ_r made a keyframe
+    /// nearly every other frame, and points twice.)
+    pub(super) fn reclassify_refined(&mut self) {
+        let sigma2 = self.map.refined_sigma * self.map.refined_sigma;
+        for (k, &i) in self.opt_index.iter().enumerate() {
+            if !self.current.refined[i] {
+                continue;
+            }
+            let chi2 = self.optimizer.chi2()[k] * sigma2;
+            let gate = if self.current.u_right[i] >= 0.0 { crate::optim::CHI2_STEREO } else { crate::optim::CHI2_MONO };
+            self.current.outlier[i] = chi2.is_nan() || chi2 > gate;
+        }
+    }
+
+    /// Anchors the points noted by [`Self::refine_measurements`] that are inliers of the final pose, at their
+    /// keypoints in this frame.
+    pub(super) fn anchor_new_inliers(&mut self) {
+        let Some(pose) = self.current.camera_from_world else { return };
+        let levels = self.builder.left_levels();
+        for &i in &self.to_anchor {
+            let Some(p) = self.current.points[i] else { continue };
+            if self.current.outlier[i] {
+                continue;
+            }
+            let kp = &self.current.keypoints[i];
+            let octave = usize::from(kp.octave);
+            let scale = self.scales.scale[octave];
+            self.map.points[p].anchor = Anchor::cut(&levels[octave], scale, f64::from(kp.x), f64::from(kp.y), pose);
+        }
+    }
+
+    /// Refines the right-image match of every stereo keypoint of the current frame without a point, by
+    /// aligning its own patch along the right image's row: the depth new points are made with.
+    pub(super) fn refine_new_disparities(&mut self) {
+        self.new_point_anchors.clear();
+        self.new_point_anchors.resize(self.current.len(), None);
+        if !self.refine {
+            return;
+        }
+        let (levels, right_levels) = (self.builder.left_levels(), self.builder.right_levels());
+        for i in 0..self.current.len() {
+            // The keypoints `create_keyframe` may make a point at.
+            let has_point =
+                self.current.points[i].is_some_and(|p| !self.map.points[p].bad && self.map.points[p].n_obs > 0);
+            if self.current.u_right[i] < 0.0 || has_point {
+                continue;
+            }
+            let kp = &self.current.keypoints[i];
+            let octave = usize::from(kp.octave);
+            let scale = self.scales.scale[octave];
+            let (u, v) = (f64::from(kp.x), f64::from(kp.y));
+            // The pose is set when a point is made here.
+            let Some(anchor) = Anchor::cut(&levels[octave], scale, u, v, Isometry3::identity()) else { continue };
+            let mut disparity_refined = false;
+            if self.aligner.load_unwarped(&anchor).is_ok()
+                && let Ok(refined) =
+                    self.aligner.refine_right(&right_levels[octave], scale, f64::from(self.current.u_right[i]), v)
+                && u - refined > 0.0
+            {
+                self.current.u_right[i] = refined as f32;
+                self.current.depth[i] = (self.cam.bf / (u - refined)) as f32;
+                disparity_refined = true;
+            }
+            self.new_point_anchors[i] = Some((anchor, disparity_refined));
+        }
+    }
+
+    /// Anchors new point `p` at keypoint `i` of the current frame (keyframe `kf`), seen from `pose`, with the
+    /// patch [`Self::refine_new_disparities`] cut there. The keyframe's measurement is then the anchor's centre
+    /// itself, refined when its disparity was.
+    pub(super) fn anchor_new_point(&mut self, p: PointId, i: usize, kf: KfId, pose: CameraFromWorld) {
+        let Some((mut anchor, refined)) = self.new_point_anchors.get_mut(i).and_then(Option::take) else { return };
+        anchor.camera_from_world = pose;
+        self.map.points[p].anchor = Some(anchor);
+        self.current.refined[i] = refined;
+        self.map.keyframes[kf].refined[i] = refined;
+    }
+}

@@ -1,0 +1,116 @@
+//! Frame-to-frame tracking (§5.3–§5.4): the motion model's projection search, tracking against the reference
+//! keyframe, pose-only optimisation of the current frame and dropping its outliers.
+
+use super::*;
+
+impl Tracker {
+    pub(super) fn replace_last_frame_points(&mut self) {
+        for p in self.last.points.iter_mut() {
+            if let Some(q) = *p {
+                *p = self.map.resolve(q);
+            }
+        }
+    }
+
+    /// Pose-only optimisation of the current frame against its linked points; writes pose and outlier flags.
+    pub(super) fn optimise_current(&mut self) -> usize {
+        self.opt_points.clear();
+        self.opt_obs.clear();
+        self.opt_index.clear();
+        for (i, p) in self.current.points.iter().enumerate() {
+            let Some(p) = *p else { continue };
+            let point = &self.map.points[p];
+            if point.bad {
+                continue;
+            }
+            let kp = &self.current.keypoints[i];
+            self.opt_points.push(point.position);
+            self.opt_obs.push(Observation {
+                u: f64::from(kp.x),
+                v: f64::from(kp.y),
+                u_right: (self.current.u_right[i] >= 0.0).then(|| f64::from(self.current.u_right[i])),
+                inv_sigma2: self.scales.information(kp.octave, self.current.refined[i], self.map.refined_sigma),
+            });
+            self.opt_index.push(i);
+        }
+        self.opt_outlier.clear();
+        self.opt_outlier.resize(self.opt_index.len(), false);
+        let Some(mut pose) = self.current.camera_from_world else { return 0 };
+        let inliers =
+            self.optimizer.optimize(&self.cam, &mut pose, &self.opt_points, &self.opt_obs, &mut self.opt_outlier);
+        if self.opt_index.len() >= 3 {
+            self.current.camera_from_world = Some(pose);
+        }
+        for (k, &i) in self.opt_index.iter().enumerate() {
+            self.current.outlier[i] = self.opt_outlier[k];
+        }
+        inliers
+    }
+
+    /// Unlinks the outliers of the last optimisation; returns the inliers linked to points with observations.
+    pub(super) fn drop_outliers(&mut self) -> usize {
+        let mut good = 0;
+        for i in 0..self.current.len() {
+            let Some(p) = self.current.points[i] else { continue };
+            if self.current.outlier[i] {
+                self.current.points[i] = None;
+                self.current.outlier[i] = false;
+                self.map.points[p].cache.in_view = false;
+                self.map.points[p].cache.last_seen_frame = Some(self.current.id);
+            } else if self.map.points[p].n_obs > 0 {
+                good += 1;
+            }
+        }
+        good
+    }
+
+    /// The last frame's pose from its reference keyframe's current pose (bundle adjustment may have moved it).
+    pub(super) fn update_last_frame(&mut self) {
+        if let Some((r, rel)) = self.last_from_reference {
+            self.last.camera_from_world = Some(rel * self.map.keyframe_pose(r));
+        }
+    }
+
+    /// §5.3.
+    pub(super) fn track_motion_model(&mut self) -> bool {
+        self.update_last_frame();
+        let (Some(v), Some(last_pose)) = (self.velocity, self.last.camera_from_world) else { return false };
+        self.current.camera_from_world = Some(v * last_pose);
+        self.current.points.fill(None);
+        let mut n =
+            self.searcher.from_last_frame(&self.cam, &self.scales, &self.map, &mut self.current, &self.last, 7.0);
+        if n < 20 {
+            self.current.points.fill(None);
+            n = self.searcher.from_last_frame(&self.cam, &self.scales, &self.map, &mut self.current, &self.last, 14.0);
+        }
+        if n < 20 {
+            return false;
+        }
+        self.optimise_current();
+        self.drop_outliers() >= 10
+    }
+
+    /// §5.4, with guided projection from the last pose instead of the vocabulary (§7.3 B).
+    pub(super) fn track_reference_keyframe(&mut self) -> bool {
+        self.update_last_frame();
+        let Some(r) = self.reference_kf else { return false };
+        let Some(last_pose) = self.last.camera_from_world else { return false };
+        self.current.camera_from_world = Some(last_pose);
+        self.current.points.fill(None);
+        let n = self.searcher.from_keyframe(
+            &self.cam,
+            &self.scales,
+            &self.map,
+            &mut self.current,
+            r,
+            &BTreeSet::new(),
+            15.0,
+            TH_HIGH,
+        );
+        if n < 15 {
+            return false;
+        }
+        self.optimise_current();
+        self.drop_outliers() >= 10
+    }
+}

@@ -1,0 +1,240 @@
+//! Relocalisation without a vocabulary (§5.7, §7.3 B): candidate keyframes by descriptor votes, a 3-point
+//! RANSAC on the frame's stereo points with an absolute-orientation fit, then pose optimisation and guided
+//! search.
+
+use super::*;
+
+impl Tracker {
+    /// §5.7 without a vocabulary (§7.3 B): candidate keyframes by brute-force descriptor votes, a 3-point
+    /// RANSAC on the frame's stereo points (each keypoint with a depth is a 3-D point, so absolute orientation
+    /// replaces PnP), then pose optimisation and guided search as in ORB-SLAM2.
+    pub(super) fn relocalise(&mut self) -> bool {
+        let n = self.current.len();
+        if n == 0 {
+            return false;
+        }
+        // Candidates (§7.3 B): the camera is most likely near where it was last seen, so the last reference
+        // keyframe, its covisibles and the keyframes nearest to the last pose; when the last pose is unknown or
+        // those fail, every keyframe. Each is ranked by descriptor votes (a frame keypoint whose best match among
+        // the keyframe's points passes TH_LOW and the ratio test).
+        let mut near: Vec<KfId> = Vec::new();
+        if let Some(r) = self.reference_kf.filter(|&r| !self.map.keyframes[r].bad) {
+            near.push(r);
+            near.extend(self.map.keyframes[r].best_covisibles(5));
+        }
+        if let Some((r, rel)) = self.last_from_reference {
+            let last_centre = (rel * self.map.keyframe_pose(r)).inverse() * Point3::origin();
+            let mut by_distance: Vec<(f64, KfId)> =
+                self.map.good_keyframes().map(|k| ((k.centre() - last_centre).norm(), k.id)).collect();
+            by_distance.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+            near.extend(by_distance.iter().take(5).map(|(_, k)| *k));
+        }
+        let mut seen = BTreeSet::new();
+        near.retain(|k| seen.insert(*k) && !self.map.keyframes[*k].bad);
+        let mut scored: Vec<(usize, KfId)> =
+            near.iter().map(|&k| (self.votes(k), k)).filter(|(v, _)| *v >= 15).collect();
+        scored.sort_by(|a, b| b.0.cmp(&a.0).then(a.1.cmp(&b.1)));
+        for &(_, kf) in scored.iter().take(5) {
+            if self.relocalise_against(kf) {
+                self.last_reloc_frame = Some(self.current.id);
+                self.reference_kf = Some(kf);
+                return true;
+            }
+        }
+        false
+    }
+
+    /// Frame keypoints whose best match among keyframe `kf`'s points is ≤ TH_LOW and < 0.75 of the second best.
+    pub(super) fn votes(&self, kf: KfId) -> usize {
+        let descs: Vec<&[u8; 32]> = self.map.keyframes[kf]
+            .points
+            .iter()
+            .flatten()
+            .filter(|&&p| !self.map.points[p].bad)
+            .map(|&p| &self.map.points[p].descriptor)
+            .collect();
+        self.current
+            .descriptors
+            .iter()
+            .filter(|d| {
+                let (mut best, mut second) = (u32::MAX, u32::MAX);
+                for p in &descs {
+                    let h = hamming(d, p);
+                    if h < best {
+                        second = best;
+                        best = h;
+                    } else if h < second {
+                        second = h;
+                    }
+                }
+                best <= TH_LOW && f64::from(best) < 0.75 * f64::from(second)
+            })
+            .count()
+    }
+
+    pub(super) fn relocalise_against(&mut self, kf: KfId) -> bool {
+        // Matches: best descriptor (≤ TH_LOW, ratio 0.75) among the keyframe's points for each frame keypoint.
+        let mut pairs: Vec<(usize, PointId)> = Vec::new();
+        let points: Vec<PointId> =
+            self.map.keyframes[kf].points.iter().flatten().copied().filter(|&p| !self.map.points[p].bad).collect();
+        let mut used = BTreeSet::new();
+        for i in 0..self.current.len() {
+            let (mut best, mut second) = ((u32::MAX, usize::MAX), u32::MAX);
+            for &p in &points {
+                let d = hamming(&self.current.descriptors[i], &self.map.points[p].descriptor);
+                if d < best.0 {
+                    second = best.0;
+                    best = (d, p);
+                } else if d < second {
+                    second = d;
+                }
+            }
+            if best.0 <= TH_LOW && f64::from(best.0) < 0.75 * f64::from(second) && used.insert(best.1) {
+                pairs.push((i, best.1));
+            }
+        }
+        let stereo: Vec<(usize, PointId, Point3<f64>)> = pairs
+            .iter()
+            .filter_map(|&(i, p)| {
+                let z = self.current.depth[i];
+                (z > 0.0).then(|| {
+                    let k = &self.current.keypoints[i];
+                    (i, p, self.cam.unproject(f64::from(k.x), f64::from(k.y), f64::from(z)))
+                })
+            })
+            .collect();
+        if stereo.len() < 15 {
+            return false;
+        }
+        // RANSAC: 3 correspondences → camera_from_world by absolute orientation; inliers by reprojection.
+        let mut best: (usize, Option<CameraFromWorld>) = (0, None);
+        for _ in 0..300 {
+            let mut pick = [0usize; 3];
+            for slot in pick.iter_mut() {
+                self.ransac_state =
+                    self.ransac_state.wrapping_mul(6_364_136_223_846_793_005).wrapping_add(1_442_695_040_888_963_407);
+                *slot = (self.ransac_state >> 33) as usize % stereo.len();
+            }
+            if pick[0] == pick[1] || pick[1] == pick[2] || pick[0] == pick[2] {
+                continue;
+            }
+            let src: Vec<Point3<f64>> = pick.iter().map(|&k| self.map.points[stereo[k].1].position).collect();
+            let dst: Vec<Point3<f64>> = pick.iter().map(|&k| stereo[k].2).collect();
+            let Some(t) = rigid_fit(&src, &dst) else { continue };
+            let inliers = stereo
+                .iter()
+                .filter(|(i, p, _)| {
+                    let pc = t * self.map.points[*p].position;
+                    if pc.z <= 0.0 {
+                        return false;
+                    }
+                    let (u, v) = self.cam.project(&pc);
+                    let k = &self.current.keypoints[*i];
+                    let e2 = (u - f64::from(k.x)).powi(2) + (v - f64::from(k.y)).powi(2);
+                    e2 < 5.991 / self.scales.inv_sigma2[usize::from(k.octave)]
+                })
+                .count();
+            if inliers > best.0 {
+                best = (inliers, Some(t));
+            }
+        }
+        let (count, Some(pose)) = best else { return false };
+        if count < 10 {
+            return false;
+        }
+        self.current.camera_from_world = Some(pose);
+        self.current.points.fill(None);
+        self.current.outlier.fill(false);
+        for &(i, p) in &pairs {
+            self.current.points[i] = Some(p);
+        }
+        let mut good = self.optimise_current();
+        if good < 10 {
+            return false;
+        }
+        self.drop_outliers();
+        if good < 50 {
+            let found: BTreeSet<PointId> = self.current.points.iter().flatten().copied().collect();
+            let added = self.searcher.from_keyframe(
+                &self.cam,
+                &self.scales,
+                &self.map,
+                &mut self.current,
+                kf,
+                &found,
+                10.0,
+                100,
+            );
+            if good + added >= 50 {
+                good = self.optimise_current();
+                self.drop_outliers();
+            }
+        }
+        good >= 50
+    }
+}
+
+/// The rigid motion `dst_from_src` that best maps `src` onto `dst` (Horn/Umeyama without scale); `None` for
+/// degenerate (collinear) sets.
+pub fn rigid_fit(src: &[Point3<f64>], dst: &[Point3<f64>]) -> Option<Isometry3<f64>> {
+    let n = src.len() as f64;
+    let (cs, cd) = (
+        src.iter().fold(nalgebra::Vector3::zeros(), |a, p| a + p.coords) / n,
+        dst.iter().fold(nalgebra::Vector3::zeros(), |a, p| a + p.coords) / n,
+    );
+    let mut cov = Matrix3::zeros();
+    for (s, d) in src.iter().zip(dst) {
+        cov += (d.coords - cd) * (s.coords - cs).transpose();
+    }
+    let svd = cov.svd(true, true);
+    let (u, v_t) = (svd.u?, svd.v_t?);
+    let sv = svd.singular_values;
+    if sv[1] < 1e-9 * sv[0].max(1e-30) {
+        return None;
+    }
+    let mut s = Matrix3::identity();
+    if (u * v_t).determinant() < 0.0 {
+        s[(2, 2)] = -1.0;
+    }
+    let r = u * s * v_t;
+    let rotation = UnitQuaternion::from_matrix(&r);
+    let t = cd - rotation * cs;
+    Some(Isometry3::from_parts(Translation3::from(t), rotation))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::Vector3;
+
+    #[test]
+    fn rigid_fit_recovers_a_rigid_motion_exactly() {
+        let motion = Isometry3::new(Vector3::new(0.3, -1.2, 4.0), Vector3::new(0.2, -0.4, 0.9));
+        let src: Vec<Point3<f64>> =
+            [(0.0, 0.0, 1.0), (1.0, 0.5, 2.0), (-0.7, 2.0, 3.0), (0.4, -1.0, 5.0), (2.0, 2.0, 2.5)]
+                .into_iter()
+                .map(|(x, y, z)| Point3::new(x, y, z))
+                .collect();
+        let dst: Vec<Point3<f64>> = src.iter().map(|p| motion * p).collect();
+        let fit = rigid_fit(&src, &dst).unwrap();
+        assert!((fit.translation.vector - motion.translation.vector).norm() < 1e-9);
+        assert!(fit.rotation.angle_to(&motion.rotation) < 1e-9);
+    }
+
+    #[test]
+    fn rigid_fit_never_returns_a_reflection() {
+        // Points mirrored through a plane: the best rotation is still a rotation (det +1).
+        let src: Vec<Point3<f64>> = [(1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0), (1.0, 1.0, 1.0)]
+            .map(|(x, y, z)| Point3::new(x, y, z))
+            .into();
+        let dst: Vec<Point3<f64>> = src.iter().map(|p| Point3::new(-p.x, p.y, p.z)).collect();
+        let fit = rigid_fit(&src, &dst).unwrap();
+        assert!((fit.rotation.to_rotation_matrix().matrix().determinant() - 1.0).abs() < 1e-9);
+    }
+
+    #[test]
+    fn rigid_fit_refuses_collinear_points() {
+        let src: Vec<Point3<f64>> = (0..5).map(|i| Point3::new(f64::from(i), 2.0 * f64::from(i), 0.0)).collect();
+        assert!(rigid_fit(&src, &src).is_none());
+    }
+}
