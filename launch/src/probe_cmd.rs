@@ -70,10 +70,6 @@ pub fn probe(args: ProbeArgs) -> Result<()> {
     }
 }
 
-fn iox(what: &'static str) -> impl FnOnce(&dyn std::fmt::Debug) -> anyhow::Error {
-    move |e| anyhow!("{what}: {e:?}")
-}
-
 fn probe_frames(args: &ProbeArgs) -> Result<()> {
     let ipc = Ipc::open(&args.name, &args.ipc_prefix)?;
     let frames = ipc.frames()?;
@@ -81,11 +77,11 @@ fn probe_frames(args: &ProbeArgs) -> Result<()> {
     let listener = ipc.listener(&ipc.events(Topic::Frames)?)?;
     let consumed = ipc.notifier(&ipc.frames_consumed()?)?;
     let mut telemetry = TelemetryPublisher::new(&ipc, &args.name, Some(Topic::Frames), None)?;
-    let waitset = WaitSetBuilder::new().create::<ipc::Service>().map_err(|e| iox("create a WaitSet")(&e))?;
+    let waitset = WaitSetBuilder::new().create::<ipc::Service>().map_err(bdis_ipc::iox("create a WaitSet"))?;
     // The deadline both paces the status line and notices a silent producer.
     let guard = waitset
         .attach_deadline(&listener, Duration::from_secs(1))
-        .map_err(|e| iox("attach the frames listener")(&e))?;
+        .map_err(bdis_ipc::iox("attach the frames listener"))?;
 
     let mut checker = FrameChecker::new("frames", args.checksums, &args.ipc_prefix);
     telemetry.ready();
@@ -107,7 +103,7 @@ fn probe_frames(args: &ProbeArgs) -> Result<()> {
                 }
                 CallbackProgression::Continue
             })
-            .map_err(|e| iox("wait for frames")(&e))?;
+            .map_err(bdis_ipc::iox("wait for frames"))?;
         if matches!(result, WaitSetRunResult::TerminationRequest | WaitSetRunResult::Interrupt) {
             stop_requested = true;
             break;
@@ -234,9 +230,10 @@ fn probe_depth(args: &ProbeArgs) -> Result<()> {
     let subscriber = ipc.depth_subscriber(&depth)?;
     let listener = ipc.listener(&ipc.events(Topic::Depth)?)?;
     let mut telemetry = TelemetryPublisher::new(&ipc, &args.name, Some(Topic::Depth), None)?;
-    let waitset = WaitSetBuilder::new().create::<ipc::Service>().map_err(|e| iox("create a WaitSet")(&e))?;
-    let guard =
-        waitset.attach_deadline(&listener, Duration::from_secs(1)).map_err(|e| iox("attach the depth listener")(&e))?;
+    let waitset = WaitSetBuilder::new().create::<ipc::Service>().map_err(bdis_ipc::iox("create a WaitSet"))?;
+    let guard = waitset
+        .attach_deadline(&listener, Duration::from_secs(1))
+        .map_err(bdis_ipc::iox("attach the depth listener"))?;
     let mut checker = bdis_slam::probe::DepthChecker::new("depth", &args.ipc_prefix);
     let mut last: (u32, u32, Vec<f32>, Vec<u8>) = (0, 0, Vec::new(), Vec::new());
     telemetry.ready();
@@ -250,7 +247,7 @@ fn probe_depth(args: &ProbeArgs) -> Result<()> {
                 deadline_missed |= id.has_missed_deadline(&guard);
                 CallbackProgression::Continue
             })
-            .map_err(|e| iox("wait for depth")(&e))?;
+            .map_err(bdis_ipc::iox("wait for depth"))?;
         if matches!(result, WaitSetRunResult::TerminationRequest | WaitSetRunResult::Interrupt) {
             break;
         }
@@ -358,12 +355,12 @@ fn probe_telemetry(args: &ProbeArgs) -> Result<()> {
     let ipc = Ipc::open(&args.name, &args.ipc_prefix)?;
     let service = ipc.telemetry()?;
     let subscriber = ipc.telemetry_subscriber(&service)?;
-    let waitset = WaitSetBuilder::new().create::<ipc::Service>().map_err(|e| iox("create a WaitSet")(&e))?;
-    let _tick = waitset.attach_interval(Duration::from_secs(1)).map_err(|e| iox("attach a tick")(&e))?;
+    let waitset = WaitSetBuilder::new().create::<ipc::Service>().map_err(bdis_ipc::iox("create a WaitSet"))?;
+    let _tick = waitset.attach_interval(Duration::from_secs(1)).map_err(bdis_ipc::iox("attach a tick"))?;
     let mut counts: std::collections::BTreeMap<String, u64> = Default::default();
     let mut idle_s = 0.0;
     loop {
-        let result = waitset.wait_and_process_once(|_| CallbackProgression::Continue).map_err(|e| iox("wait")(&e))?;
+        let result = waitset.wait_and_process_once(|_| CallbackProgression::Continue).map_err(bdis_ipc::iox("wait"))?;
         if matches!(result, WaitSetRunResult::TerminationRequest | WaitSetRunResult::Interrupt) {
             return Ok(());
         }
@@ -397,26 +394,27 @@ fn probe_poses(args: &ProbeArgs) -> Result<()> {
     use bdis_ipc::track::tracking_state;
     let ipc = Ipc::open(&args.name, &args.ipc_prefix)?;
     let poses = ipc.poses()?;
-    let subscriber = poses.subscriber_builder().create().map_err(|e| iox("create the poses subscriber")(&e))?;
+    let subscriber = poses.subscriber_builder().create().map_err(bdis_ipc::iox("create the poses subscriber"))?;
     let listener = ipc.listener(&ipc.events(Topic::Poses)?)?;
     let mut telemetry = TelemetryPublisher::new(&ipc, &args.name, Some(Topic::Poses), None)?;
-    let waitset = WaitSetBuilder::new().create::<ipc::Service>().map_err(|e| iox("create a WaitSet")(&e))?;
-    let guard =
-        waitset.attach_deadline(&listener, Duration::from_secs(1)).map_err(|e| iox("attach the poses listener")(&e))?;
+    let waitset = WaitSetBuilder::new().create::<ipc::Service>().map_err(bdis_ipc::iox("create a WaitSet"))?;
+    let _guard = waitset
+        .attach_deadline(&listener, Duration::from_secs(1))
+        .map_err(bdis_ipc::iox("attach the poses listener"))?;
     telemetry.ready();
     let mut summary = PoseSummary { frame_seqs_in_order: true, ..Default::default() };
     let mut last_seq: Option<u64> = None;
     let mut last_rx = monotonic_ns();
     'outer: loop {
-        let result =
-            waitset.wait_and_process_once(|_| CallbackProgression::Continue).map_err(|e| iox("wait for poses")(&e))?;
+        let result = waitset
+            .wait_and_process_once(|_| CallbackProgression::Continue)
+            .map_err(bdis_ipc::iox("wait for poses"))?;
         if matches!(result, WaitSetRunResult::TerminationRequest | WaitSetRunResult::Interrupt) {
             break;
         }
         let _ = bdis_ipc::drain_events(&listener);
         telemetry.keepalive();
-        let _ = &guard;
-        while let Some(sample) = subscriber.receive().map_err(|e| iox("receive a pose")(&e))? {
+        while let Some(sample) = subscriber.receive().map_err(bdis_ipc::iox("receive a pose"))? {
             let r = *sample.payload();
             last_rx = monotonic_ns();
             if r.state == tracking_state::END_OF_STREAM {

@@ -177,16 +177,11 @@ impl Supervisor {
         let telemetry = ipc.telemetry_subscriber(&service)?;
         let telemetry_listener = ipc.listener(&ipc.events(Topic::Telemetry)?)?;
         let control_service = ipc.control()?;
-        let server = control_service
-            .server_builder()
-            .create()
-            .map_err(|e| IpcError::Iceoryx { context: "create the control server".into(), detail: format!("{e:?}") })?;
+        let server = control_service.server_builder().create().map_err(bdis_ipc::iox("create the control server"))?;
         let control_events = ipc.control_events()?;
         let activation = ipc.activation()?;
-        let activations = activation.publisher_builder().create().map_err(|e| IpcError::Iceoryx {
-            context: "create the activation publisher".into(),
-            detail: format!("{e:?}"),
-        })?;
+        let activations =
+            activation.publisher_builder().create().map_err(bdis_ipc::iox("create the activation publisher"))?;
         let control = ControlPorts {
             server,
             requests: ipc.listener(&control_events)?,
@@ -233,7 +228,7 @@ impl Supervisor {
         self.control
             .activations
             .send_copy(Activation { pid, reserved: 0, resume_after })
-            .map_err(|e| IpcError::Iceoryx { context: "send an activation".into(), detail: format!("{e:?}") })?;
+            .map_err(bdis_ipc::iox("send an activation"))?;
         bdis_ipc::notify(&self.control.activation_events, event_id::NEW_SAMPLE)?;
         Ok(())
     }
@@ -366,11 +361,9 @@ impl Supervisor {
             }
             // The WaitSet borrows the listener and the pidfds; it lives only for this wait.
             let stop_requested = {
-                let waitset = WaitSetBuilder::new()
-                    .create::<ipc::Service>()
-                    .map_err(|e| IpcError::Iceoryx { context: "create a WaitSet".into(), detail: format!("{e:?}") })?;
-                let attach_err =
-                    |e| IpcError::Iceoryx { context: "attach to the WaitSet".into(), detail: format!("{e:?}") };
+                let waitset =
+                    WaitSetBuilder::new().create::<ipc::Service>().map_err(bdis_ipc::iox("create a WaitSet"))?;
+                let attach_err = |e| bdis_ipc::iox("attach to the WaitSet")(e);
                 let _telemetry = waitset.attach_notification(&self.telemetry_listener).map_err(attach_err)?;
                 let _control = waitset.attach_notification(&self.control.requests).map_err(attach_err)?;
                 let _tick = waitset.attach_interval(TELEMETRY_DRAIN_PERIOD).map_err(attach_err)?;
@@ -383,7 +376,7 @@ impl Supervisor {
                     .map_err(attach_err)?;
                 let result = waitset
                     .wait_and_process_once_with_timeout(|_| CallbackProgression::Continue, deadline - now)
-                    .map_err(|e| IpcError::Iceoryx { context: "wait".into(), detail: format!("{e:?}") })?;
+                    .map_err(bdis_ipc::iox("wait"))?;
                 matches!(result, WaitSetRunResult::TerminationRequest | WaitSetRunResult::Interrupt)
             };
             if bdis_ipc::drain_events(&self.control.requests).is_ok_and(|seen| seen != 0) {

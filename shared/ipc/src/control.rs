@@ -192,8 +192,8 @@ impl Ipc {
             self.node
                 .service_builder(&name)
                 .request_response::<ControlRequest, ControlResponse>()
-                .max_servers(1)
-                .max_clients(4)
+                .max_servers(qos::CONTROL_MAX_SERVERS)
+                .max_clients(qos::CONTROL_MAX_CLIENTS)
                 .max_nodes(qos::MAX_NODES)
                 .max_active_requests_per_client(1)
                 .max_response_buffer_size(1)
@@ -212,7 +212,7 @@ impl Ipc {
             self.node
                 .service_builder(&name)
                 .publish_subscribe::<Activation>()
-                .max_publishers(1)
+                .max_publishers(qos::ACTIVATION_MAX_PUBLISHERS)
                 .max_subscribers(qos::ACTIVATION_MAX_SUBSCRIBERS)
                 .max_nodes(qos::MAX_NODES)
                 .subscriber_max_buffer_size(qos::ACTIVATION_BUFFER)

@@ -1,0 +1,177 @@
+//! `bdis-slam demo`: render a synthetic colon flight, run the whole pipeline over it, and print a summary a
+//! person can read in ten seconds, with pictures to look at.
+
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+
+use anyhow::{Context, Result};
+
+use crate::plan::plan_for_sequence;
+use crate::run_cmd::{execute_and_report, make_run_dir};
+use crate::{eval_cmd, synth_cmd};
+
+#[derive(Debug, clap::Args)]
+pub struct DemoArgs {
+    /// Frames to render.
+    #[arg(long, default_value_t = 45)]
+    frames: usize,
+    /// Run folder to write (default: runs/<UTC time>-demo).
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// Pacing: on-demand (as fast as the pipeline consumes), recorded (30 fps), or a rate such as 60hz.
+    #[arg(long, default_value = "on-demand")]
+    pacing: bdis_source::Pacing,
+}
+
+pub fn demo(args: DemoArgs) -> Result<ExitCode> {
+    anyhow::ensure!(args.frames >= 2 && args.frames <= 100_000, "--frames: give 2 to 100000 frames");
+    let run_dir = make_run_dir(args.out.as_deref(), "demo")?;
+    let sequence = run_dir.join("sequence");
+    let rig = bdis_synth::StereoRig::default();
+    let fps = 30.0;
+    eprintln!(
+        "bdis-slam demo: rendering {} stereo frames of a flight through a synthetic colon into {}",
+        args.frames,
+        sequence.display()
+    );
+    let request = bdis_synth::SceneRequest { frames: args.frames, fps, ..Default::default() };
+    let written = synth_cmd::render_with_progress(&sequence, &rig, &request)?;
+    let settings = written.settings;
+    let preview = run_dir.join("preview.png");
+    write_side_by_side(&sequence.join("left/1.png"), &sequence.join("right/1.png"), &preview)?;
+
+    let launch = plan_for_sequence(&sequence, Some(&settings), args.pacing, false, None, true, &[])?;
+    let (code, result) = execute_and_report(&launch, Path::new("launch.toml"), &run_dir, None)?;
+    let find = |name: &str| result.latency.processes.iter().find(|p| p.name == name);
+    let depth: Option<bdis_slam::probe::DepthSummary> =
+        std::fs::read_to_string(run_dir.join("probe.json")).ok().and_then(|t| serde_json::from_str(&t).ok());
+    println!();
+    println!("demo summary");
+    println!(
+        "  frames      {} rendered, {} published by acquisition, {} tracked",
+        args.frames,
+        find("acquisition").map_or(0, |p| p.messages),
+        find("tracking").map_or(0, |p| p.messages)
+    );
+    // The trajectory against the renderer's ground truth.
+    let trajectory = (|| -> Result<(bdis_eval::traj::Ate, f64, usize)> {
+        use bdis_core::formats::trajectory::read_tum;
+        let gt = read_tum(&sequence.join("gt/poses.tum"))?;
+        let est = read_tum(&run_dir.join("trajectory.tum"))?;
+        let ate = bdis_eval::traj::ate(&gt, &est, 0.01)?;
+        let length: f64 = gt
+            .windows(2)
+            .map(|w| (w[1].world_from_camera.translation.vector - w[0].world_from_camera.translation.vector).norm())
+            .sum();
+        let keyframes = read_tum(&run_dir.join("keyframes.tum"))?.len();
+        Ok((ate, length, keyframes))
+    })();
+    match &trajectory {
+        Ok((ate, length, keyframes)) => println!(
+            "  tracking    {keyframes} keyframes; ATE RMSE {:.3} mm over a {:.1} mm path ({:.2} %), vs the renderer's ground truth",
+            ate.translation.rmse,
+            length,
+            100.0 * ate.translation.rmse / length.max(1e-9)
+        ),
+        Err(e) => println!("  tracking    no trajectory to evaluate ({e:#})"),
+    }
+    let tracking: Option<serde_json::Value> =
+        std::fs::read_to_string(run_dir.join("tracking.json")).ok().and_then(|t| serde_json::from_str(&t).ok());
+    if let Some(t) = &tracking {
+        let ms = |key: &str| t[key].as_f64().unwrap_or(f64::NAN);
+        println!(
+            "  tracking    CPU per frame p50 {:.1} ms (ORB on both images, stereo matching, pose, local map), per keyframe {:.1} ms; {} frames lost",
+            ms("frame_cpu_ms_p50"),
+            ms("keyframe_cpu_ms_p50"),
+            t["lost"]
+        );
+    }
+    if let Some(d) = &depth {
+        println!(
+            "  dense       {} depth keyframes from the tracker's keyframes, mean density {:.1} % of pixels",
+            d.keyframe_ids.len(),
+            100.0 * d.mean_density
+        );
+    }
+    if let Some(s) = find("stereo").and_then(|p| p.processing_us) {
+        println!(
+            "  stereo      BDIS per keyframe p50 {:.1} ms, p99 {:.1} ms (matching and publishing 640×480)",
+            s.p50 / 1000.0,
+            s.p99 / 1000.0
+        );
+    }
+    let mosaic: Option<serde_json::Value> =
+        std::fs::read_to_string(run_dir.join("mosaic.json")).ok().and_then(|t| serde_json::from_str(&t).ok());
+    if let Some(m) = &mosaic {
+        println!(
+            "  map         {} points from {} keyframes ({} pose corrections applied), update p50 {:.1} ms per keyframe",
+            m["points"],
+            m["keyframes_inserted"],
+            m["corrections_applied"],
+            m["update_ms_p50"].as_f64().unwrap_or(f64::NAN)
+        );
+        // The map against the renderer's mesh, brought into its frame by the alignment of the keyframe trajectory
+        // (the poses that place the map's points).
+        let trajectory = run_dir.join("keyframes.tum");
+        let gt_poses = sequence.join("gt/poses.tum");
+        match eval_cmd::score_map_file(
+            &sequence.join("gt/mesh.ply"),
+            &run_dir.join("map.ply"),
+            Some((&trajectory, &gt_poses)),
+            5.0,
+            1.0,
+        ) {
+            Ok(s) => println!(
+                "  map         vs the renderer's mesh: mean {:.3} mm, median {:.3} mm, {:.1} % outliers (> 5 mm)",
+                s.inliers.mean,
+                s.inliers.median,
+                100.0 * s.outlier_fraction
+            ),
+            Err(e) => println!("  map         not evaluated ({e:#})"),
+        }
+    }
+    for h in &result.latency.hops {
+        println!(
+            "  transport   {}→{} ({}) p50 {:.0} µs, p99 {:.0} µs, zero copy",
+            h.from, h.to, h.topic, h.latency_us.p50, h.latency_us.p99
+        );
+    }
+    for e in &result.latency.end_to_end {
+        println!(
+            "  latency     {} p50 {:.1} ms, p99 {:.1} ms ({} {})",
+            e.path,
+            e.latency_us.p50 / 1000.0,
+            e.latency_us.p99 / 1000.0,
+            e.latency_us.count,
+            if e.path.ends_with("map") { "keyframes" } else { "frames" }
+        );
+    }
+    println!(
+        "  look at     {} (the dense map), {} (a depth keyframe), {} (first stereo pair)",
+        run_dir.join("map.png").display(),
+        run_dir.join("depth-preview.png").display(),
+        preview.display()
+    );
+    println!(
+        "              {} (open in any point-cloud viewer), {} and {} (trajectory), {} (latency, drawn)",
+        run_dir.join("map.ply").display(),
+        run_dir.join("trajectory.tum").display(),
+        run_dir.join("keyframes.tum").display(),
+        run_dir.join("latency.svg").display()
+    );
+    Ok(code)
+}
+
+/// Left and right image side by side, for a person to look at.
+fn write_side_by_side(left: &Path, right: &Path, out: &Path) -> Result<()> {
+    let l = image::open(left).with_context(|| format!("{}: cannot read", left.display()))?.to_rgb8();
+    let r = image::open(right).with_context(|| format!("{}: cannot read", right.display()))?.to_rgb8();
+    let mut both = image::RgbImage::new(l.width() + r.width(), l.height().max(r.height()));
+    for (x, y, p) in l.enumerate_pixels() {
+        both.put_pixel(x, y, *p);
+    }
+    for (x, y, p) in r.enumerate_pixels() {
+        both.put_pixel(l.width() + x, y, *p);
+    }
+    both.save(out).with_context(|| format!("{}: cannot write", out.display()))
+}

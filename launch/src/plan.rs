@@ -1,0 +1,124 @@
+//! The pipeline plan for a sequence, described once: which services run, on which core, with which
+//! arguments, restart policies and handovers. `run --sequence`, the demo and the isolation benchmark all start
+//! from it.
+
+use std::path::Path;
+
+use anyhow::{Context, Result};
+
+/// The launch plan `run --sequence` builds: acquisition, then the probe as its consumer.
+pub fn plan_for_sequence(
+    sequence: &Path,
+    settings: Option<&Path>,
+    pacing: bdis_source::Pacing,
+    checksums: bool,
+    stereo_every: Option<u64>,
+    track: bool,
+    map_params: &[String],
+) -> Result<bdis_slam::launch_file::LaunchFile> {
+    use bdis_slam::launch_file::{LaunchFile, RunSection, ServiceSpec};
+    // Check the input before anything starts: a bad sequence or settings file is reported here, by file and
+    // field, and no process or shared memory is created.
+    let input = bdis_source::check_input(sequence, settings)?;
+    let absolute = |p: &Path| std::fs::canonicalize(p).with_context(|| format!("{}: cannot resolve", p.display()));
+    let mut acquisition_args = vec!["--sequence".to_string(), absolute(&input.sequence.root)?.display().to_string()];
+    if let Some(settings) = &input.settings_path {
+        acquisition_args.extend(["--settings".to_string(), absolute(settings)?.display().to_string()]);
+    }
+    let pacing = match pacing {
+        bdis_source::Pacing::OnDemand => "on-demand".to_string(),
+        bdis_source::Pacing::Recorded => "recorded".to_string(),
+        bdis_source::Pacing::Fixed(hz) => format!("{hz}hz"),
+        bdis_source::Pacing::OnDemandAtMost(hz) => format!("on-demand:{hz}hz"),
+    };
+    acquisition_args.extend(["--pacing".to_string(), pacing]);
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let name = sequence.file_name().map_or_else(|| "sequence".into(), |n| n.to_string_lossy().into_owned());
+    let spec = |name: &str, binary: &str, args: Vec<String>, core: usize| ServiceSpec {
+        name: name.into(),
+        binary: binary.into(),
+        args,
+        core: Some(core % cores),
+        env: Default::default(),
+        restart: Default::default(),
+        liveness_s: None,
+        handover: None,
+        replacement_args: Vec::new(),
+    };
+    let mut services = vec![spec("acquisition", "bdis-acquisition", acquisition_args, 0)];
+    if track {
+        let Some(settings) = &input.settings_path else {
+            anyhow::bail!("--track needs --settings (the tracker reads the camera and ORB settings from it)")
+        };
+        let settings = absolute(settings)?.display().to_string();
+        // Acquisition and tracking share core 0; the dense stereo (and its consumer) run on core 1, so the dense
+        // mapper does not slow the tracker.
+        // A crashed tracker is restarted and continues from its journal: the same world frame, keyframe ids after
+        // the last published one; acquisition sends it again the frame the dead one held.
+        let mut tracking = spec("tracking", "bdis-tracking", vec!["--settings".into(), settings.clone()], 0);
+        tracking.restart.policy = bdis_slam::launch_file::RestartPolicy::OnFailure;
+        tracking.restart.backoff_initial_s = 0.1;
+        tracking.replacement_args = vec!["--resume".into()];
+        services.push(tracking);
+        // The stereo service is replaceable while the tracker runs (`bdis-slam swap stereo`) and restarted when
+        // it crashes: the tracker keeps its last keyframes in the topic's history, and a new instance resumes
+        // after the last keyframe the mosaic has.
+        let mut stereo =
+            spec("stereo", "bdis-stereo", vec!["--settings".into(), settings, "--input".into(), "keyframes".into()], 1);
+        stereo.handover = Some(bdis_slam::launch_file::Handover::Keyframes);
+        stereo.restart.policy = bdis_slam::launch_file::RestartPolicy::OnFailure;
+        stereo.liveness_s = Some(10.0);
+        services.push(stereo);
+        let mut mosaic_args = Vec::new();
+        for p in map_params {
+            mosaic_args.extend(["--map-param".to_string(), p.clone()]);
+        }
+        // A crashed mosaic is restarted from its last checkpoint (every 4 keyframes, well within the tracker's
+        // keyframe history of 16), and the launcher has the stereo service redo the keyframes after it.
+        mosaic_args.extend(["--save-every".to_string(), "4".to_string()]);
+        let mut mosaic = spec("mosaic", "bdis-mosaic", mosaic_args, 1);
+        mosaic.restart.policy = bdis_slam::launch_file::RestartPolicy::OnFailure;
+        // Keyframes pass quickly (up to 14 per second): come back fast, so the tracker's history still has them.
+        mosaic.restart.backoff_initial_s = 0.1;
+        mosaic.replacement_args = vec!["--resume".into()];
+        services.push(mosaic);
+        // The probe keeps a preview of the last depth keyframe beside the map.
+        services.push(spec(
+            "probe",
+            "bdis-slam",
+            vec!["probe".into(), "depth".into(), "--preview".into(), "${RUN_DIR}/depth-preview.png".into()],
+            1,
+        ));
+        // The launcher's own work (forking a replacement stereo, draining telemetry) stays off the tracker's core.
+        let run = RunSection { name: Some(name), launcher_core: Some(1 % cores), ..Default::default() };
+        return Ok(LaunchFile { run, services });
+    }
+    match (stereo_every, &input.settings_path) {
+        (Some(every), Some(settings)) => {
+            let settings = absolute(settings)?.display().to_string();
+            services.push(spec(
+                "stereo",
+                "bdis-stereo",
+                vec!["--settings".into(), settings, "--every".into(), every.to_string()],
+                1,
+            ));
+            services.push(spec(
+                "probe",
+                "bdis-slam",
+                vec!["probe".into(), "depth".into(), "--preview".into(), "${RUN_DIR}/depth-preview.png".into()],
+                0,
+            ));
+        }
+        (Some(_), None) => {
+            anyhow::bail!("--stereo-every needs --settings (the stereo service reads the camera from it)")
+        }
+        (None, _) => {
+            let mut probe_args = vec!["probe".to_string(), "frames".to_string()];
+            if checksums {
+                probe_args.push("--checksums".into());
+            }
+            services.push(spec("probe", "bdis-slam", probe_args, 1));
+        }
+    }
+    Ok(LaunchFile { run: RunSection { name: Some(name), ..Default::default() }, services })
+}

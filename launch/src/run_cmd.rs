@@ -1,0 +1,197 @@
+//! `bdis-slam run`: a launch file or a sequence, started, supervised and reported; the run folder and the
+//! report every pipeline command shares.
+
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+
+use anyhow::{Context, Result};
+
+use crate::plan::plan_for_sequence;
+use crate::synth_cmd;
+
+#[derive(Debug, clap::Args)]
+pub struct RunArgs {
+    /// Launch file (`launch/*.toml`). Without it, give --sequence (and --settings).
+    #[arg(conflicts_with_all = ["sequence"])]
+    launch_file: Option<PathBuf>,
+    /// Sequence folder to stream (BDIS-SLAM/Hamlyn, plain left/right, or KITTI layout), or
+    /// `synthetic:<scene>[:<trajectory>][:<frames>]` (rendered first, e.g. `synthetic:abdomen:sweep:90`).
+    #[arg(long, required_unless_present = "launch_file")]
+    sequence: Option<PathBuf>,
+    /// Settings file for --sequence (ORB-SLAM2 YAML or bdis-slam TOML).
+    #[arg(long, requires = "sequence")]
+    settings: Option<PathBuf>,
+    /// Pacing for --sequence: on-demand, recorded, a rate such as 30hz (frames a slow consumer misses are
+    /// dropped, as with a live camera), or on-demand:30hz (a live camera's pace that never drops a frame).
+    #[arg(long, default_value = "on-demand", requires = "sequence")]
+    pacing: bdis_source::Pacing,
+    /// Have the probe checksum every frame's pixels (for integrity checks; costs ~1 ms per VGA frame).
+    #[arg(long, requires = "sequence")]
+    checksums: bool,
+    /// Also run the stereo service, taking every N-th frame as a keyframe (needs --settings with the image
+    /// size); the probe then checks the depth keyframes.
+    #[arg(long, requires = "sequence", value_name = "N")]
+    stereo_every: Option<u64>,
+    /// Run the full pipeline on --sequence: acquisition → tracking → dense stereo on the tracker's keyframes →
+    /// mosaic; writes the trajectory (TUM, KITTI), the keyframe trajectory and the dense map (map.ply, map.png,
+    /// map.bin) into the run folder. Needs the camera (--settings, or the settings.yaml a synthetic sequence
+    /// comes with).
+    #[arg(long, requires = "sequence", conflicts_with_all = ["stereo_every", "checksums"])]
+    track: bool,
+    /// With --track: override a map parameter of the mosaic, e.g. `--map-param fusion=weighted` (repeatable;
+    /// see `bdis-mosaic --help`).
+    #[arg(long = "map-param", value_name = "NAME=VALUE", requires = "track")]
+    map_params: Vec<String>,
+    /// Run folder to write (default: runs/<UTC time>-<name>).
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// Shared-memory name prefix (default: a fresh one per run, so runs never see each other).
+    #[arg(long)]
+    ipc_prefix: Option<String>,
+}
+
+pub fn run(args: RunArgs) -> Result<ExitCode> {
+    use bdis_slam::launch_file::LaunchFile;
+    // A synthetic source is rendered here first (with a progress bar), then streamed like any sequence.
+    let mut rendered: Option<(PathBuf, PathBuf)> = None;
+    if let Some(request) = args.sequence.as_ref().and_then(|s| s.to_str()).and_then(bdis_source::parse_synthetic) {
+        let request = request.map_err(anyhow::Error::msg)?;
+        let run_dir = make_run_dir(args.out.as_deref(), &format!("synthetic-{}", request.scene))?;
+        let sequence = run_dir.join("sequence");
+        let written = synth_cmd::render_with_progress(&sequence, &bdis_synth::StereoRig::default(), &request)?;
+        let settings = args.settings.clone().unwrap_or(written.settings);
+        rendered = Some((run_dir, settings));
+    }
+    let (launch, launch_path) = match (&args.launch_file, &args.sequence, &rendered) {
+        (Some(path), _, _) => (LaunchFile::load(path)?, path.clone()),
+        (None, Some(_), Some((run_dir, settings))) => (
+            plan_for_sequence(
+                &run_dir.join("sequence"),
+                Some(settings),
+                args.pacing,
+                args.checksums,
+                args.stereo_every,
+                args.track,
+                &args.map_params,
+            )?,
+            PathBuf::from("launch.toml"),
+        ),
+        (None, Some(sequence), None) => (
+            plan_for_sequence(
+                sequence,
+                args.settings.as_deref(),
+                args.pacing,
+                args.checksums,
+                args.stereo_every,
+                args.track,
+                &args.map_params,
+            )?,
+            PathBuf::from("launch.toml"),
+        ),
+        (None, None, _) => anyhow::bail!("give a launch file or --sequence"),
+    };
+    let name = launch.run.name.clone().unwrap_or_else(|| "run".into());
+    let run_dir = match rendered {
+        Some((run_dir, _)) => run_dir,
+        None => make_run_dir(args.out.as_deref(), &name)?,
+    };
+    let (code, _) = execute_and_report(&launch, &launch_path, &run_dir, args.ipc_prefix.clone())?;
+    Ok(code)
+}
+
+pub fn make_run_dir(out: Option<&Path>, name: &str) -> Result<PathBuf> {
+    match out {
+        Some(dir) => {
+            std::fs::create_dir_all(dir).with_context(|| format!("{}: cannot create the run folder", dir.display()))?;
+            Ok(dir.to_path_buf())
+        }
+        None => {
+            bdis_slam::run_dir::create_run_dir(Path::new("runs"), name).context("runs/: cannot create the run folder")
+        }
+    }
+}
+
+/// Starts the plan, waits for its end, writes `latency.json`, prints the latency table; the exit code says how
+/// the run ended.
+pub fn execute_and_report(
+    launch: &bdis_slam::launch_file::LaunchFile,
+    launch_path: &Path,
+    run_dir: &Path,
+    ipc_prefix: Option<String>,
+) -> Result<(ExitCode, bdis_slam::run::RunResult)> {
+    execute_and_write(launch, launch_path, run_dir, ipc_prefix, true)
+}
+
+/// [`execute_and_report`], with the printed report optional (the benchmark runs many).
+pub fn execute_and_write(
+    launch: &bdis_slam::launch_file::LaunchFile,
+    launch_path: &Path,
+    run_dir: &Path,
+    ipc_prefix: Option<String>,
+    print: bool,
+) -> Result<(ExitCode, bdis_slam::run::RunResult)> {
+    let run_dir = run_dir.to_path_buf();
+    let name = launch.run.name.clone().unwrap_or_else(|| "run".into());
+    let services = launch.resolve(launch_path, &run_dir)?;
+    let launch_text = toml::to_string_pretty(launch).context("serialise the launch plan")?;
+    std::fs::write(run_dir.join("launch.toml"), launch_text)
+        .with_context(|| format!("{}: cannot write launch.toml", run_dir.display()))?;
+    let prefix = ipc_prefix.unwrap_or_else(bdis_slam::run_dir::unique_prefix);
+    if print {
+        eprintln!("bdis-slam: run `{name}` → {} (shared memory prefix {prefix})", run_dir.display());
+    }
+    // Tools find the running pipeline by its folder (`bdis-slam swap stereo --run DIR`, `top --run DIR`).
+    let prefix_file = run_dir.join(bdis_slam::run_dir::PREFIX_FILE);
+    std::fs::write(&prefix_file, format!("{prefix}\n"))
+        .with_context(|| format!("{}: cannot write", prefix_file.display()))?;
+
+    let result = bdis_slam::run::execute(launch, &services, &prefix, &run_dir)?;
+    let leftovers = bdis_slam::run_dir::remove_leftovers(&prefix);
+    tracing::debug!("removed {leftovers} shared-memory leftovers of {prefix}");
+
+    let json = serde_json::json!({
+        "schema": "bdis.v1.run",
+        "name": name,
+        "ipc_prefix": prefix,
+        "duration_s": result.duration_s,
+        "stop_requested": result.stop_requested,
+        "failure": result.failure,
+        "services": result.services,
+        "processes": result.latency.processes,
+        "hops": result.latency.hops,
+        "end_to_end": result.latency.end_to_end,
+        "events": result.events,
+        "telemetry_records_lost": result.latency.telemetry_records_lost,
+    });
+    let latency_path = run_dir.join("latency.json");
+    std::fs::write(&latency_path, serde_json::to_string_pretty(&json)?)
+        .with_context(|| format!("{}: cannot write", latency_path.display()))?;
+    let plot_path = run_dir.join("latency.svg");
+    std::fs::write(&plot_path, result.latency.svg())
+        .with_context(|| format!("{}: cannot write", plot_path.display()))?;
+
+    if print {
+        println!();
+        print!("{}", result.latency.table());
+        println!();
+        for s in &result.services {
+            let restarts = if s.restarts > 0 { format!(" ({} restarts/swaps)", s.restarts) } else { String::new() };
+            println!(
+                "{:<14} {}{restarts}{}",
+                s.name,
+                s.exit,
+                s.error.as_deref().map_or(String::new(), |e| format!(" — {e}"))
+            );
+        }
+        for e in &result.events {
+            println!("  {e}");
+        }
+        println!("run folder: {} ({:.1} s)", run_dir.display(), result.duration_s);
+    }
+    if let Some(failure) = &result.failure {
+        eprintln!("bdis-slam: error: {failure}");
+        return Ok((ExitCode::FAILURE, result));
+    }
+    let code = if result.stop_requested { ExitCode::from(130) } else { ExitCode::SUCCESS };
+    Ok((code, result))
+}

@@ -1,0 +1,229 @@
+//! FAST-9 corners per cell with a fallback threshold (§1.2–§1.3): candidate masks, vectorised scores, and
+//! non-maximum suppression.
+
+use super::*;
+
+/// Marks the pixels of row `y`, columns `x_lo..x_hi`, that may be FAST-9 corners at the thresholds `t_ini` and
+/// `t_min` (1 = maybe, 0 = certainly not; the outputs are that span of the row). An arc of 9 of the 16 ring pixels
+/// contains one pixel of every opposite pair (k, k + 8), so a bright corner needs, for all 8 pairs, one of the two
+/// brighter than centre + t: the smallest of the 8 pair maxima must be. Dark corners likewise with the largest pair
+/// minimum. Black centres are never corners. Byte min/max are single vector instructions, and the loop over
+/// equal-length row slices is vectorised by the compiler; both thresholds share the loads and the reductions.
+#[inline(always)]
+pub(super) fn candidates_row(
+    data: &[u8],
+    w: usize,
+    y: usize,
+    (x_lo, x_hi): (usize, usize),
+    t: (u8, u8),
+    out: (&mut [u8], &mut [u8]),
+) {
+    let n = x_hi - x_lo;
+    let at = |(dx, dy): (i32, i32)| {
+        let start = ((y as isize + dy as isize) as usize) * w + (x_lo as isize + dx as isize) as usize;
+        &data[start..start + n]
+    };
+    let centre = at((0, 0));
+    let ring: [&[u8]; 16] = std::array::from_fn(|k| at(CIRCLE[k]));
+    let (out_ini, out_min) = (&mut out.0[..n], &mut out.1[..n]);
+    for i in 0..n {
+        let c = centre[i];
+        let (mut min_of_max, mut max_of_min) = (u8::MAX, 0u8);
+        for k in 0..8 {
+            let (a, b) = (ring[k][i], ring[k + 8][i]);
+            min_of_max = min_of_max.min(a.max(b));
+            max_of_min = max_of_min.max(a.min(b));
+        }
+        let maybe =
+            |t: u8| u8::from(((min_of_max > c.saturating_add(t)) | (max_of_min < c.saturating_sub(t))) & (c != 0));
+        out_ini[i] = maybe(t.0);
+        out_min[i] = maybe(t.1);
+    }
+}
+
+/// [`candidates_row`] for rows `y_lo..y_hi` of a level, into masks the size of the level. Not compiled for AVX2
+/// as well (see `simd.rs`): with AVX2 the compiler leaves this loop scalar, and the SSE2 vectors are as fast.
+#[allow(clippy::too_many_arguments)]
+pub(super) fn candidate_masks(
+    level: &Level,
+    y_lo: usize,
+    y_hi: usize,
+    x_lo: usize,
+    x_hi: usize,
+    t: (u8, u8),
+    ini: &mut [u8],
+    min: &mut [u8],
+) {
+    let w = level.w;
+    for y in y_lo..y_hi {
+        let span = y * w + x_lo..y * w + x_hi;
+        candidates_row(&level.data, w, y, (x_lo, x_hi), t, (&mut ini[span.clone()], &mut min[span]));
+    }
+}
+
+/// Candidates scored together: the lanes of [`fast_scores`].
+pub(super) const SCORE_LANES: usize = 16;
+
+multiversion! {
+    /// FAST scores of up to 16 pixels (`at`: their indices into `img`): the largest t for which each is still a
+    /// 9-of-16 corner, 0 where it is none at `threshold` or where its ring touches black (outside the endoscope's
+    /// view). The score of an arc of 9 is its smallest difference to the centre; the best arc is found by doubling
+    /// windows round the ring (2, 4, 8, then 8 + 1). The candidates are the vector lanes: the ring is gathered into
+    /// 16 rows of 16 lanes, then every step is an element-wise min/max over whole rows, which the compiler turns
+    /// into vector instructions (one pixel at a time it is ~300 scalar instructions).
+    fn fast_scores / fast_scores_portable(
+        img: &[u8],
+        ring: &[isize; 16],
+        at: &[u32],
+        threshold: u8,
+        scores: &mut [u8; SCORE_LANES],
+    ) {
+        type Row = [i16; SCORE_LANES];
+        let mut bright: [Row; 16] = [[0; SCORE_LANES]; 16];
+        let mut black: Row = [0; SCORE_LANES];
+        for (j, &p) in at.iter().take(SCORE_LANES).enumerate() {
+            let c = i16::from(img[p as usize]);
+            for k in 0..16 {
+                let v = img[(p as isize + ring[k]) as usize];
+                black[j] |= i16::from(v == 0);
+                bright[k][j] = i16::from(v) - c;
+            }
+        }
+        // Plain loops over fixed-size rows (closures and array::from_fn here defeat the vectoriser).
+        #[inline(always)]
+        fn best_arc(d: &[Row; 16]) -> Row {
+            let (mut m2, mut m4, mut m8) =
+                ([[0i16; SCORE_LANES]; 16], [[0i16; SCORE_LANES]; 16], [[0i16; SCORE_LANES]; 16]);
+            for k in 0..16 {
+                for j in 0..SCORE_LANES {
+                    m2[k][j] = d[k][j].min(d[(k + 1) & 15][j]);
+                }
+            }
+            for k in 0..16 {
+                for j in 0..SCORE_LANES {
+                    m4[k][j] = m2[k][j].min(m2[(k + 2) & 15][j]);
+                }
+            }
+            for k in 0..16 {
+                for j in 0..SCORE_LANES {
+                    m8[k][j] = m4[k][j].min(m4[(k + 4) & 15][j]);
+                }
+            }
+            let mut best = [i16::MIN; SCORE_LANES];
+            for k in 0..16 {
+                for j in 0..SCORE_LANES {
+                    best[j] = best[j].max(m8[k][j].min(d[(k + 8) & 15][j]));
+                }
+            }
+            best
+        }
+        let mut dark: [Row; 16] = [[0; SCORE_LANES]; 16];
+        for k in 0..16 {
+            for j in 0..SCORE_LANES {
+                dark[k][j] = -bright[k][j];
+            }
+        }
+        let (b, d) = (best_arc(&bright), best_arc(&dark));
+        let t = i16::from(threshold);
+        for j in 0..SCORE_LANES {
+            let score = b[j].max(d[j]) - 1;
+            scores[j] = if score >= t && black[j] == 0 { score.min(255) as u8 } else { 0 };
+        }
+    }
+}
+
+impl OrbExtractor {
+    /// FAST per cell with the fallback threshold and 3×3 non-maximum suppression inside the cell (§1.3).
+    #[inline(never)] // a stage of its own in profiles
+    pub(super) fn detect_level(&mut self, l: usize) {
+        let level = &self.levels[l];
+        let (w, h) = (level.w, level.h);
+        let ring: [isize; 16] = CIRCLE.map(|(dx, dy)| dy as isize * w as isize + dx as isize);
+        let (min_x, min_y, max_x, max_y) = (FAST_MARGIN, FAST_MARGIN, w - FAST_MARGIN, h - FAST_MARGIN);
+        let (wr, hr) = (max_x - min_x, max_y - min_y);
+        let n_cols = (wr / 30).max(1);
+        let n_rows = (hr / 30).max(1);
+        let (w_cell, h_cell) = (wr.div_ceil(n_cols), hr.div_ceil(n_rows));
+        self.corners.clear();
+        // Candidates at both thresholds once per level on whole rows (vector code): cells then only visit
+        // candidates. (On in-vivo images about half of the cells fall back to minThFAST.)
+        let (ini, min) = (self.params.ini_th_fast, self.params.min_th_fast);
+        let (x_lo, x_hi) = (min_x + 3, max_x - 3);
+        let (cand_ini, cand_min) = (&mut self.cand_ini, &mut self.cand_min);
+        candidate_masks(level, min_y + 3, max_y - 3, x_lo, x_hi, (ini, min), cand_ini, cand_min);
+        let scores = &mut self.scores[..w * h];
+        for i in 0..n_rows {
+            let y_start = min_y + i * h_cell;
+            if y_start >= h - 3 - FAST_MARGIN {
+                continue;
+            }
+            let y_end = (y_start + h_cell + 6).min(max_y);
+            for j in 0..n_cols {
+                let x_start = min_x + j * w_cell;
+                if x_start >= w - 6 - FAST_MARGIN {
+                    continue;
+                }
+                let x_end = (x_start + w_cell + 6).min(max_x);
+                // The cell's detection area: 3 px inside its window (the FAST ring must fit).
+                let (ya, yb, xa, xb) = (y_start + 3, y_end.saturating_sub(3), x_start + 3, x_end.saturating_sub(3));
+                if ya >= yb || xa >= xb {
+                    continue;
+                }
+                for threshold in [ini, min] {
+                    self.hits.clear();
+                    self.batch.clear();
+                    let mask = if threshold == ini { &self.cand_ini } else { &self.cand_min };
+                    for y in ya..yb {
+                        // Eight mask bytes (0 or 1) as one word; each set byte is visited by its lowest bit. The
+                        // last word of a row may reach past xb (into the next cell's mask): those bytes are cut.
+                        for c in (xa..xb).step_by(8) {
+                            let at = y * w + c;
+                            // In bounds: the mask spans the level and this row is ≥ 3 rows above its end.
+                            let eight = &mask[at..at + 8];
+                            let mut bits = u64::from_le_bytes(std::array::from_fn(|i| eight[i]));
+                            if xb - c < 8 {
+                                bits &= (1u64 << (8 * (xb - c))) - 1;
+                            }
+                            while bits != 0 {
+                                let x = c + (bits.trailing_zeros() / 8) as usize;
+                                bits &= bits - 1;
+                                self.batch.push((y * w + x) as u32);
+                            }
+                        }
+                    }
+                    for batch in self.batch.chunks(SCORE_LANES) {
+                        let mut batch_scores = [0u8; SCORE_LANES];
+                        fast_scores(&level.data, &ring, batch, threshold, &mut batch_scores);
+                        for (&p, &s) in batch.iter().zip(&batch_scores) {
+                            if s > 0 {
+                                scores[p as usize] = s;
+                                let (x, y) = (p as usize % w, p as usize / w);
+                                self.hits.push(Corner { x: x as u16, y: y as u16, response: s });
+                            }
+                        }
+                    }
+                    // 3×3 non-maximum suppression inside the cell, over the corners only; ties go to the first in
+                    // raster order. The score map is cleared again where it was written.
+                    // Outside the cell the score map is 0 (it is cleared after every cell) and the cell is ≥ 3 px
+                    // inside the level, so the 8 neighbours need no bounds: an earlier neighbour (in raster order)
+                    // suppresses at an equal score, a later one only at a higher score.
+                    for &hit in &self.hits {
+                        let (x, y, s) = (usize::from(hit.x), usize::from(hit.y), hit.response);
+                        let (up, here, down) = ((y - 1) * w + x, y * w + x, (y + 1) * w + x);
+                        let earlier = scores[up - 1].max(scores[up]).max(scores[up + 1]).max(scores[here - 1]);
+                        let later = scores[here + 1].max(scores[down - 1]).max(scores[down]).max(scores[down + 1]);
+                        if earlier < s && later <= s {
+                            self.corners.push(hit);
+                        }
+                    }
+                    for hit in &self.hits {
+                        scores[usize::from(hit.y) * w + usize::from(hit.x)] = 0;
+                    }
+                    if !self.hits.is_empty() || threshold == self.params.min_th_fast {
+                        break;
+                    }
+                }
+            }
+        }
+    }
+}

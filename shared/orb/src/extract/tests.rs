@@ -1,0 +1,117 @@
+use super::*;
+use super::{describe::*, fast::*, pyramid::*};
+
+/// A textured test level: smooth gradients, hashed noise, and a black disc corner like an endoscope's edge.
+pub(crate) fn test_level(w: usize, h: usize) -> Level {
+    let data = (0..w * h)
+        .map(|i| {
+            let (x, y) = (i % w, i / w);
+            if x * x + y * y < 40 * 40 || (x > w - 20 && y > h - 30) {
+                return 0;
+            }
+            let hash = (i as u32).wrapping_mul(2_654_435_761) >> 24;
+            ((x * 3 + y * 5) % 160 + (hash as usize) % 90 + 1) as u8
+        })
+        .collect();
+    Level { w, h, data }
+}
+
+#[test]
+pub(super) fn the_avx2_copies_give_the_portable_results_bit_for_bit() {
+    let src = test_level(640, 480);
+    let params = OrbParams::default();
+    let ex = OrbExtractor::new(params, 640, 480).unwrap();
+    // Pyramid step.
+    let taps = &ex.taps[1];
+    let (dw, dh) = (taps.x.len(), taps.y.len());
+    let (mut a, mut b) =
+        (Level { w: dw, h: dh, data: vec![0; dw * dh] }, Level { w: dw, h: dh, data: vec![1; dw * dh] });
+    let mut row = vec![0u16; 641];
+    resize_level(&src, &mut a, taps, &mut row);
+    resize_level_portable(&src, &mut b, taps, &mut row);
+    assert_eq!(a.data, b.data);
+    // Blur.
+    let (mut tmp, mut acc) = (vec![0u16; 640 * 480], vec![0u16; 640]);
+    let (mut a, mut b) =
+        (Level { w: 640, h: 480, data: vec![0; 640 * 480] }, Level { w: 640, h: 480, data: vec![1; 640 * 480] });
+    blur_level(&src, &mut a, &mut tmp, &mut acc);
+    blur_level_portable(&src, &mut b, &mut tmp, &mut acc);
+    assert_eq!(a.data, b.data);
+    // FAST scores, over every pixel of a band (partial batches included).
+    let ring: [isize; 16] = CIRCLE.map(|(dx, dy)| dy as isize * 640 + dx as isize);
+    let at: Vec<u32> = (100 * 640 + 20..100 * 640 + 620).collect();
+    for batch in at.chunks(SCORE_LANES) {
+        for t in [7u8, 20] {
+            let (mut sa, mut sb) = ([0u8; SCORE_LANES], [1u8; SCORE_LANES]);
+            fast_scores(&src.data, &ring, batch, t, &mut sa);
+            fast_scores_portable(&src.data, &ring, batch, t, &mut sb);
+            assert_eq!(sa[..batch.len()], sb[..batch.len()]);
+            // And the definition, one pixel and one arc at a time.
+            for (&p, &score) in batch.iter().zip(&sa) {
+                let c = i16::from(src.data[p as usize]);
+                let ring_values = ring.map(|o| src.data[(p as isize + o) as usize]);
+                let d = ring_values.map(|v| i16::from(v) - c);
+                let mut best = i16::MIN;
+                for start in 0..16 {
+                    let arc = (0..9).map(|k| d[(start + k) % 16]);
+                    best = best.max(arc.clone().min().unwrap()).max(arc.map(|v| -v).min().unwrap());
+                }
+                let want =
+                    if ring_values.contains(&0) || best - 1 < i16::from(t) { 0 } else { (best - 1).min(255) as u8 };
+                assert_eq!(score, want, "pixel {p} threshold {t}");
+            }
+        }
+    }
+}
+
+#[test]
+pub(super) fn the_candidate_masks_keep_every_corner() {
+    let src = test_level(640, 480);
+    let ring: [isize; 16] = CIRCLE.map(|(dx, dy)| dy as isize * 640 + dx as isize);
+    let (mut ini, mut min) = (vec![0u8; 640 * 480], vec![0u8; 640 * 480]);
+    candidate_masks(&src, 19, 461, 19, 621, (20, 7), &mut ini, &mut min);
+    let (mut corners, mut candidates) = (0, 0);
+    for y in 19..461 {
+        let at: Vec<u32> = (y * 640 + 19..y * 640 + 621).map(|p| p as u32).collect();
+        for batch in at.chunks(SCORE_LANES) {
+            for (t, mask) in [(20u8, &ini), (7, &min)] {
+                let mut scores = [0u8; SCORE_LANES];
+                fast_scores(&src.data, &ring, batch, t, &mut scores);
+                for (&p, &s) in batch.iter().zip(&scores) {
+                    assert!(s == 0 || mask[p as usize] == 1, "corner at {p} (t {t}) not a candidate");
+                    corners += usize::from(s > 0);
+                    candidates += usize::from(mask[p as usize]);
+                }
+            }
+        }
+    }
+    // The filter must filter: far fewer candidates than pixels.
+    assert!(corners > 1000 && candidates < 2 * 442 * 602 / 2, "{corners} corners, {candidates} candidates");
+}
+
+#[test]
+pub(super) fn the_table_free_pyramid_gather_equals_the_tap_table() {
+    let src = test_level(640, 480);
+    let ex = OrbExtractor::new(OrbParams::default(), 640, 480).unwrap();
+    let taps = &ex.taps[1];
+    assert!(taps.periodic >= 500, "the 6→5 pattern should cover most of the row: {}", taps.periodic);
+    let generic = LevelTaps { periodic: 0, ..taps.clone() };
+    let (dw, dh) = (taps.x.len(), taps.y.len());
+    let (mut a, mut b) =
+        (Level { w: dw, h: dh, data: vec![0; dw * dh] }, Level { w: dw, h: dh, data: vec![1; dw * dh] });
+    let mut row = vec![0u16; 641];
+    resize_level(&src, &mut a, taps, &mut row);
+    resize_level(&src, &mut b, &generic, &mut row);
+    assert_eq!(a.data, b.data);
+    // Bilinear at the nominal scale: output (x, y) is the input at ((x + 0.5)·1.2 − 0.5, …) — checked
+    // against floating point away from black.
+    for (x, y) in [(100usize, 100usize), (257, 311), (400, 50)] {
+        let (sx, sy) = ((x as f64 + 0.5) * 1.2 - 0.5, (y as f64 + 0.5) * 1.2 - 0.5);
+        let (x0, y0) = (sx.floor() as usize, sy.floor() as usize);
+        let (fx, fy) = (sx - x0 as f64, sy - y0 as f64);
+        let p = |x: usize, y: usize| f64::from(src.data[y * 640 + x]);
+        let want = (p(x0, y0) * (1.0 - fx) + p(x0 + 1, y0) * fx) * (1.0 - fy)
+            + (p(x0, y0 + 1) * (1.0 - fx) + p(x0 + 1, y0 + 1) * fx) * fy;
+        assert!((f64::from(a.data[y * dw + x]) - want).abs() < 1.0, "({x}, {y})");
+    }
+}
