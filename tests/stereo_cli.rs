@@ -13,14 +13,14 @@ fn one_pair_writes_disparity_confidence_and_preview() {
     let tmp = TempDir::new("stereo1");
     let seq = tmp.path().join("seq");
     // A tissue plane whose ground-truth disparity is exactly 4 px.
-    let rig = bdis_synth::StereoRig {
+    let rig = bdis_synth::RectifiedCamera {
         width: 256,
         height: 192,
         fx: 260.0,
         fy: 260.0,
         cx: 128.0,
         cy: 96.0,
-        baseline_mm: 50.0 * 4.0 / 260.0,
+        bf: 50.0 * 4.0,
     };
     let scene = bdis_synth::PlaneScene { depth_mm: 50.0, texture: bdis_synth::TissueTexture { seed: 11 } };
     assert!((scene.disparity_px(&rig) - 4.0).abs() < 1e-9);

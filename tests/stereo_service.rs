@@ -49,7 +49,7 @@ fn wait_exit(child: &mut Child, timeout: Duration) -> std::process::ExitStatus {
 fn a_killed_stereo_instance_is_replaced_without_losing_a_keyframe() {
     let tmp = TempDir::new("stereo-kill");
     let seq = tmp.path().join("seq");
-    let rig = bdis_synth::StereoRig::default();
+    let rig = bdis_synth::default_camera();
     let scene = bdis_synth::PlaneScene { depth_mm: 60.0, texture: bdis_synth::TissueTexture { seed: 5 } };
     let settings = bdis_synth::write_plane_sweep(&seq, &rig, &scene, 60, 30.0, 6.0, |_| {}).unwrap();
     let prefix = prefix("stkill");

@@ -6,14 +6,18 @@
 //! stereo service hot-swapped five times (once by a crash) and the mosaic killed during a run, without a
 //! keyframe lost or doubled, and the tracker killed and continued by its replacement.
 //!
-//! The sequence is rendered once at 320×240 (f = 260, 5 mm baseline), 400 frames: at 640×480 rendering alone
-//! would take ~10 minutes on the CI machine.
+//! The sequence is rendered once per test binary at 320×240 (f = 260, 5 mm baseline), 400 frames: at 640×480
+//! rendering alone would take ~10 minutes on the CI machine. Each property is its own test, so one failure does
+//! not hide the others; they share the rendering and the two clean runs, and their pipelines run one at a time
+//! (each pins its services to the machine's two cores).
 
 mod common;
 
 use common::*;
 use std::path::{Path, PathBuf};
 use std::process::Command;
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::{Mutex, OnceLock};
 use std::time::Duration;
 
 use bdis_core::formats::trajectory::read_tum;
@@ -31,14 +35,6 @@ fn render(dir: &Path) {
     assert!(out.status.success(), "{}", text(&out.stderr));
 }
 
-/// Runs the tracking pipeline on `seq`; returns the run folder. With `snapshot`, a map snapshot is requested
-/// over request-response while it runs (retried until the mosaic service answers with points; its output line
-/// is returned too), the run's shared-memory files are checked to be owner-only, and `bdis-slam top` must show
-/// every service.
-fn track(tmp: &TempDir, seq: &Path, tag: &str, snapshot: bool) -> (PathBuf, Option<String>) {
-    track_with(tmp, seq, tag, snapshot, "on-demand", During::Nothing)
-}
-
 /// What happens to the pipeline while it runs.
 #[derive(Clone, Copy, PartialEq, Eq)]
 enum During {
@@ -49,8 +45,10 @@ enum During {
     TrackerCrash,
 }
 
-/// [`track`] with a pacing, and optionally the stereo service swapped five times while it runs (see
-/// [`swap_five_times`]).
+/// Runs the tracking pipeline on `seq` with `pacing` (and `during` it, swaps or a crash); returns the run folder.
+/// With `snapshot`, a map snapshot is requested over request-response while it runs (retried until the mosaic
+/// service answers with points; its output line is returned too), the run's shared-memory files are checked to
+/// be owner-only, and `bdis-slam top` must show every service.
 fn track_with(
     tmp: &TempDir,
     seq: &Path,
@@ -247,50 +245,111 @@ fn black(path: &Path) {
     image::RgbImage::new(320, 240).save(path).unwrap();
 }
 
-#[test]
-fn tracks_the_synthetic_colon_deterministically_and_recovers_after_black_frames() {
-    let tmp = TempDir::new("tracking");
-    let seq = tmp.path().join("colon");
-    render(&seq);
+/// What the tests of this binary share: the rendered colon and the two clean runs.
+struct Shared {
+    tmp: TempDir,
+    seq: PathBuf,
+}
 
-    // Clean run, twice: no loss, bounded error, byte-identical trajectories. At a live camera's pace (30 Hz)
-    // without ever dropping a frame, so the run with swaps below compares with them.
-    let (a, _) = track_with(&tmp, &seq, "track-a", false, "on-demand:30hz", During::Nothing);
-    let (b, _) = track_with(&tmp, &seq, "track-b", false, "on-demand:30hz", During::Nothing);
-    let sa = summary(&a);
+/// The tests of this file: the last to finish removes the shared folder (statics are never dropped).
+const TESTS: usize = 6;
+static FINISHED: AtomicUsize = AtomicUsize::new(0);
+static SHARED: OnceLock<Shared> = OnceLock::new();
+/// One pipeline at a time: each pins its services to the two cores, as a user's run does.
+static PIPELINE: Mutex<()> = Mutex::new(());
+static CLEAN: OnceLock<(PathBuf, PathBuf)> = OnceLock::new();
+
+/// Counts a finished test (passed or failed) and removes the shared folder after the last.
+struct Finished;
+
+impl Drop for Finished {
+    fn drop(&mut self) {
+        if FINISHED.fetch_add(1, Ordering::SeqCst) + 1 == TESTS
+            && let Some(shared) = SHARED.get()
+        {
+            let _ = std::fs::remove_dir_all(shared.tmp.path());
+        }
+    }
+}
+
+fn shared() -> &'static Shared {
+    SHARED.get_or_init(|| {
+        let tmp = TempDir::new("tracking");
+        let seq = tmp.path().join("colon");
+        render(&seq);
+        Shared { tmp, seq }
+    })
+}
+
+/// Runs a pipeline on its own (no other test's pipeline at the same time).
+fn pipeline(seq: &Path, tag: &str, snapshot: bool, pacing: &str, during: During) -> (PathBuf, Option<String>) {
+    let _one_at_a_time = PIPELINE.lock().unwrap_or_else(|e| e.into_inner());
+    track_with(&shared().tmp, seq, tag, snapshot, pacing, during)
+}
+
+/// The clean run, twice, at a live camera's pace (30 Hz) without ever dropping a frame, so the runs with swaps
+/// and crashes compare with them.
+fn clean_runs() -> &'static (PathBuf, PathBuf) {
+    CLEAN.get_or_init(|| {
+        let seq = &shared().seq;
+        let (a, _) = pipeline(seq, "track-a", false, "on-demand:30hz", During::Nothing);
+        let (b, _) = pipeline(seq, "track-b", false, "on-demand:30hz", During::Nothing);
+        (a, b)
+    })
+}
+
+#[test]
+fn the_clean_run_tracks_every_frame_within_a_tenth_of_a_percent_of_the_path() {
+    let _finished = Finished;
+    let seq = &shared().seq;
+    let (a, _) = clean_runs();
+    let sa = summary(a);
     assert_eq!(sa["frames"], FRAMES as u64);
     assert_eq!(sa["lost"], 0, "{sa}");
-    let (rmse, length) = ate(&seq, &a);
+    let (rmse, length) = ate(seq, a);
     let relative = rmse / length;
     eprintln!("clean: ATE RMSE {rmse:.3} mm over {length:.1} mm ({:.3} %); {sa}", 100.0 * relative);
     // The bound, 0.1 % of the path: 0.050 % measured at this resolution (0.136 mm; 0.11–0.12 % with
     // ORB-SLAM2's whole-pixel measurements), 0.009 % at 640×480.
     assert!(relative < 0.001, "ATE {rmse} mm over {length} mm");
-    assert_eq!(
-        std::fs::read(a.join("trajectory.tum")).unwrap(),
-        std::fs::read(b.join("trajectory.tum")).unwrap(),
-        "the same run twice gives the same trajectory"
-    );
     // Every keyframe went through the dense stereo.
     let keyframes = read_tum(&a.join("keyframes.tum")).unwrap();
     let depth: bdis_slam::probe::DepthSummary =
         serde_json::from_str(&std::fs::read_to_string(a.join("probe.json")).unwrap()).unwrap();
     assert_eq!(depth.keyframe_ids.len() as u64, sa["keyframes_created"].as_u64().unwrap());
     assert!(keyframes.len() >= 10);
+}
 
-    // The dense map: every keyframe in it, the tracker's last corrections applied, the same map twice.
+#[test]
+fn the_same_run_twice_gives_the_same_trajectory_and_map() {
+    let _finished = Finished;
+    let (a, b) = clean_runs();
+    assert_eq!(
+        std::fs::read(a.join("trajectory.tum")).unwrap(),
+        std::fs::read(b.join("trajectory.tum")).unwrap(),
+        "the same run twice gives the same trajectory"
+    );
+    assert_eq!(
+        std::fs::read(a.join("map.ply")).unwrap(),
+        std::fs::read(b.join("map.ply")).unwrap(),
+        "the same run twice gives the same map"
+    );
+}
+
+#[test]
+fn the_dense_map_has_every_keyframe_and_lies_on_the_tissue() {
+    let _finished = Finished;
+    let seq = &shared().seq;
+    let (a, _) = clean_runs();
+    let sa = summary(a);
+    // The dense map: every keyframe in it, the tracker's last corrections applied.
     let ma = json_file(&a.join("mosaic.json"));
     assert_eq!(ma["end_of_stream"], true, "{ma}");
     assert_eq!(ma["keyframes_inserted"], sa["keyframes_created"], "{ma}");
     assert_eq!(ma["keyframes_missing"], 0, "{ma}");
     assert_eq!(ma["duplicates"], 0, "{ma}");
     assert!(ma["corrections_applied"].as_u64().unwrap() > 0, "bundle adjustment moved keyframes: {ma}");
-    assert_eq!(
-        std::fs::read(a.join("map.ply")).unwrap(),
-        std::fs::read(b.join("map.ply")).unwrap(),
-        "the same run twice gives the same map"
-    );
-    let score = map_score(&seq, &a);
+    let score = map_score(seq, a);
     eprintln!("map: {score}");
     // The paper's bounds (mean 0.296 mm, median 0.215 mm) hold at 640×480 (BENCHMARKS.md); at this resolution
     // a pixel of disparity is twice the depth, and mean 0.60 / median 0.43 mm was measured. The bound catches
@@ -307,7 +366,7 @@ fn tracks_the_synthetic_colon_deterministically_and_recovers_after_black_frames(
     // nearest-vertex distance to the mesh agrees.
     if let Some(python) = python_with_numpy() {
         let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/interop/read_map.py");
-        let transform = serde_json::to_string(&keyframe_alignment(&seq, &a)).unwrap();
+        let transform = serde_json::to_string(&keyframe_alignment(seq, a)).unwrap();
         let out = run_with_timeout(
             Command::new(python).arg(&script).arg(a.join("map.ply")).arg(seq.join("gt/mesh.ply")).arg(transform),
             Duration::from_secs(120),
@@ -323,12 +382,20 @@ fn tracks_the_synthetic_colon_deterministically_and_recovers_after_black_frames(
         let median = read["nearest_vertex_median_mm"].as_f64().unwrap();
         let surface_median = score["inliers"]["median"].as_f64().unwrap();
         assert!(median >= 0.8 * surface_median && median <= surface_median + 0.5, "{read} vs {score}");
+    } else {
+        assert!(std::env::var_os("CI").is_none(), "CI must have python3 with numpy for the independent reader");
     }
+}
 
+#[test]
+fn stereo_swapped_five_times_and_the_mosaic_killed_lose_no_keyframe() {
+    let _finished = Finished;
+    let seq = &shared().seq;
+    let (a, b) = clean_runs();
     // The stereo service replaced five times while the tracker runs (once by a crash), then the mosaic killed:
-    // every keyframe has exactly one depth keyframe in the map, the trajectory is the same, and the tracker did
-    // not slow down.
-    let (w, _) = track_with(&tmp, &seq, "track-swaps", false, "on-demand:30hz", During::Swaps);
+    // every keyframe has exactly one depth keyframe in the map, the trajectory is the same, and the tracker's
+    // time per frame is reported beside the clean runs'.
+    let (w, _) = pipeline(seq, "track-swaps", false, "on-demand:30hz", During::Swaps);
     let sw = summary(&w);
     let mw = json_file(&w.join("mosaic.json"));
     eprintln!("with 5 stereo swaps: {sw}\n{mw}");
@@ -353,43 +420,42 @@ fn tracks_the_synthetic_colon_deterministically_and_recovers_after_black_frames(
     let events: Vec<&str> = run["events"].as_array().unwrap().iter().map(|e| e.as_str().unwrap()).collect();
     assert_eq!(events.iter().filter(|e| e.contains("stereo swapped")).count(), 5, "{events:?}");
     assert_eq!(events.iter().filter(|e| e.contains("restarted")).count(), 2, "{events:?}");
-    let score = map_score(&seq, &w);
+    let score = map_score(seq, &w);
     eprintln!("map with swaps (two of them plain DIS for a while): {score}");
     assert!(score["inliers"]["mean"].as_f64().unwrap() < 1.0, "{score}");
-    // The tracker's p99 time per frame (CPU, so the shared machine's scheduling noise stays out of it) within
-    // 10 % of the runs without swaps. Wall-clock figures are printed; BENCHMARKS.md has their spread.
+    // The tracker's time per frame with swaps, beside the runs without: reported, not asserted (two identical
+    // runs differ by up to ~15 % in p99 on this shared machine; `bdis-slam bench isolation` measures it in
+    // alternating pairs).
     let p99 = |d: &Path| summary(d)["frame_cpu_ms_p99"].as_f64().unwrap();
     let wall_p99 = |d: &Path| {
         let l = json_file(&d.join("latency.json"));
         let t = l["processes"].as_array().unwrap().iter().find(|p| p["name"] == "tracking").unwrap().clone();
         t["processing_us"]["p99"].as_f64().unwrap() / 1000.0
     };
-    let (pa, pb, pw) = (p99(&a), p99(&b), p99(&w));
     eprintln!(
-        "tracker frame CPU p99: {pa:.2} / {pb:.2} ms without swaps, {pw:.2} ms with; wall p99 {:.1} / {:.1} vs {:.1} ms",
-        wall_p99(&a),
-        wall_p99(&b),
+        "tracker frame CPU p99: {:.2} / {:.2} ms without swaps, {:.2} ms with; wall p99 {:.1} / {:.1} vs {:.1} ms",
+        p99(a),
+        p99(b),
+        p99(&w),
+        wall_p99(a),
+        wall_p99(b),
         wall_p99(&w)
     );
-    // The p99 of ~220 frames is their 3rd-slowest: two identical runs differ by up to ~15 % on this shared
-    // machine. A run over the bound is measured once more (the swaps again) before it counts as slower.
-    let limit = 1.10 * pa.max(pb);
-    let pw = if pw <= limit {
-        pw
-    } else {
-        let (w2, _) = track_with(&tmp, &seq, "track-swaps-again", false, "on-demand:30hz", During::Swaps);
-        eprintln!("tracker frame CPU p99 over the bound ({pw:.2} ms): again with swaps, {:.2} ms", p99(&w2));
-        pw.min(p99(&w2))
-    };
-    assert!(pw <= limit, "tracker p99 {pw} ms with swaps vs {pa} / {pb} ms without");
+}
 
+#[test]
+fn a_killed_tracker_is_continued_by_its_replacement() {
+    let _finished = Finished;
+    let seq = &shared().seq;
+    let (a, _) = clean_runs();
+    let (rmse, _) = ate(seq, a);
     // The tracker killed mid-run: the launcher restarts it, the new one continues from its predecessor's journal
     // (same world frame, keyframe ids after the last published one): a pose for every frame, the error
     // within twice the clean run's, every keyframe of both instances in the map once.
-    let (k, _) = track_with(&tmp, &seq, "track-crash", false, "on-demand:30hz", During::TrackerCrash);
+    let (k, _) = pipeline(seq, "track-crash", false, "on-demand:30hz", During::TrackerCrash);
     let sk = summary(&k);
     let mk = json_file(&k.join("mosaic.json"));
-    let (rmse_crash, _) = ate(&seq, &k);
+    let (rmse_crash, _) = ate(seq, &k);
     eprintln!("tracker killed at frame ~150: ATE RMSE {rmse_crash:.3} mm (clean {rmse:.3}); {sk}\n{mk}");
     assert!(rmse_crash <= 2.0 * rmse, "ATE {rmse_crash} mm after a tracker crash vs {rmse} mm without");
     assert_eq!(sk["frames"], FRAMES as u64, "{sk}");
@@ -399,7 +465,14 @@ fn tracks_the_synthetic_colon_deterministically_and_recovers_after_black_frames(
     let run = json_file(&k.join("latency.json"));
     let tracking = run["services"].as_array().unwrap().iter().find(|s| s["name"] == "tracking").unwrap();
     assert_eq!(tracking["restarts"], 1, "{tracking}");
+}
 
+#[test]
+fn black_frames_are_recovered_from_and_the_live_map_can_be_snapshotted() {
+    let _finished = Finished;
+    let Shared { tmp, seq } = shared();
+    let (a, _) = clean_runs();
+    let (rmse, _) = ate(seq, a);
     // Ten black frames in the middle: the tracker reports lost, relocalises when the view returns, and the
     // trajectory stays within twice the clean error.
     let dark = tmp.path().join("colon-dark");
@@ -420,7 +493,7 @@ fn tracks_the_synthetic_colon_deterministically_and_recovers_after_black_frames(
     std::fs::create_dir_all(dark.join("gt")).unwrap();
     std::fs::copy(seq.join("gt/poses.tum"), dark.join("gt/poses.tum")).unwrap();
     // This run also takes a snapshot of the live map over request-response.
-    let (c, snapshot) = track(&tmp, &dark, "track-dark", true);
+    let (c, snapshot) = pipeline(&dark, "track-dark", true, "on-demand", During::Nothing);
     let snapshot = snapshot.expect("a snapshot of the map while the pipeline ran");
     eprintln!("snapshot: {snapshot}");
     let snapshot_cloud = bdis_core::formats::ply::read(&tmp.path().join("track-dark-snapshot.ply")).unwrap();

@@ -27,7 +27,7 @@ pub fn demo(args: DemoArgs) -> Result<ExitCode> {
     anyhow::ensure!(args.frames >= 2 && args.frames <= 100_000, "--frames: give 2 to 100000 frames");
     let run_dir = make_run_dir(args.out.as_deref(), "demo")?;
     let sequence = run_dir.join("sequence");
-    let rig = bdis_synth::StereoRig::default();
+    let rig = bdis_synth::default_camera();
     let fps = 30.0;
     eprintln!(
         "bdis-slam demo: rendering {} stereo frames of a flight through a synthetic colon into {}",

@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
 use bdis_core::formats::trajectory;
-use bdis_mosaic::{DepthKeyframe, Intrinsics, Mosaic, MosaicParams};
+use bdis_mosaic::{DepthKeyframe, Mosaic, MosaicParams, RectifiedCamera};
 use bdis_stereo::{DisparityMap, Matcher, Params};
 
 #[derive(Debug, clap::Args)]
@@ -104,7 +104,7 @@ pub fn map(args: MapArgs) -> Result<()> {
         matcher
             .compute_into(crate::stereo_cmd::view(&left_gray), crate::stereo_cmd::view(&right_gray), &mut disparity)
             .with_context(|| format!("{} + {}", entry.left.display(), entry.right.display()))?;
-        let intrinsics = Intrinsics {
+        let intrinsics = RectifiedCamera {
             fx: camera.fx,
             fy: camera.fy,
             cx: camera.cx,

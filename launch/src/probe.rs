@@ -253,7 +253,7 @@ impl DepthChecker {
         let h = view.header;
         let s = &mut self.summary;
         s.samples_received += 1;
-        if !self.seen.insert(h.kf_id) {
+        if !self.seen.insert(h.meta.kf_id) {
             s.duplicates += 1;
         }
         s.width = h.width;

@@ -289,7 +289,7 @@ fn probe_depth(args: &ProbeArgs) -> Result<()> {
             drop(sample);
             telemetry.message(
                 MessageTiming {
-                    frame_seq: header.kf_id,
+                    frame_seq: header.meta.kf_id,
                     t_capture_ns: header.t_capture_ns,
                     t_upstream_publish_ns: header.t_publish_ns,
                     t_receive_ns,

@@ -58,7 +58,7 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
         let request = request.map_err(anyhow::Error::msg)?;
         let run_dir = make_run_dir(args.out.as_deref(), &format!("synthetic-{}", request.scene))?;
         let sequence = run_dir.join("sequence");
-        let written = synth_cmd::render_with_progress(&sequence, &bdis_synth::StereoRig::default(), &request)?;
+        let written = synth_cmd::render_with_progress(&sequence, &bdis_synth::default_camera(), &request)?;
         let settings = args.settings.clone().unwrap_or(written.settings);
         rendered = Some((run_dir, settings));
     }

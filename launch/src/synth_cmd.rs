@@ -3,7 +3,7 @@
 use std::path::PathBuf;
 
 use anyhow::{Result, bail};
-use bdis_synth::StereoRig;
+use bdis_synth::RectifiedCamera;
 use bdis_synth::render::WrittenSequence;
 
 #[derive(Debug, clap::Args)]
@@ -50,14 +50,14 @@ pub fn synth(args: SynthArgs) -> Result<()> {
     {
         bail!("give frames ≥ 1, an image of at least 32×32, and positive focal, baseline and fps");
     }
-    let rig = StereoRig {
+    let rig = RectifiedCamera {
         width: args.width,
         height: args.height,
         fx: args.focal,
         fy: args.focal,
         cx: f64::from(args.width) / 2.0,
         cy: f64::from(args.height) / 2.0,
-        baseline_mm: args.baseline_mm,
+        bf: args.focal * args.baseline_mm,
     };
     let request = bdis_synth::SceneRequest {
         scene: args.scene.clone(),
@@ -82,7 +82,7 @@ pub fn synth(args: SynthArgs) -> Result<()> {
 /// Renders a named scene and path into `out`, with a progress bar on a terminal.
 pub fn render_with_progress(
     out: &std::path::Path,
-    rig: &StereoRig,
+    rig: &RectifiedCamera,
     request: &bdis_synth::SceneRequest,
 ) -> Result<WrittenSequence> {
     let bar = bdis_slam::progress::bar(request.frames as u64, "rendering {bar:40} {pos}/{len} frames ({eta} left)");

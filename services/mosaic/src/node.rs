@@ -9,7 +9,7 @@ use bdis_ipc::map::{MapPoint, MapQuery, MapSnapshotHeader};
 use bdis_ipc::telemetry::MessageTiming;
 use bdis_ipc::track::pose_from_array;
 use bdis_ipc::{DepthView, Ipc, KeyframePose, TelemetryPublisher, Topic, event_id, monotonic_ns};
-use bdis_mosaic::{DepthKeyframe, Intrinsics, Mosaic};
+use bdis_mosaic::{DepthKeyframe, Mosaic};
 use bdis_node::{Ended, Flow};
 use iceoryx2::prelude::*;
 
@@ -157,34 +157,26 @@ fn take_depth(
                 continue;
             }
         };
-        let Some(pose) = pose_from_array(&header.world_from_camera) else {
+        let Some(pose) = pose_from_array(&header.meta.world_from_camera) else {
             tracing::warn!(
                 "depth keyframe {} has no pose (the stereo service reads frames, not the tracker's keyframes): skipped",
-                header.kf_id
+                header.meta.kf_id
             );
             counters.malformed += 1;
             continue;
         };
         let keyframe = DepthKeyframe {
-            kf_id: header.kf_id,
+            kf_id: header.meta.kf_id,
             t_capture_ns: header.t_capture_ns,
             world_from_camera: pose,
-            intrinsics: Intrinsics {
-                fx: header.fx,
-                fy: header.fy,
-                cx: header.cx,
-                cy: header.cy,
-                bf: header.bf,
-                width: header.width,
-                height: header.height,
-            },
+            intrinsics: header.meta.intrinsics.camera(header.width, header.height),
             disparity: view.disparity,
             confidence: view.confidence,
             rgb: view.rgb,
         };
         // Corrections this keyframe was made after were sent before it, so they are in the queue by now.
         receive_corrections(corrections, pending)?;
-        counters.corrections += pending.apply_up_to(header.corrections_generation, mosaic);
+        counters.corrections += pending.apply_up_to(header.meta.corrections_generation, mosaic);
         let start = monotonic_ns();
         let report = match mosaic.insert(&keyframe) {
             Ok(r) => r,
@@ -205,10 +197,10 @@ fn take_depth(
         counters.kept_occluded += report.kept_occluded as u64;
         counters.update_ms.push((t_done_ns - start) as f64 / 1e6);
         counters.overlapping.push(report.overlapping_keyframes);
-        counters.highest_kf_id = counters.highest_kf_id.max(Some(header.kf_id));
+        counters.highest_kf_id = counters.highest_kf_id.max(Some(header.meta.kf_id));
         tracing::info!(
             "keyframe {}: +{} points, {} replaced, {} kept behind, {} keyframes overlapped, {:.2} ms; map {} points",
-            header.kf_id,
+            header.meta.kf_id,
             report.added,
             report.removed,
             report.kept_occluded,
@@ -218,7 +210,7 @@ fn take_depth(
         );
         telemetry.message(
             MessageTiming {
-                frame_seq: header.kf_id,
+                frame_seq: header.meta.kf_id,
                 t_capture_ns: header.t_capture_ns,
                 t_upstream_publish_ns: header.t_publish_ns,
                 t_receive_ns,

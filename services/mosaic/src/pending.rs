@@ -45,7 +45,7 @@ impl PendingCorrections {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use bdis_mosaic::{DepthKeyframe, Intrinsics, MosaicParams};
+    use bdis_mosaic::{DepthKeyframe, MosaicParams, RectifiedCamera};
     use nalgebra::{Isometry3, Translation3, UnitQuaternion};
 
     fn correction(kf_id: u64, generation: u64, x: f64) -> KeyframePose {
@@ -64,7 +64,7 @@ mod tests {
             kf_id: 0,
             t_capture_ns: 0,
             world_from_camera: Isometry3::identity(),
-            intrinsics: Intrinsics { fx: 20.0, fy: 20.0, cx: 8.0, cy: 6.0, bf: 1000.0, width: w, height: h },
+            intrinsics: RectifiedCamera { fx: 20.0, fy: 20.0, cx: 8.0, cy: 6.0, bf: 1000.0, width: w, height: h },
             disparity: &disparity,
             confidence: &confidence,
             rgb: &rgb,

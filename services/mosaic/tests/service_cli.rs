@@ -6,7 +6,7 @@
 use std::io::BufRead;
 use std::process::{Command, Stdio};
 
-use bdis_mosaic::{DepthKeyframe, Intrinsics, Mosaic, MosaicParams};
+use bdis_mosaic::{DepthKeyframe, Mosaic, MosaicParams, RectifiedCamera};
 use nalgebra::Isometry3;
 
 fn prefix() -> String {
@@ -68,7 +68,7 @@ fn a_saved_map_is_resumed_and_written_out_when_the_service_is_stopped() {
             kf_id: k,
             t_capture_ns: k,
             world_from_camera: Isometry3::translation(30.0 * k as f64, 0.0, 0.0),
-            intrinsics: Intrinsics { fx: 65.0, fy: 65.0, cx: 39.5, cy: 29.5, bf: 325.0, width: w, height: h },
+            intrinsics: RectifiedCamera { fx: 65.0, fy: 65.0, cx: 39.5, cy: 29.5, bf: 325.0, width: w, height: h },
             disparity: &disparity,
             confidence: &confidence,
             rgb: &rgb,

@@ -78,21 +78,14 @@ fn run(args: Args) -> Result<()> {
         bail!("--standby: only with --input keyframes (with frames as input a new instance simply joins)");
     }
     let matcher = Matcher::new(params)?;
-    let camera = settings.camera;
-    let (Some(width), Some(height)) = (camera.width, camera.height) else {
+    let (Some(width), Some(height)) = (settings.camera.width, settings.camera.height) else {
         bail!(
             "{}: the stereo service needs `Camera.width` and `Camera.height` (it sizes its shared memory from them)",
             args.settings.display()
         );
     };
-    node::run(Config {
-        matcher,
-        camera,
-        width,
-        height,
-        input,
-        settings: args.settings,
-        name: args.name,
-        ipc_prefix: args.ipc_prefix,
-    })
+    let Some(camera) = settings.camera.rectified(width, height) else {
+        bail!("{}: Camera.k1…: dense stereo needs rectified images (no distortion)", args.settings.display());
+    };
+    node::run(Config { matcher, camera, input, settings: args.settings, name: args.name, ipc_prefix: args.ipc_prefix })
 }

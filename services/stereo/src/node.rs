@@ -4,10 +4,11 @@
 use std::path::PathBuf;
 
 use anyhow::{Context, Result, anyhow, bail};
-use bdis_core::StereoCamera;
+use bdis_core::RectifiedCamera;
 use bdis_ipc::telemetry::MessageTiming;
 use bdis_ipc::{
-    DepthHeader, FrameHeader, FrameView, Ipc, KeyframeHeader, TelemetryPublisher, Topic, event_id, monotonic_ns,
+    DepthHeader, FrameHeader, FrameView, Ipc, KeyframeHeader, KeyframeMeta, StereoIntrinsics, TelemetryPublisher,
+    Topic, event_id, monotonic_ns,
 };
 use bdis_node::{Ended, Flow};
 use bdis_stereo::{Algorithm, DisparityMap, GrayImage, Matcher};
@@ -26,9 +27,7 @@ pub enum Input {
 #[derive(Debug)]
 pub struct Config {
     pub matcher: Matcher,
-    pub camera: StereoCamera,
-    pub width: u32,
-    pub height: u32,
+    pub camera: RectifiedCamera,
     pub input: Input,
     /// The settings file, named in errors about frame sizes.
     pub settings: PathBuf,
@@ -93,7 +92,7 @@ impl DepthOutput {
         let mut depth_sample = unsafe { loan.assume_init() };
         dh.t_publish_ns = monotonic_ns();
         *depth_sample.user_header_mut() = dh;
-        depth_sample.send().with_context(|| format!("send depth keyframe {}", dh.kf_id))?;
+        depth_sample.send().with_context(|| format!("send depth keyframe {}", dh.meta.kf_id))?;
         bdis_ipc::notify(&self.events, event_id::NEW_SAMPLE)?;
         Ok(self.out.density())
     }
@@ -115,13 +114,9 @@ impl DepthOutput {
 }
 
 /// The depth header every keyframe of this instance starts from: intrinsics from the settings, the algorithm.
-fn base_header(camera: &StereoCamera, algorithm: Algorithm) -> DepthHeader {
+fn base_header(camera: &RectifiedCamera, algorithm: Algorithm) -> DepthHeader {
     DepthHeader {
-        fx: camera.fx,
-        fy: camera.fy,
-        cx: camera.cx,
-        cy: camera.cy,
-        bf: camera.bf,
+        meta: KeyframeMeta { intrinsics: StereoIntrinsics::of(camera), ..Default::default() },
         algorithm: if algorithm == Algorithm::Bdis { DepthHeader::BDIS } else { DepthHeader::DIS },
         ..Default::default()
     }
@@ -129,24 +124,17 @@ fn base_header(camera: &StereoCamera, algorithm: Algorithm) -> DepthHeader {
 
 /// A keyframe picked from acquisition's frames: its id is the frame's sequence number, it has no pose.
 fn header_for_frame(base: DepthHeader, frame: &FrameHeader) -> DepthHeader {
-    DepthHeader { kf_id: frame.frame_seq, frame_seq: frame.frame_seq, t_capture_ns: frame.t_capture_ns, ..base }
-}
-
-/// A tracker keyframe: its id, pose, intrinsics and correction generation travel on to the map.
-fn header_for_keyframe(base: DepthHeader, kh: &KeyframeHeader) -> DepthHeader {
     DepthHeader {
-        kf_id: kh.kf_id,
-        frame_seq: kh.frame.frame_seq,
-        t_capture_ns: kh.frame.t_capture_ns,
-        world_from_camera: kh.world_from_camera,
-        fx: kh.fx,
-        fy: kh.fy,
-        cx: kh.cx,
-        cy: kh.cy,
-        bf: kh.bf,
-        corrections_generation: kh.corrections_generation,
+        meta: KeyframeMeta { kf_id: frame.frame_seq, ..base.meta },
+        frame_seq: frame.frame_seq,
+        t_capture_ns: frame.t_capture_ns,
         ..base
     }
+}
+
+/// A tracker keyframe: what it is (id, pose, intrinsics, correction generation) travels on to the map as is.
+fn header_for_keyframe(base: DepthHeader, kh: &KeyframeHeader) -> DepthHeader {
+    DepthHeader { meta: kh.meta, frame_seq: kh.frame.frame_seq, t_capture_ns: kh.frame.t_capture_ns, ..base }
 }
 
 /// With frames as input: frame `frame_seq` is a keyframe when it is every `every`-th and this instance has not
@@ -167,10 +155,10 @@ pub fn run(config: Config) -> Result<()> {
     let mut output = DepthOutput {
         matcher: config.matcher,
         out: DisparityMap::default(),
-        publisher: ipc.depth_publisher(&depth, DepthHeader::payload_len(config.width, config.height))?,
+        publisher: ipc.depth_publisher(&depth, DepthHeader::payload_len(config.camera.width, config.camera.height))?,
         events: ipc.notifier(&ipc.events(Topic::Depth)?)?,
-        width: config.width,
-        height: config.height,
+        width: config.camera.width,
+        height: config.camera.height,
         settings: config.settings,
     };
     let base = base_header(&config.camera, algorithm);
@@ -288,15 +276,15 @@ fn from_keyframes(
                 tracing::info!("end of stream: {published} keyframes");
                 return Ok(Flow::Finished);
             }
-            if last_kf.is_some_and(|k| kh.kf_id <= k) {
+            if last_kf.is_some_and(|k| kh.meta.kf_id <= k) {
                 continue;
             }
             let view = frame_view(&sample.user_header().frame, sample.payload())?;
             let density = output.publish(&view, header_for_keyframe(base, &kh))?;
             let t_done_ns = monotonic_ns();
-            last_kf = Some(kh.kf_id);
+            last_kf = Some(kh.meta.kf_id);
             published += 1;
-            report(telemetry, kh.kf_id, kh.frame.frame_seq, &kh.frame, t_receive_ns, t_done_ns, density);
+            report(telemetry, kh.meta.kf_id, kh.frame.frame_seq, &kh.frame, t_receive_ns, t_done_ns, density);
         }
         Ok(Flow::Continue)
     })?;
@@ -345,17 +333,8 @@ fn report(
 mod tests {
     use super::*;
 
-    fn camera() -> StereoCamera {
-        StereoCamera {
-            fx: 500.0,
-            fy: 501.0,
-            cx: 320.0,
-            cy: 240.0,
-            bf: 2500.0,
-            distortion: Default::default(),
-            width: None,
-            height: None,
-        }
+    fn camera() -> RectifiedCamera {
+        RectifiedCamera { fx: 500.0, fy: 501.0, cx: 320.0, cy: 240.0, bf: 2500.0, width: 640, height: 480 }
     }
 
     #[test]
@@ -364,20 +343,18 @@ mod tests {
         assert_eq!(base.algorithm, DepthHeader::BDIS);
         let kh = KeyframeHeader {
             frame: FrameHeader { frame_seq: 77, t_capture_ns: 123, ..Default::default() },
-            kf_id: 9,
-            world_from_camera: [1.0, 2.0, 3.0, 0.0, 0.0, 0.0, 1.0],
-            fx: 250.0,
-            fy: 251.0,
-            cx: 160.0,
-            cy: 120.0,
-            bf: 1250.0,
-            corrections_generation: 4,
+            meta: KeyframeMeta {
+                kf_id: 9,
+                world_from_camera: [1.0, 2.0, 3.0, 0.0, 0.0, 0.0, 1.0],
+                intrinsics: StereoIntrinsics { fx: 250.0, fy: 251.0, cx: 160.0, cy: 120.0, bf: 1250.0 },
+                corrections_generation: 4,
+            },
         };
         let dh = header_for_keyframe(base, &kh);
-        assert_eq!((dh.kf_id, dh.frame_seq, dh.t_capture_ns, dh.corrections_generation), (9, 77, 123, 4));
-        assert_eq!(dh.world_from_camera, kh.world_from_camera);
-        // The keyframe's own intrinsics win over the settings' (a tracker may run at another size).
-        assert_eq!((dh.fx, dh.fy, dh.cx, dh.cy, dh.bf), (250.0, 251.0, 160.0, 120.0, 1250.0));
+        assert_eq!((dh.frame_seq, dh.t_capture_ns), (77, 123));
+        // What the keyframe is travels as it is, its own intrinsics over the settings' (a tracker may run at
+        // another size).
+        assert_eq!(dh.meta, kh.meta);
         assert_eq!(dh.algorithm, DepthHeader::BDIS);
         assert!(!dh.is_end_of_stream());
     }
@@ -386,11 +363,11 @@ mod tests {
     fn a_frame_keyframe_has_the_settings_intrinsics_and_no_pose() {
         let base = base_header(&camera(), Algorithm::Dis);
         let dh = header_for_frame(base, &FrameHeader { frame_seq: 10, t_capture_ns: 5, ..Default::default() });
-        assert_eq!((dh.kf_id, dh.frame_seq, dh.t_capture_ns), (10, 10, 5));
-        assert_eq!((dh.fx, dh.bf), (500.0, 2500.0));
+        assert_eq!((dh.meta.kf_id, dh.frame_seq, dh.t_capture_ns), (10, 10, 5));
+        assert_eq!((dh.meta.intrinsics.fx, dh.meta.intrinsics.bf), (500.0, 2500.0));
         assert_eq!(dh.algorithm, DepthHeader::DIS);
         // All zero: not a rigid pose, so the mosaic skips it rather than placing it at the origin.
-        assert_eq!(dh.world_from_camera, [0.0; 7]);
+        assert_eq!(dh.meta.world_from_camera, [0.0; 7]);
     }
 
     #[test]

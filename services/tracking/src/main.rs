@@ -12,7 +12,7 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use anyhow::{Context, Result, anyhow, bail};
-use bdis_track::{StereoCamera, Tracker, TrackerSettings};
+use bdis_track::{Tracker, TrackerSettings};
 use clap::Parser;
 
 use journal::{Continuation, JournalWriter};
@@ -56,20 +56,18 @@ fn main() -> ExitCode {
 /// Everything that can be wrong with the input is found here, before shared memory is touched.
 fn run(args: Args) -> Result<()> {
     let settings = bdis_core::Settings::load(&args.settings)?;
-    let camera = settings.camera;
-    let (Some(width), Some(height)) = (camera.width, camera.height) else {
+    let (Some(width), Some(height)) = (settings.camera.width, settings.camera.height) else {
         bail!("{}: the tracker needs `Camera.width` and `Camera.height`", args.settings.display());
     };
-    if !camera.distortion.is_zero() {
+    let Some(camera) = settings.camera.rectified(width, height) else {
         bail!("{}: Camera.k1…: stereo tracking needs rectified images (no distortion)", args.settings.display());
-    }
-    let cam = StereoCamera::from_settings(&camera, width as usize, height as usize);
+    };
     let tracker_settings = TrackerSettings {
         th_depth: settings.th_depth,
         fps: settings.fps,
         orb: bdis_orb::OrbParams::from_settings(&settings.orb),
     };
-    let mut tracker = Tracker::new(cam, tracker_settings).with_context(|| format!("{}", args.settings.display()))?;
+    let mut tracker = Tracker::new(camera, tracker_settings).with_context(|| format!("{}", args.settings.display()))?;
     if args.ba == "inline" {
         tracker.set_ba_mode(bdis_track::mapper::BaMode::Inline);
     }
@@ -102,8 +100,6 @@ fn run(args: Args) -> Result<()> {
         world,
         journal,
         camera,
-        width,
-        height,
         n_features: settings.orb.n_features,
         settings: args.settings,
         out_dir,

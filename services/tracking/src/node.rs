@@ -6,13 +6,13 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
-use bdis_core::StereoCamera;
+use bdis_core::RectifiedCamera;
 use bdis_core::geometry::StampedPose;
 use bdis_ipc::telemetry::MessageTiming;
 use bdis_ipc::track::{pose_to_array, tracking_state};
 use bdis_ipc::{
-    FrameHeader, FrameView, Ipc, KeyframeHeader, KeyframePose, PoseRecord, TelemetryPublisher, Topic, event_id,
-    monotonic_ns,
+    FrameHeader, FrameView, Ipc, KeyframeHeader, KeyframeMeta, KeyframePose, PoseRecord, StereoIntrinsics,
+    TelemetryPublisher, Topic, event_id, monotonic_ns,
 };
 use bdis_node::{Ended, Flow};
 use bdis_track::mapper::MapperReport;
@@ -33,10 +33,8 @@ pub struct Config {
     pub earlier: Continuation,
     pub world: WorldFrame,
     pub journal: JournalWriter,
-    /// The settings' camera: its intrinsics go out with every keyframe.
-    pub camera: StereoCamera,
-    pub width: u32,
-    pub height: u32,
+    /// The camera: its intrinsics go out with every keyframe, its size is every frame's.
+    pub camera: RectifiedCamera,
     pub n_features: u32,
     /// The settings file, named in errors about frame sizes.
     pub settings: PathBuf,
@@ -65,7 +63,7 @@ struct Outputs {
     journal: JournalWriter,
     /// The generation of the last correction sent.
     generation: u64,
-    camera: StereoCamera,
+    camera: RectifiedCamera,
     /// Bytes of one packed frame of the run's size: what a keyframe sample carries.
     frame_bytes: usize,
 }
@@ -85,14 +83,12 @@ impl Outputs {
         let mut sample = unsafe { loan.assume_init() };
         *sample.user_header_mut() = KeyframeHeader {
             frame: FrameHeader { t_publish_ns: monotonic_ns(), ..*header },
-            kf_id,
-            world_from_camera: pose_to_array(&pose),
-            fx: self.camera.fx,
-            fy: self.camera.fy,
-            cx: self.camera.cx,
-            cy: self.camera.cy,
-            bf: self.camera.bf,
-            corrections_generation: self.generation,
+            meta: KeyframeMeta {
+                kf_id,
+                world_from_camera: pose_to_array(&pose),
+                intrinsics: StereoIntrinsics::of(&self.camera),
+                corrections_generation: self.generation,
+            },
         };
         sample.send().with_context(|| format!("send keyframe {kf_id}"))?;
         bdis_ipc::notify(&self.keyframe_events, event_id::NEW_SAMPLE)?;
@@ -151,20 +147,9 @@ struct Counts {
 }
 
 pub fn run(config: Config) -> Result<()> {
-    let Config {
-        mut tracker,
-        earlier,
-        world,
-        journal,
-        camera,
-        width,
-        height,
-        n_features,
-        settings,
-        out_dir,
-        name,
-        ipc_prefix,
-    } = config;
+    let Config { mut tracker, earlier, world, journal, camera, n_features, settings, out_dir, name, ipc_prefix } =
+        config;
+    let (width, height) = (camera.width, camera.height);
     let ipc = Ipc::open(&name, &ipc_prefix)?;
     let frames = ipc.frames()?;
     let subscriber = ipc.frame_subscriber(&frames)?;

@@ -1,6 +1,7 @@
-//! Rectified stereo camera model.
+//! The stereo camera: what a settings file says ([`StereoCamera`]: intrinsics, distortion, an optional image
+//! size) and the checked, rectified camera of known size every stage computes with ([`RectifiedCamera`]).
 
-use nalgebra::{Point2, Point3};
+use nalgebra::{Point2, Point3, Vector3};
 use serde::{Deserialize, Serialize};
 
 /// Radial-tangential distortion (OpenCV order k1 k2 p1 p2 k3). The pipeline expects rectified images, so these
@@ -54,6 +55,62 @@ impl StereoCamera {
     /// The point at depth `z` seen at pixel `px` in the left camera.
     pub fn unproject(&self, px: &Point2<f64>, z: f64) -> Point3<f64> {
         Point3::new((px.x - self.cx) * z / self.fx, (px.y - self.cy) * z / self.fy, z)
+    }
+
+    /// The rectified camera of a `width` × `height` image, when the images are rectified (no distortion).
+    pub fn rectified(&self, width: u32, height: u32) -> Option<RectifiedCamera> {
+        self.distortion.is_zero().then_some(RectifiedCamera {
+            fx: self.fx,
+            fy: self.fy,
+            cx: self.cx,
+            cy: self.cy,
+            bf: self.bf,
+            width,
+            height,
+        })
+    }
+}
+
+/// A rectified stereo camera of known image size: the left camera's pinhole intrinsics and `bf = fx · baseline`
+/// (pixels × the map unit), no distortion. The one camera type of the tracker, the dense map, the renderer and
+/// the messages between them (`bdis_ipc::StereoIntrinsics` is its shared-memory form).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct RectifiedCamera {
+    pub fx: f64,
+    pub fy: f64,
+    pub cx: f64,
+    pub cy: f64,
+    /// `fx · baseline`; depth = bf / disparity.
+    pub bf: f64,
+    pub width: u32,
+    pub height: u32,
+}
+
+impl RectifiedCamera {
+    /// The stereo baseline in the map unit.
+    pub fn baseline(&self) -> f64 {
+        self.bf / self.fx
+    }
+
+    /// (u, v) of a camera-frame point (z must be > 0).
+    pub fn project(&self, p: &Point3<f64>) -> (f64, f64) {
+        let iz = 1.0 / p.z;
+        (self.fx * p.x * iz + self.cx, self.fy * p.y * iz + self.cy)
+    }
+
+    /// (u_L, v, u_R) of a camera-frame point.
+    pub fn project_stereo(&self, p: &Point3<f64>) -> Vector3<f64> {
+        let (u, v) = self.project(p);
+        Vector3::new(u, v, u - self.bf / p.z)
+    }
+
+    /// The camera-frame point at pixel (u, v) and depth z.
+    pub fn unproject(&self, u: f64, v: f64, z: f64) -> Point3<f64> {
+        Point3::new((u - self.cx) * z / self.fx, (v - self.cy) * z / self.fy, z)
+    }
+
+    pub fn in_image(&self, u: f64, v: f64) -> bool {
+        u >= 0.0 && v >= 0.0 && u < f64::from(self.width) && v < f64::from(self.height)
     }
 }
 

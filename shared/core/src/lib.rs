@@ -9,6 +9,6 @@ pub mod formats;
 pub mod geometry;
 pub mod settings;
 
-pub use calib::{Distortion, StereoCamera};
+pub use calib::{Distortion, RectifiedCamera, StereoCamera};
 pub use geometry::Pose;
 pub use settings::{Settings, SettingsError};

@@ -5,29 +5,22 @@
 
 use iceoryx2::prelude::*;
 
-/// Header of every depth sample (`bdis.v1.DepthHeader`).
+use crate::track::KeyframeMeta;
+
+/// Header of every depth sample (`bdis.v2.DepthHeader`).
 #[repr(C)]
 #[derive(Debug, Default, Clone, Copy, PartialEq, ZeroCopySend)]
-#[type_name("bdis.v1.DepthHeader")]
+#[type_name("bdis.v2.DepthHeader")]
 pub struct DepthHeader {
-    /// The keyframe this depth belongs to. A replacement stereo instance may publish a keyframe again:
-    /// consumers de-duplicate by this id.
-    pub kf_id: u64,
+    /// The keyframe this depth belongs to: its id, pose, intrinsics and correction generation, as the tracker
+    /// published them (with frames as input: the frame's number as id, no pose, the settings' intrinsics).
+    pub meta: KeyframeMeta,
     /// The frame the keyframe was made from.
     pub frame_seq: u64,
     /// Copied from the frame: CLOCK_MONOTONIC at capture.
     pub t_capture_ns: u64,
     /// When the stereo service published this sample.
     pub t_publish_ns: u64,
-    /// `world_from_camera` of the left camera: translation (x, y, z) then quaternion (x, y, z, w). All zero
-    /// (an invalid quaternion) when the pose is unknown (keyframes taken straight from acquisition).
-    pub world_from_camera: [f64; 7],
-    pub fx: f64,
-    pub fy: f64,
-    pub cx: f64,
-    pub cy: f64,
-    /// fx · baseline; depth = bf / disparity.
-    pub bf: f64,
     pub width: u32,
     pub height: u32,
     /// Byte offsets in the payload; the float arrays are tightly packed rows (4·width bytes).
@@ -40,9 +33,6 @@ pub struct DepthHeader {
     pub flags: u32,
     /// Fraction of pixels with a disparity, in ‰.
     pub density_permille: u32,
-    /// Copied from the keyframe ([`KeyframeHeader::corrections_generation`](crate::KeyframeHeader)): the pose
-    /// corrections to apply before this keyframe, for a map that is the same in every run. 0 without a tracker.
-    pub corrections_generation: u64,
 }
 
 impl DepthHeader {
@@ -104,13 +94,13 @@ impl<'a> DepthView<'a> {
             .max(header.confidence_offset as usize + 4 * n)
             .max(header.rgb_offset as usize + 3 * n);
         if needed > payload.len() {
-            return Err(DepthLayoutError::PayloadTooShort { kf_id: header.kf_id, needed, actual: payload.len() });
+            return Err(DepthLayoutError::PayloadTooShort { kf_id: header.meta.kf_id, needed, actual: payload.len() });
         }
         let span = |off: u32, len: usize| &payload[off as usize..off as usize + len];
         Ok(Self {
             header,
-            disparity: floats(span(header.disparity_offset, 4 * n), header.kf_id)?,
-            confidence: floats(span(header.confidence_offset, 4 * n), header.kf_id)?,
+            disparity: floats(span(header.disparity_offset, 4 * n), header.meta.kf_id)?,
+            confidence: floats(span(header.confidence_offset, 4 * n), header.meta.kf_id)?,
             rgb: span(header.rgb_offset, 3 * n),
         })
     }
@@ -122,7 +112,7 @@ mod tests {
 
     #[test]
     fn layout_round_trips_and_is_checked() {
-        let mut h = DepthHeader { kf_id: 3, ..Default::default() };
+        let mut h = DepthHeader { meta: KeyframeMeta { kf_id: 3, ..Default::default() }, ..Default::default() };
         h.set_layout(4, 2);
         assert_eq!(DepthHeader::payload_len(4, 2), 88);
         // An 8-aligned buffer, as the payload in a sample is (see the next test).

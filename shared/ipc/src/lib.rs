@@ -40,7 +40,7 @@ pub use depth::{DepthHeader, DepthView};
 pub use frame::{FrameHeader, FrameLayout, FrameView};
 pub use map::{MapPoint, MapQuery, MapSnapshotHeader};
 pub use telemetry::{TelemetryKind, TelemetryPublisher, TelemetryRecord};
-pub use track::{KeyframeHeader, KeyframePose, PoseRecord};
+pub use track::{KeyframeHeader, KeyframeMeta, KeyframePose, PoseRecord, StereoIntrinsics};
 
 pub use error::{IceoryxError, IpcError, Transient, error_chain, iox};
 pub use topic::{Topic, event_id};

@@ -38,25 +38,61 @@ pub struct PoseRecord {
     pub cpu_ns: u64,
 }
 
-/// Header of a keyframe sample (`bdis.v1.KeyframeHeader`): the frame's header (layout of the three images in
-/// the payload, exactly as on the frames topic), then the keyframe's id, pose and intrinsics.
+/// The intrinsics of a rectified stereo keyframe as they travel in shared memory (`bdis.v1.StereoIntrinsics`):
+/// the left camera's pinhole and `bf = fx · baseline`. The image size travels in the frame or depth layout.
+/// [`bdis_core::RectifiedCamera`] is the same camera with its size.
 #[repr(C)]
 #[derive(Debug, Default, Clone, Copy, PartialEq, ZeroCopySend)]
-#[type_name("bdis.v1.KeyframeHeader")]
-pub struct KeyframeHeader {
-    pub frame: FrameHeader,
-    pub kf_id: u64,
-    /// `world_from_camera` when the keyframe was made (later corrections arrive on the corrections topic).
-    pub world_from_camera: [f64; 7],
+#[type_name("bdis.v1.StereoIntrinsics")]
+pub struct StereoIntrinsics {
     pub fx: f64,
     pub fy: f64,
     pub cx: f64,
     pub cy: f64,
+    /// fx · baseline; depth = bf / disparity.
     pub bf: f64,
+}
+
+impl StereoIntrinsics {
+    pub fn of(camera: &bdis_core::RectifiedCamera) -> Self {
+        Self { fx: camera.fx, fy: camera.fy, cx: camera.cx, cy: camera.cy, bf: camera.bf }
+    }
+
+    /// The camera of a `width` × `height` image with these intrinsics.
+    pub fn camera(&self, width: u32, height: u32) -> bdis_core::RectifiedCamera {
+        bdis_core::RectifiedCamera { fx: self.fx, fy: self.fy, cx: self.cx, cy: self.cy, bf: self.bf, width, height }
+    }
+}
+
+/// What a keyframe is, wherever it travels (`bdis.v1.KeyframeMeta`): carried by the tracker's
+/// [`KeyframeHeader`] and by the stereo service's [`DepthHeader`](crate::DepthHeader), copied from one to the
+/// other in one assignment.
+#[repr(C)]
+#[derive(Debug, Default, Clone, Copy, PartialEq, ZeroCopySend)]
+#[type_name("bdis.v1.KeyframeMeta")]
+pub struct KeyframeMeta {
+    /// The keyframe's id in the run: consecutive from the tracker, never reused (a replacement stereo instance may
+    /// publish a keyframe again; consumers de-duplicate by this id).
+    pub kf_id: u64,
+    /// `world_from_camera` of the left camera when the keyframe was made (later corrections arrive on the
+    /// corrections topic): translation (x, y, z), quaternion (x, y, z, w). All zero (an invalid quaternion) when
+    /// the pose is unknown (keyframes taken straight from acquisition's frames).
+    pub world_from_camera: [f64; 7],
+    pub intrinsics: StereoIntrinsics,
     /// The generation of the last pose correction the tracker had sent when it sent this keyframe
     /// ([`KeyframePose::generation`]). A consumer that applies exactly the corrections up to it before using the
-    /// keyframe sees the same poses in every run, however the two topics interleave.
+    /// keyframe sees the same poses in every run, however the topics interleave. 0 without a tracker.
     pub corrections_generation: u64,
+}
+
+/// Header of a keyframe sample (`bdis.v2.KeyframeHeader`): the frame's header (layout of the three images in
+/// the payload, exactly as on the frames topic), then what the keyframe is.
+#[repr(C)]
+#[derive(Debug, Default, Clone, Copy, PartialEq, ZeroCopySend)]
+#[type_name("bdis.v2.KeyframeHeader")]
+pub struct KeyframeHeader {
+    pub frame: FrameHeader,
+    pub meta: KeyframeMeta,
 }
 
 /// A keyframe's corrected pose (`bdis.v1.KeyframePose`), fixed size.

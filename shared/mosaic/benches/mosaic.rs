@@ -10,7 +10,7 @@
 
 use std::hint::black_box;
 
-use bdis_mosaic::{DepthKeyframe, Intrinsics, Mosaic, MosaicParams};
+use bdis_mosaic::{DepthKeyframe, Mosaic, MosaicParams, RectifiedCamera};
 use criterion::{BatchSize, Criterion, criterion_group, criterion_main};
 use nalgebra::{Isometry3, Vector3};
 
@@ -18,8 +18,8 @@ const W: u32 = 640;
 const H: u32 = 480;
 const STEP_MM: f64 = 5.0;
 
-fn intrinsics() -> Intrinsics {
-    Intrinsics { fx: 520.0, fy: 520.0, cx: 319.5, cy: 239.5, bf: 2600.0, width: W, height: H }
+fn intrinsics() -> RectifiedCamera {
+    RectifiedCamera { fx: 520.0, fy: 520.0, cx: 319.5, cy: 239.5, bf: 2600.0, width: W, height: H }
 }
 
 /// The wall's depth seen from camera `k` (at x = k · STEP_MM): 50 mm with a gentle relief in world x.

@@ -38,17 +38,9 @@ pub enum MosaicError {
     File { path: String, what: String },
 }
 
-/// Pinhole intrinsics of a rectified stereo keyframe, pixels; `bf` = fx · baseline (depth = bf / disparity).
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-pub struct Intrinsics {
-    pub fx: f64,
-    pub fy: f64,
-    pub cx: f64,
-    pub cy: f64,
-    pub bf: f64,
-    pub width: u32,
-    pub height: u32,
-}
+/// The keyframe's camera: pinhole intrinsics of a rectified stereo pair, `bf` = fx · baseline (depth =
+/// bf / disparity), and the image size.
+pub use bdis_core::RectifiedCamera;
 
 /// One depth keyframe as the stereo service publishes it; the slices are read in place.
 #[derive(Debug, Clone, Copy)]
@@ -56,7 +48,7 @@ pub struct DepthKeyframe<'a> {
     pub kf_id: u64,
     pub t_capture_ns: u64,
     pub world_from_camera: Isometry3<f64>,
-    pub intrinsics: Intrinsics,
+    pub intrinsics: RectifiedCamera,
     /// Pixels, positive; NaN or ≤ 0 = no answer. Row-major, width × height.
     pub disparity: &'a [f32],
     /// In [0, 1].
@@ -201,7 +193,7 @@ pub struct KeyframeCloud {
     pub kf_id: u64,
     pub t_capture_ns: u64,
     pub world_from_camera: Isometry3<f64>,
-    pub intrinsics: Intrinsics,
+    pub intrinsics: RectifiedCamera,
     pub points: Vec<MosaicPoint>,
     /// Axis-aligned bounds of `points` in the keyframe's frame (empty when min > max).
     pub bounds_min: [f32; 3],
@@ -322,7 +314,7 @@ impl Mosaic {
 
     /// Adds a depth keyframe: removes the earlier points its surface replaces, then lifts its own points.
     pub fn insert(&mut self, kf: &DepthKeyframe) -> Result<InsertReport, MosaicError> {
-        let Intrinsics { fx, fy, cx, cy, bf, width, height } = kf.intrinsics;
+        let RectifiedCamera { fx, fy, cx, cy, bf, width, height } = kf.intrinsics;
         let (w, h) = (width as usize, height as usize);
         let n = w * h;
         let size_error = |what, actual| MosaicError::WrongSize { kf_id: kf.kf_id, what, actual, width, height };
@@ -544,7 +536,7 @@ struct Frustum {
 }
 
 impl Frustum {
-    fn new(k: &Intrinsics) -> Self {
+    fn new(k: &RectifiedCamera) -> Self {
         // Image borders at -0.5 and size - 0.5 (pixel centres at integers): x/z from (−0.5 − cx)/fx to
         // (w − 0.5 − cx)/fx.
         let left = (-0.5 - k.cx) / k.fx;

@@ -5,8 +5,8 @@ use super::*;
 const W: u32 = 160;
 const H: u32 = 120;
 
-fn intrinsics() -> Intrinsics {
-    Intrinsics { fx: 130.0, fy: 130.0, cx: 79.5, cy: 59.5, bf: 650.0, width: W, height: H }
+fn intrinsics() -> RectifiedCamera {
+    RectifiedCamera { fx: 130.0, fy: 130.0, cx: 79.5, cy: 59.5, bf: 650.0, width: W, height: H }
 }
 
 /// A keyframe's images from a depth function of the pixel (None = no disparity).

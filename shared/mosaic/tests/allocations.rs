@@ -2,7 +2,7 @@
 //! A warmed-up keyframe update allocates only the new keyframe's own storage: the per-pixel depth image, the
 //! fusion accumulators and the covered-cell flags are buffers the map reuses; removal works in place.
 
-use bdis_mosaic::{DepthKeyframe, Fusion, Intrinsics, Mosaic, MosaicParams};
+use bdis_mosaic::{DepthKeyframe, Fusion, Mosaic, MosaicParams, RectifiedCamera};
 use nalgebra::Isometry3;
 
 #[global_allocator]
@@ -13,7 +13,7 @@ const H: u32 = 240;
 
 #[test]
 fn a_warmed_up_keyframe_allocates_only_its_own_points() {
-    let k = Intrinsics { fx: 260.0, fy: 260.0, cx: 159.5, cy: 119.5, bf: 1300.0, width: W, height: H };
+    let k = RectifiedCamera { fx: 260.0, fy: 260.0, cx: 159.5, cy: 119.5, bf: 1300.0, width: W, height: H };
     let n = (W * H) as usize;
     let disparity: Vec<f32> = (0..n).map(|i| 30.0 + (i % W as usize) as f32 * 0.02).collect();
     let confidence = vec![0.8f32; n];

@@ -55,7 +55,7 @@ pub fn render_synthetic(
     dir: &Path,
     progress: impl FnMut(usize),
 ) -> Result<(PathBuf, PathBuf), bdis_synth::SynthError> {
-    let written = bdis_synth::write_scene(dir, &bdis_synth::StereoRig::default(), request, progress)?;
+    let written = bdis_synth::write_scene(dir, &bdis_synth::default_camera(), request, progress)?;
     Ok((dir.to_path_buf(), written.settings))
 }
 

@@ -10,23 +10,12 @@ pub mod render;
 
 use std::path::{Path, PathBuf};
 
-/// A rectified stereo rig: left camera intrinsics and the baseline (mm).
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct StereoRig {
-    pub width: u32,
-    pub height: u32,
-    pub fx: f64,
-    pub fy: f64,
-    pub cx: f64,
-    pub cy: f64,
-    pub baseline_mm: f64,
-}
+/// The renderer's camera: a rectified stereo rig of known size (`bf` = fx · baseline, in mm).
+pub use bdis_core::RectifiedCamera;
 
-impl Default for StereoRig {
-    /// 640×480, fx = fy = 520, principal point at the centre, 5 mm baseline (a stereo laparoscope).
-    fn default() -> Self {
-        Self { width: 640, height: 480, fx: 520.0, fy: 520.0, cx: 320.0, cy: 240.0, baseline_mm: 5.0 }
-    }
+/// 640×480, fx = fy = 520, principal point at the centre, 5 mm baseline (a stereo laparoscope).
+pub fn default_camera() -> RectifiedCamera {
+    RectifiedCamera { width: 640, height: 480, fx: 520.0, fy: 520.0, cx: 320.0, cy: 240.0, bf: 520.0 * 5.0 }
 }
 
 /// Hash of a lattice point, in [0, 1).
@@ -130,14 +119,14 @@ impl PlaneScene {
     /// Renders the pair seen with the left camera at (`x_mm`, `y_mm`) into `left` and `right` (reused).
     pub fn render_pair(
         &self,
-        rig: &StereoRig,
+        rig: &RectifiedCamera,
         x_mm: f64,
         y_mm: f64,
         left: &mut image::RgbImage,
         right: &mut image::RgbImage,
     ) {
         let z = self.depth_mm;
-        for (img, offset) in [(left, 0.0), (right, rig.baseline_mm)] {
+        for (img, offset) in [(left, 0.0), (right, rig.baseline())] {
             if img.dimensions() != (rig.width, rig.height) {
                 *img = image::RgbImage::new(rig.width, rig.height);
             }
@@ -150,8 +139,8 @@ impl PlaneScene {
     }
 
     /// Ground-truth disparity (px) of every pixel: `fx · baseline / depth`.
-    pub fn disparity_px(&self, rig: &StereoRig) -> f64 {
-        rig.fx * rig.baseline_mm / self.depth_mm
+    pub fn disparity_px(&self, rig: &RectifiedCamera) -> f64 {
+        rig.bf / self.depth_mm
     }
 }
 
@@ -167,7 +156,7 @@ pub enum SynthError {
 /// file, calling `progress(i)` after each frame.
 pub fn write_plane_sweep(
     dir: &Path,
-    rig: &StereoRig,
+    rig: &RectifiedCamera,
     scene: &PlaneScene,
     frames: usize,
     fps: f64,
@@ -200,15 +189,7 @@ pub fn write_plane_sweep(
     let text = format!(
         "%YAML:1.0\n# Synthetic tissue plane at {:.1} mm, written by bdis-slam demo. Units: millimetres.\n\
 Camera.fx: {}\nCamera.fy: {}\nCamera.cx: {}\nCamera.cy: {}\nCamera.width: {}\nCamera.height: {}\nCamera.fps: {}\nCamera.bf: {}\nCamera.RGB: 1\nThDepth: 20\n",
-        scene.depth_mm,
-        rig.fx,
-        rig.fy,
-        rig.cx,
-        rig.cy,
-        rig.width,
-        rig.height,
-        fps,
-        rig.fx * rig.baseline_mm
+        scene.depth_mm, rig.fx, rig.fy, rig.cx, rig.cy, rig.width, rig.height, fps, rig.bf
     );
     std::fs::write(&settings, text).map_err(|e| fail(&settings, &e))?;
     Ok(settings)
@@ -221,7 +202,7 @@ mod tests {
     #[test]
     fn right_image_is_the_left_shifted_by_the_ground_truth_disparity() {
         // With a disparity of exactly 13 px, right(x) must equal left(x + 13) pixel for pixel.
-        let rig = StereoRig { width: 96, height: 24, fx: 260.0, fy: 260.0, cx: 48.0, cy: 12.0, baseline_mm: 2.5 };
+        let rig = RectifiedCamera { width: 96, height: 24, fx: 260.0, fy: 260.0, cx: 48.0, cy: 12.0, bf: 260.0 * 2.5 };
         let scene = PlaneScene { depth_mm: 50.0, texture: TissueTexture { seed: 7 } };
         assert_eq!(scene.disparity_px(&rig), 13.0);
         let (mut l, mut r) = (image::RgbImage::new(1, 1), image::RgbImage::new(1, 1));
@@ -292,7 +273,7 @@ impl SceneRequest {
 /// Renders the requested scene and path into `dir` with its ground truth (see [`render::write_sequence`]).
 pub fn write_scene(
     dir: &Path,
-    rig: &StereoRig,
+    rig: &RectifiedCamera,
     request: &SceneRequest,
     progress: impl FnMut(usize),
 ) -> Result<render::WrittenSequence, SynthError> {

@@ -3,7 +3,7 @@
 
 use nalgebra::{Isometry3, Point3, Translation3, Vector3};
 
-use crate::StereoRig;
+use crate::RectifiedCamera;
 
 /// Where a ray met the surface.
 #[derive(Debug, Clone, Copy)]
@@ -79,7 +79,7 @@ fn hash_noise(seed: u64, frame: u64, k: u64) -> f64 {
 /// between the two cameras, so both views share the shading but not the specular highlights.
 pub fn render(
     surface: &dyn Surface,
-    rig: &StereoRig,
+    rig: &RectifiedCamera,
     shading: &Shading,
     world_from_left: &Isometry3<f64>,
     frame: u64,
@@ -89,8 +89,8 @@ pub fn render(
     let mut right = image::RgbImage::new(w, h);
     let mut depth = vec![f32::INFINITY; (w * h) as usize];
     let mut right_depth = vec![f32::INFINITY; (w * h) as usize];
-    let world_from_right = world_from_left * Translation3::new(rig.baseline_mm, 0.0, 0.0);
-    let light = world_from_left * Point3::new(0.5 * rig.baseline_mm, 0.0, 0.0);
+    let world_from_right = world_from_left * Translation3::new(rig.baseline(), 0.0, 0.0);
+    let light = world_from_left * Point3::new(0.5 * rig.baseline(), 0.0, 0.0);
     let half_diag2 = (rig.cx * rig.cx + rig.cy * rig.cy).max(1.0);
     let max_t = 150.0;
     let exposure = 0.8 * shading.exposure_distance_mm.powi(2);
@@ -215,7 +215,7 @@ pub struct WrittenSequence {
 #[allow(clippy::too_many_arguments)]
 pub fn write_sequence(
     dir: &std::path::Path,
-    rig: &StereoRig,
+    rig: &RectifiedCamera,
     surface: &dyn Surface,
     path: &dyn Fn(f64) -> Isometry3<f64>,
     mesh: (Vec<[f32; 3]>, Vec<[u32; 3]>),
@@ -232,7 +232,7 @@ pub fn write_sequence(
     for sub in ["left", "right", "gt/depth", "gt/disparity"] {
         std::fs::create_dir_all(dir.join(sub)).map_err(|e| fail(&dir.join(sub), &e))?;
     }
-    let bf = rig.fx * rig.baseline_mm;
+    let bf = rig.bf;
     let mut poses = Vec::with_capacity(frames);
     let mut times = String::new();
     let (mut depth_sum, mut depth_n) = (0.0, 0usize);

@@ -2,7 +2,7 @@
 //! The ground truth agrees with the images: stereo and temporal warps with GT disparity / depth / poses leave
 //! a small photometric error, the mesh re-projects onto the GT depth, and rendering is deterministic.
 
-use bdis_synth::StereoRig;
+use bdis_synth::RectifiedCamera;
 use bdis_synth::abdomen::Abdomen;
 use bdis_synth::colon::Colon;
 use bdis_synth::render::{Shading, Surface, render};
@@ -22,8 +22,8 @@ fn scenes() -> Vec<(&'static str, Box<dyn Surface>, CameraPath)> {
 }
 
 /// A small rig so each frame renders in a few tens of milliseconds.
-fn rig() -> StereoRig {
-    StereoRig { width: 200, height: 150, fx: 162.5, fy: 162.5, cx: 100.0, cy: 75.0, baseline_mm: 5.0 }
+fn rig() -> RectifiedCamera {
+    RectifiedCamera { width: 200, height: 150, fx: 162.5, fy: 162.5, cx: 100.0, cy: 75.0, bf: 162.5 * 5.0 }
 }
 
 fn albedo_only() -> Shading {
@@ -63,7 +63,7 @@ fn warp_errors(a: &image::RgbImage, b: &image::RgbImage, map: impl Fn(u32, u32) 
 #[test]
 fn warping_the_right_image_with_gt_disparity_reproduces_the_left() {
     let rig = rig();
-    let bf = rig.fx * rig.baseline_mm;
+    let bf = rig.bf;
     for (name, surface, path) in scenes() {
         let pose = path(0.7);
         // Thresholds: with albedo only, what remains is bilinear resampling of the texture (≪ 1 grey level); the

@@ -8,7 +8,7 @@
 //!
 //! cargo bench -p bdis-track --bench tracking
 
-use bdis_track::{StereoCamera, Tracker, TrackerSettings};
+use bdis_track::{Tracker, TrackerSettings};
 use criterion::{Criterion, criterion_group, criterion_main};
 
 const FRAMES: usize = 40;
@@ -26,12 +26,12 @@ fn bench(c: &mut Criterion) {
         None => {
             let dir = std::env::temp_dir().join(format!("bdis-bench-tracking-{}", std::process::id()));
             let request = bdis_synth::SceneRequest { frames: FRAMES, ..Default::default() };
-            bdis_synth::write_scene(&dir, &bdis_synth::StereoRig::default(), &request, |_| {}).expect("render");
+            bdis_synth::write_scene(&dir, &bdis_synth::default_camera(), &request, |_| {}).expect("render");
             dir
         }
     };
     let settings = bdis_core::Settings::load(&dir.join("settings.yaml")).expect("settings");
-    let cam = StereoCamera::from_settings(&settings.camera, 640, 480);
+    let cam = settings.camera.rectified(640, 480).expect("rectified images");
     let ts = TrackerSettings {
         th_depth: settings.th_depth,
         fps: settings.fps,

@@ -3,7 +3,7 @@
 //!
 //! cargo run --release -p bdis-track --example track_sequence -- <dir> <out.tum> [max frames] [--whole-pixel]
 #![allow(clippy::unwrap_used, clippy::expect_used)]
-use bdis_track::{StereoCamera, Tracker, TrackerSettings};
+use bdis_track::{Tracker, TrackerSettings};
 use std::io::Write;
 
 fn grey(path: &std::path::Path) -> (Vec<u8>, usize, usize) {
@@ -24,7 +24,7 @@ fn main() {
     let times: Vec<f64> =
         std::fs::read_to_string(dir.join("times.txt")).unwrap().lines().map(|l| l.trim().parse().unwrap()).collect();
     let (_, w, h) = grey(&dir.join("left/1.png"));
-    let cam = StereoCamera::from_settings(&settings.camera, w, h);
+    let cam = settings.camera.rectified(w as u32, h as u32).expect("rectified images");
     let ts = TrackerSettings {
         th_depth: settings.th_depth,
         fps: settings.fps,

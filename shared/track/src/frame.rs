@@ -1,6 +1,6 @@
 //! A stereo frame: ORB features of the left image, their stereo matches and depths, the grid (§2, §3.1).
 
-use crate::geometry::{CameraFromWorld, StereoCamera};
+use crate::geometry::{CameraFromWorld, RectifiedCamera};
 use crate::ids::PointId;
 use bdis_orb::{FeatureGrid, Features, KeyPoint, OrbError, OrbExtractor, OrbParams, StereoFeatures, StereoMatcher};
 
@@ -60,7 +60,7 @@ pub struct Frame {
 }
 
 impl Frame {
-    pub fn empty(cam: &StereoCamera) -> Self {
+    pub fn empty(cam: &RectifiedCamera) -> Self {
         Self {
             id: 0,
             t_ns: 0,
@@ -85,7 +85,7 @@ impl Frame {
     }
 
     /// The world point of keypoint i from its stereo depth (needs a pose and a depth).
-    pub fn unproject_world(&self, cam: &StereoCamera, i: usize) -> Option<nalgebra::Point3<f64>> {
+    pub fn unproject_world(&self, cam: &RectifiedCamera, i: usize) -> Option<nalgebra::Point3<f64>> {
         let z = f64::from(*self.depth.get(i)?);
         if z <= 0.0 {
             return None;
@@ -114,7 +114,7 @@ impl Frame {
 /// Builds frames from grey stereo pairs with buffers it owns.
 #[derive(Debug)]
 pub struct FrameBuilder {
-    cam: StereoCamera,
+    cam: RectifiedCamera,
     left: OrbExtractor,
     right: OrbExtractor,
     matcher: StereoMatcher,
@@ -126,9 +126,9 @@ pub struct FrameBuilder {
 }
 
 impl FrameBuilder {
-    pub fn new(cam: StereoCamera, params: OrbParams) -> Result<Self, OrbError> {
-        let left = OrbExtractor::new(params, cam.width, cam.height)?;
-        let right = OrbExtractor::new(params, cam.width, cam.height)?;
+    pub fn new(cam: RectifiedCamera, params: OrbParams) -> Result<Self, OrbError> {
+        let left = OrbExtractor::new(params, cam.width as usize, cam.height as usize)?;
+        let right = OrbExtractor::new(params, cam.width as usize, cam.height as usize)?;
         let scales = Scales::new(params.scale_factor, params.n_levels as usize);
         Ok(Self {
             cam,

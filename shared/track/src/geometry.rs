@@ -3,7 +3,7 @@
 //! Poses here are `camera_from_world` (T_cw, the tracker's working convention: it maps world points into the
 //! camera); trajectories leave the crate as `world_from_camera` (bdis_core::geometry::Pose).
 
-use nalgebra::{Isometry3, Matrix3, Point3, Translation3, UnitQuaternion, Vector3, Vector6};
+use nalgebra::{Isometry3, Matrix3, Translation3, UnitQuaternion, Vector3, Vector6};
 
 /// `camera_from_world` of the left camera.
 pub type CameraFromWorld = Isometry3<f64>;
@@ -38,53 +38,7 @@ pub fn update(xi: &Vector6<f64>, t: &Isometry3<f64>) -> Isometry3<f64> {
     u
 }
 
-/// A rectified stereo pair's left camera: pinhole, no distortion (ORB-SLAM2-STEREO.md §1.7), and `bf`. The
-/// tracker's checked form of the settings' [`bdis_core::calib::StereoCamera`] (made by [`Self::from_settings`]):
-/// no distortion model, the image size known, projections without `Option`s on the per-frame path.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct StereoCamera {
-    pub fx: f64,
-    pub fy: f64,
-    pub cx: f64,
-    pub cy: f64,
-    /// fx · baseline.
-    pub bf: f64,
-    pub width: usize,
-    pub height: usize,
-}
-
-impl StereoCamera {
-    pub fn baseline(&self) -> f64 {
-        self.bf / self.fx
-    }
-
-    /// (u, v) of a camera-frame point (z must be > 0).
-    pub fn project(&self, p: &Point3<f64>) -> (f64, f64) {
-        let iz = 1.0 / p.z;
-        (self.fx * p.x * iz + self.cx, self.fy * p.y * iz + self.cy)
-    }
-
-    /// (u_L, v, u_R) of a camera-frame point.
-    pub fn project_stereo(&self, p: &Point3<f64>) -> Vector3<f64> {
-        let (u, v) = self.project(p);
-        Vector3::new(u, v, u - self.bf / p.z)
-    }
-
-    /// The camera-frame point at pixel (u, v) and depth z.
-    pub fn unproject(&self, u: f64, v: f64, z: f64) -> Point3<f64> {
-        Point3::new((u - self.cx) * z / self.fx, (v - self.cy) * z / self.fy, z)
-    }
-
-    pub fn in_image(&self, u: f64, v: f64) -> bool {
-        u >= 0.0 && v >= 0.0 && u < self.width as f64 && v < self.height as f64
-    }
-}
-
-impl StereoCamera {
-    pub fn from_settings(c: &bdis_core::calib::StereoCamera, width: usize, height: usize) -> Self {
-        Self { fx: c.fx, fy: c.fy, cx: c.cx, cy: c.cy, bf: c.bf, width, height }
-    }
-}
+pub use bdis_core::calib::RectifiedCamera;
 
 #[cfg(test)]
 mod tests {
@@ -125,7 +79,7 @@ mod tests {
 
     #[test]
     fn stereo_projection_inverts_unprojection() {
-        let cam = StereoCamera { fx: 520.0, fy: 520.0, cx: 320.0, cy: 240.0, bf: 2600.0, width: 640, height: 480 };
+        let cam = RectifiedCamera { fx: 520.0, fy: 520.0, cx: 320.0, cy: 240.0, bf: 2600.0, width: 640, height: 480 };
         let p = cam.unproject(100.5, 300.25, 42.0);
         let z = cam.project_stereo(&p);
         assert!((z.x - 100.5).abs() < 1e-12 && (z.y - 300.25).abs() < 1e-12);

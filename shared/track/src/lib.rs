@@ -11,5 +11,5 @@ pub mod refine;
 pub mod search;
 pub mod tracker;
 
-pub use geometry::{CameraFromWorld, StereoCamera};
+pub use geometry::{CameraFromWorld, RectifiedCamera};
 pub use tracker::{FrameResult, TrackError, Tracker, TrackerSettings, TrackingState};

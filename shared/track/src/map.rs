@@ -3,7 +3,7 @@
 //! ids in flight (messages, trajectories) remain valid. Ordered containers keep every run deterministic.
 
 use crate::frame::{Frame, Scales};
-use crate::geometry::{CameraFromWorld, StereoCamera};
+use crate::geometry::{CameraFromWorld, RectifiedCamera};
 use bdis_orb::{FeatureGrid, KeyPoint, hamming};
 use nalgebra::{Isometry3, Point3, Vector3};
 use std::collections::{BTreeMap, BTreeSet};
@@ -430,7 +430,7 @@ impl Map {
     }
 
     /// Whether `p` projects into `kf` (in front, inside, distance in the invariance range, view angle ≤ 60°).
-    pub fn point_visible_in(&self, cam: &StereoCamera, p: PointId, kf: KfId) -> bool {
+    pub fn point_visible_in(&self, cam: &RectifiedCamera, p: PointId, kf: KfId) -> bool {
         let point = &self.points[p];
         let k = &self.keyframes[kf];
         let pc = k.camera_from_world * point.position;

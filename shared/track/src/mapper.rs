@@ -7,7 +7,7 @@ pub use local_ba::{BaJob, solve_local_ba};
 use local_ba::{apply_local_ba, snapshot_local_ba};
 
 use crate::frame::Scales;
-use crate::geometry::{CameraFromWorld, StereoCamera, skew};
+use crate::geometry::{CameraFromWorld, RectifiedCamera, skew};
 use crate::map::{KfId, Map, PointId};
 use crate::optim::{BaEdge, BaProblem, CHI2_MONO, CHI2_STEREO, Observation};
 use crate::search::TH_LOW;
@@ -135,7 +135,7 @@ impl LocalMapper {
         &mut self,
         map: &mut Map,
         kf: KfId,
-        cam: &StereoCamera,
+        cam: &RectifiedCamera,
         scales: &Scales,
         th_depth: f64,
     ) -> MapperReport {
@@ -209,7 +209,7 @@ impl LocalMapper {
 
     /// §6.3: matches between keypoints without points along epipolar lines (brute force over the unmatched
     /// keypoints instead of a vocabulary node), then triangulation or stereo unprojection.
-    fn create_new_points(&mut self, map: &mut Map, kf1: KfId, cam: &StereoCamera, scales: &Scales) -> usize {
+    fn create_new_points(&mut self, map: &mut Map, kf1: KfId, cam: &RectifiedCamera, scales: &Scales) -> usize {
         let neighbours: Vec<KfId> = map.keyframes[kf1].best_covisibles(10).collect();
         let k_inv =
             Matrix3::new(1.0 / cam.fx, 0.0, -cam.cx / cam.fx, 0.0, 1.0 / cam.fy, -cam.cy / cam.fy, 0.0, 0.0, 1.0);
@@ -280,7 +280,7 @@ impl LocalMapper {
 #[allow(clippy::too_many_arguments)]
 fn triangulate_pair(
     map: &Map,
-    cam: &StereoCamera,
+    cam: &RectifiedCamera,
     scales: &Scales,
     kf1: KfId,
     i: usize,
@@ -365,7 +365,7 @@ fn triangulate_pair(
 }
 
 /// Fuses point `p` into keyframe `kf` (§4 Fuse, th = 3). Returns whether it was fused or added.
-fn fuse_point(map: &mut Map, cam: &StereoCamera, scales: &Scales, kf: KfId, p: PointId) -> bool {
+fn fuse_point(map: &mut Map, cam: &RectifiedCamera, scales: &Scales, kf: KfId, p: PointId) -> bool {
     let point = &map.points[p];
     if point.bad || point.observations.contains_key(&kf) {
         return false;
@@ -426,7 +426,7 @@ fn fuse_point(map: &mut Map, cam: &StereoCamera, scales: &Scales, kf: KfId, p: P
 }
 
 /// §6.4.
-fn search_in_neighbours(map: &mut Map, kf: KfId, cam: &StereoCamera, scales: &Scales) -> usize {
+fn search_in_neighbours(map: &mut Map, kf: KfId, cam: &RectifiedCamera, scales: &Scales) -> usize {
     let mut targets: Vec<KfId> = Vec::new();
     for n in map.keyframes[kf].best_covisibles(10).collect::<Vec<_>>() {
         if map.keyframes[n].bad || targets.contains(&n) {
@@ -471,7 +471,7 @@ pub const CULL_MIN_AGE_KEYFRAMES: usize = 20;
 
 /// §6.6: a covisible keyframe whose close stereo points are > 90 % seen by ≥ 3 other keyframes at the same or a
 /// finer (or one coarser) octave is redundant.
-fn cull_keyframes(map: &mut Map, kf: KfId, cam: &StereoCamera, th_depth: f64) -> usize {
+fn cull_keyframes(map: &mut Map, kf: KfId, cam: &RectifiedCamera, th_depth: f64) -> usize {
     let close = th_depth * cam.baseline();
     let candidates: Vec<KfId> = map.keyframes[kf].ordered.iter().map(|(k, _)| *k).collect();
     let mut culled = 0;

@@ -4,7 +4,7 @@
 //! Bundle adjustment marginalises the points with the Schur complement and solves the reduced camera system
 //! densely (a local window holds tens of keyframes).
 
-use crate::geometry::{CameraFromWorld, StereoCamera, skew, update};
+use crate::geometry::{CameraFromWorld, RectifiedCamera, skew, update};
 use nalgebra::{DMatrix, DVector, Matrix3, Matrix3x6, Matrix6, Point3, SMatrix, Vector3, Vector6};
 
 /// χ² thresholds (95 %) of 2 and 3 degrees of freedom: outlier classification.
@@ -38,7 +38,7 @@ impl Observation {
 }
 
 /// Residual (3 rows; the third is 0 for monocular edges) and its Jacobian with respect to the camera-frame point.
-fn residual_and_jacobian(cam: &StereoCamera, pc: &Point3<f64>, obs: &Observation) -> (Vector3<f64>, Matrix3<f64>) {
+fn residual_and_jacobian(cam: &RectifiedCamera, pc: &Point3<f64>, obs: &Observation) -> (Vector3<f64>, Matrix3<f64>) {
     let iz = 1.0 / pc.z;
     let iz2 = iz * iz;
     let u = cam.fx * pc.x * iz + cam.cx;
@@ -66,7 +66,7 @@ fn residual_and_jacobian(cam: &StereoCamera, pc: &Point3<f64>, obs: &Observation
 }
 
 /// χ² = eᵀΩe of a point (world frame) seen from `pose`; infinite behind the camera.
-pub fn chi2(cam: &StereoCamera, pose: &CameraFromWorld, x_w: &Point3<f64>, obs: &Observation) -> f64 {
+pub fn chi2(cam: &RectifiedCamera, pose: &CameraFromWorld, x_w: &Point3<f64>, obs: &Observation) -> f64 {
     let pc = pose * x_w;
     if pc.z <= 0.0 {
         return f64::INFINITY;
@@ -134,7 +134,7 @@ fn point_jacobian_pose(pc: &Point3<f64>) -> Matrix3x6<f64> {
 
 /// The edge's Jacobian with respect to the pose twist (rows as the residual).
 pub fn pose_jacobian(
-    cam: &StereoCamera,
+    cam: &RectifiedCamera,
     pose: &CameraFromWorld,
     x_w: &Point3<f64>,
     obs: &Observation,
@@ -146,7 +146,7 @@ pub fn pose_jacobian(
 
 /// The edge's Jacobian with respect to the world point.
 pub fn point_jacobian(
-    cam: &StereoCamera,
+    cam: &RectifiedCamera,
     pose: &CameraFromWorld,
     x_w: &Point3<f64>,
     obs: &Observation,
@@ -174,7 +174,7 @@ impl PoseOptimizer {
     /// and written with the final one. Returns the number of inliers (0 with fewer than 3 edges, pose unchanged).
     pub fn optimize(
         &mut self,
-        cam: &StereoCamera,
+        cam: &RectifiedCamera,
         pose: &mut CameraFromWorld,
         points: &[Point3<f64>],
         observations: &[Observation],
@@ -285,7 +285,7 @@ pub struct BaReport {
 impl BaProblem {
     fn edge_cost(
         &self,
-        cam: &StereoCamera,
+        cam: &RectifiedCamera,
         k: usize,
         poses: &[CameraFromWorld],
         points: &[Point3<f64>],
@@ -299,7 +299,7 @@ impl BaProblem {
         robust_cost(x2, if e.obs.is_stereo() { HUBER_STEREO_BA } else { HUBER_MONO }, robust)
     }
 
-    fn cost(&self, cam: &StereoCamera, poses: &[CameraFromWorld], points: &[Point3<f64>], robust: bool) -> f64 {
+    fn cost(&self, cam: &RectifiedCamera, poses: &[CameraFromWorld], points: &[Point3<f64>], robust: bool) -> f64 {
         (0..self.edges.len())
             .filter(|&k| !self.excluded[k])
             .map(|k| self.edge_cost(cam, k, poses, points, robust))
@@ -307,7 +307,7 @@ impl BaProblem {
     }
 
     /// χ² of edge `k` at the current estimate.
-    pub fn edge_chi2(&self, cam: &StereoCamera, k: usize) -> f64 {
+    pub fn edge_chi2(&self, cam: &RectifiedCamera, k: usize) -> f64 {
         let e = &self.edges[k];
         chi2(cam, &self.poses[e.pose], &self.points[e.point], &e.obs)
     }
@@ -315,7 +315,13 @@ impl BaProblem {
     /// Levenberg–Marquardt for `iterations` steps (or until no step lowers the cost, or `abort` says so), with
     /// Huber kernels when `robust`. Points are eliminated (Schur complement); the reduced system over the free
     /// poses is dense.
-    pub fn solve(&mut self, cam: &StereoCamera, iterations: usize, robust: bool, abort: &dyn Fn() -> bool) -> BaReport {
+    pub fn solve(
+        &mut self,
+        cam: &RectifiedCamera,
+        iterations: usize,
+        robust: bool,
+        abort: &dyn Fn() -> bool,
+    ) -> BaReport {
         if self.excluded.len() != self.edges.len() {
             self.excluded = vec![false; self.edges.len()];
         }

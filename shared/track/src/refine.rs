@@ -10,7 +10,7 @@
 //! aligned position follows the same piece of tissue in every frame, so keyframes also hand bundle adjustment
 //! consistent observations.
 
-use crate::geometry::{CameraFromWorld, StereoCamera};
+use crate::geometry::{CameraFromWorld, RectifiedCamera};
 use bdis_orb::{Level, image_to_level, level_to_image};
 use nalgebra::{Matrix2, Matrix3, Point3, Vector2, Vector3};
 
@@ -125,7 +125,7 @@ impl Aligner {
     #[allow(clippy::too_many_arguments)]
     pub fn refine(
         &mut self,
-        cam: &StereoCamera,
+        cam: &RectifiedCamera,
         level: &Level,
         scale: f64,
         u: f64,
@@ -260,7 +260,7 @@ fn to_image(x: f64, scale: f64) -> f64 {
 /// anchor's level: the point's neighbourhood taken as facing this camera at the point's depth, carried into
 /// the anchor's frame.
 fn warp_to_anchor(
-    cam: &StereoCamera,
+    cam: &RectifiedCamera,
     scale: f64,
     u: f64,
     v: f64,
@@ -294,8 +294,8 @@ mod tests {
     use super::*;
     use nalgebra::{Isometry3, Translation3, UnitQuaternion};
 
-    fn cam() -> StereoCamera {
-        StereoCamera { fx: 520.0, fy: 520.0, cx: 319.5, cy: 239.5, bf: 2600.0, width: 640, height: 480 }
+    fn cam() -> RectifiedCamera {
+        RectifiedCamera { fx: 520.0, fy: 520.0, cx: 319.5, cy: 239.5, bf: 2600.0, width: 640, height: 480 }
     }
 
     /// A smooth texture of dots on the plane z = 60 mm, rendered by a camera at `camera_from_world` (area
@@ -312,9 +312,10 @@ mod tests {
             }
             value
         };
-        let mut data = vec![0u8; c.width * c.height];
-        for y in 0..c.height {
-            for x in 0..c.width {
+        let (width, height) = (c.width as usize, c.height as usize);
+        let mut data = vec![0u8; width * height];
+        for y in 0..height {
+            for x in 0..width {
                 let mut sum = 0.0;
                 for (sx, sy) in [(-0.25, -0.25), (0.25, -0.25), (-0.25, 0.25), (0.25, 0.25)] {
                     let ray = Vector3::new((x as f64 + sx - c.cx) / c.fx, (y as f64 + sy - c.cy) / c.fy, 1.0);
@@ -324,10 +325,10 @@ mod tests {
                     let hit = origin + dir * t;
                     sum += texture(hit.x, hit.y);
                 }
-                data[y * c.width + x] = (sum / 4.0).round().clamp(0.0, 255.0) as u8;
+                data[y * width + x] = (sum / 4.0).round().clamp(0.0, 255.0) as u8;
             }
         }
-        Level { w: c.width, h: c.height, data }
+        Level { w: width, h: height, data }
     }
 
     #[test]

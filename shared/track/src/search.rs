@@ -2,7 +2,7 @@
 //! vocabulary node, we project with a pose prior (the tracker always has one, §7.3 B).
 
 use crate::frame::{Frame, Scales};
-use crate::geometry::{CameraFromWorld, StereoCamera};
+use crate::geometry::{CameraFromWorld, RectifiedCamera};
 use crate::map::{KfId, Map, PointId};
 use bdis_orb::{RotationBins, RotationHistogram, hamming};
 use std::collections::BTreeSet;
@@ -37,7 +37,7 @@ impl Searcher {
     #[allow(clippy::too_many_arguments)]
     pub fn from_last_frame(
         &mut self,
-        cam: &StereoCamera,
+        cam: &RectifiedCamera,
         scales: &Scales,
         map: &Map,
         frame: &mut Frame,
@@ -115,7 +115,7 @@ impl Searcher {
     #[allow(clippy::too_many_arguments)]
     pub fn from_keyframe(
         &mut self,
-        cam: &StereoCamera,
+        cam: &RectifiedCamera,
         scales: &Scales,
         map: &Map,
         frame: &mut Frame,
@@ -225,7 +225,13 @@ impl Searcher {
 }
 
 /// The frustum test of §5.6 for the local-map search; fills the point's cache. Returns whether it is visible.
-pub fn frustum_check(cam: &StereoCamera, scales: &Scales, map: &mut Map, p: PointId, pose: &CameraFromWorld) -> bool {
+pub fn frustum_check(
+    cam: &RectifiedCamera,
+    scales: &Scales,
+    map: &mut Map,
+    p: PointId,
+    pose: &CameraFromWorld,
+) -> bool {
     let point = &mut map.points[p];
     point.cache.in_view = false;
     let pc = pose * point.position;

@@ -13,7 +13,7 @@ mod relocalise;
 pub use relocalise::rigid_fit;
 
 use crate::frame::{Frame, FrameBuilder, Scales};
-use crate::geometry::{CameraFromWorld, StereoCamera};
+use crate::geometry::{CameraFromWorld, RectifiedCamera};
 use crate::map::{KeyFrame, KfId, Map, PointId};
 use crate::mapper::{LocalMapper, MapperReport};
 use crate::optim::{Observation, PoseOptimizer};
@@ -74,7 +74,7 @@ struct FrameRecord {
 
 #[derive(Debug)]
 pub struct Tracker {
-    cam: StereoCamera,
+    cam: RectifiedCamera,
     scales: Scales,
     settings: TrackerSettings,
     builder: FrameBuilder,
@@ -130,7 +130,7 @@ impl Tracker {
         self.refine = on;
     }
 
-    pub fn new(cam: StereoCamera, settings: TrackerSettings) -> Result<Self, TrackError> {
+    pub fn new(cam: RectifiedCamera, settings: TrackerSettings) -> Result<Self, TrackError> {
         let builder = FrameBuilder::new(cam, settings.orb)?;
         let scales = builder.scales().clone();
         Ok(Self {
@@ -177,7 +177,7 @@ impl Tracker {
         self.state
     }
 
-    pub fn camera(&self) -> &StereoCamera {
+    pub fn camera(&self) -> &RectifiedCamera {
         &self.cam
     }
 

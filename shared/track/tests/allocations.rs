@@ -1,7 +1,7 @@
 #![allow(clippy::unwrap_used, clippy::expect_used)] // test code: a panic is the failure report
 //! A warmed-up frame that makes no keyframe allocates nothing (keyframes and new points may: they grow the map).
 
-use bdis_track::{StereoCamera, Tracker, TrackerSettings};
+use bdis_track::{RectifiedCamera, Tracker, TrackerSettings};
 
 // Per-thread counts: the bundle-adjustment worker allocates its problem on its own thread, off the per-frame path.
 #[global_allocator]
@@ -10,8 +10,15 @@ static GLOBAL: bdis_testkit::CountingAllocator = bdis_testkit::CountingAllocator
 #[test]
 fn a_warmed_up_frame_without_a_keyframe_allocates_nothing() {
     // A short rendered flight (320×240), greyed as acquisition does.
-    let rig =
-        bdis_synth::StereoRig { width: 320, height: 240, fx: 260.0, fy: 260.0, cx: 160.0, cy: 120.0, baseline_mm: 5.0 };
+    let rig = bdis_synth::RectifiedCamera {
+        width: 320,
+        height: 240,
+        fx: 260.0,
+        fy: 260.0,
+        cx: 160.0,
+        cy: 120.0,
+        bf: 260.0 * 5.0,
+    };
     let colon = bdis_synth::colon::Colon::default();
     let shading = bdis_synth::render::Shading::default();
     let grey = |img: &image::RgbImage| -> Vec<u8> {
@@ -26,7 +33,7 @@ fn a_warmed_up_frame_without_a_keyframe_allocates_nothing() {
             (grey(&pair.left), grey(&pair.right))
         })
         .collect();
-    let cam = StereoCamera { fx: 260.0, fy: 260.0, cx: 159.5, cy: 119.5, bf: 1300.0, width: 320, height: 240 };
+    let cam = RectifiedCamera { fx: 260.0, fy: 260.0, cx: 159.5, cy: 119.5, bf: 1300.0, width: 320, height: 240 };
     let orb = bdis_orb::OrbParams { n_features: 1000, ini_th_fast: 20, min_th_fast: 7, ..Default::default() };
     let mut tracker = Tracker::new(cam, TrackerSettings { th_depth: 20.0, fps: 30.0, orb }).unwrap();
     let (mut checked, mut worst) = (0, 0);

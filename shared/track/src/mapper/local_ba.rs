@@ -7,7 +7,7 @@ pub struct BaJob {
     /// The keyframe it was made for (its epoch).
     pub kf: KfId,
     problem: BaProblem,
-    cam: StereoCamera,
+    cam: RectifiedCamera,
     pose_ids: Vec<KfId>,
     point_ids: Vec<PointId>,
     edge_keys: Vec<(PointId, KfId)>,
@@ -16,7 +16,7 @@ pub struct BaJob {
 
 /// §6.5, step 1–2: local keyframes = `kf` and its ordered covisibles; fixed = other keyframes seeing local
 /// points (and keyframe 0); every observation of a local point by a good keyframe is an edge.
-pub(super) fn snapshot_local_ba(map: &Map, kf: KfId, cam: &StereoCamera, scales: &Scales) -> BaJob {
+pub(super) fn snapshot_local_ba(map: &Map, kf: KfId, cam: &RectifiedCamera, scales: &Scales) -> BaJob {
     let mut local: Vec<KfId> = vec![kf];
     local.extend(map.keyframes[kf].ordered.iter().map(|(k, _)| *k).filter(|&k| !map.keyframes[k].bad));
     let local_set: BTreeSet<KfId> = local.iter().copied().collect();

@@ -2,8 +2,8 @@ use super::*;
 use crate::geometry::exp_se3;
 use nalgebra::{Isometry3, Vector3};
 
-fn cam() -> StereoCamera {
-    StereoCamera { fx: 520.0, fy: 520.0, cx: 320.0, cy: 240.0, bf: 2600.0, width: 640, height: 480 }
+fn cam() -> RectifiedCamera {
+    RectifiedCamera { fx: 520.0, fy: 520.0, cx: 320.0, cy: 240.0, bf: 2600.0, width: 640, height: 480 }
 }
 
 #[test]
@@ -61,7 +61,7 @@ fn scene(seed: u64) -> (Vec<CameraFromWorld>, Vec<Point3<f64>>) {
 }
 
 fn observe(
-    cam: &StereoCamera,
+    cam: &RectifiedCamera,
     poses: &[CameraFromWorld],
     points: &[Point3<f64>],
     sigma_px: f64,
