@@ -44,6 +44,26 @@ struct TrackerTimes {
     cpu_p50_ms: f64,
 }
 
+/// `isolation.json` (`bdis.v1.isolation`): the runs and the with-dense / alone ratios of the tracker's times.
+#[derive(Debug, serde::Serialize)]
+struct IsolationReport {
+    schema: &'static str,
+    sequence: PathBuf,
+    pairs: usize,
+    runs: Vec<TrackerTimes>,
+    wall_p50_ratio: Spread,
+    wall_p99_ratio: Spread,
+    cpu_p50_ratio: Spread,
+}
+
+/// A ratio over the pairs: its median and range.
+#[derive(Debug, serde::Serialize)]
+struct Spread {
+    median: f64,
+    min: f64,
+    max: f64,
+}
+
 pub fn bench_isolation(args: IsolationArgs) -> Result<ExitCode> {
     anyhow::ensure!((1..=50).contains(&args.pairs), "--pairs: give 1 to 50");
     let settings = args.settings.clone().unwrap_or_else(|| args.sequence.join("settings.yaml"));
@@ -75,16 +95,12 @@ pub fn bench_isolation(args: IsolationArgs) -> Result<ExitCode> {
                 .find(|p| p.name == "tracking")
                 .and_then(|p| p.processing_us)
                 .with_context(|| format!("run {tag}: no tracking figures"))?;
-            let summary: serde_json::Value = serde_json::from_str(
-                &std::fs::read_to_string(run_dir.join("tracking.json"))
-                    .with_context(|| format!("{}: cannot read tracking.json", run_dir.display()))?,
-            )
-            .context("tracking.json")?;
+            let summary = bdis_core::formats::summary::TrackingSummary::read(&run_dir.join("tracking.json"))?;
             runs.push(TrackerTimes {
                 with_dense,
                 wall_p50_us: tracking.p50,
                 wall_p99_us: tracking.p99,
-                cpu_p50_ms: summary["frame_cpu_ms_p50"].as_f64().unwrap_or(f64::NAN),
+                cpu_p50_ms: summary.frame_cpu_ms_p50.unwrap_or(f64::NAN),
             });
             bar.inc(1);
         }
@@ -99,8 +115,9 @@ pub fn bench_isolation(args: IsolationArgs) -> Result<ExitCode> {
             .collect()
     };
     let median = |mut v: Vec<f64>| {
-        v.sort_by(f64::total_cmp);
-        (v[v.len() / 2], v[0], v[v.len() - 1])
+        let p50 = bdis_core::stats::percentile(&mut v, 0.5).unwrap_or(f64::NAN);
+        let (lo, hi) = v.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &x| (lo.min(x), hi.max(x)));
+        (p50, lo, hi)
     };
     let (p50_ratio, p50_lo, p50_hi) = median(ratios(|t| t.wall_p50_us));
     let (p99_ratio, p99_lo, p99_hi) = median(ratios(|t| t.wall_p99_us));
@@ -136,15 +153,15 @@ pub fn bench_isolation(args: IsolationArgs) -> Result<ExitCode> {
         100.0 * (cpu_lo - 1.0),
         100.0 * (cpu_hi - 1.0)
     );
-    let json = serde_json::json!({
-        "schema": "bdis.v1.isolation",
-        "sequence": args.sequence,
-        "pairs": args.pairs,
-        "runs": runs,
-        "wall_p50_ratio": {"median": p50_ratio, "min": p50_lo, "max": p50_hi},
-        "wall_p99_ratio": {"median": p99_ratio, "min": p99_lo, "max": p99_hi},
-        "cpu_p50_ratio": {"median": cpu_ratio, "min": cpu_lo, "max": cpu_hi},
-    });
+    let json = IsolationReport {
+        schema: "bdis.v1.isolation",
+        sequence: args.sequence.clone(),
+        pairs: args.pairs,
+        runs,
+        wall_p50_ratio: Spread { median: p50_ratio, min: p50_lo, max: p50_hi },
+        wall_p99_ratio: Spread { median: p99_ratio, min: p99_lo, max: p99_hi },
+        cpu_p50_ratio: Spread { median: cpu_ratio, min: cpu_lo, max: cpu_hi },
+    };
     let path = root.join("isolation.json");
     std::fs::write(&path, serde_json::to_string_pretty(&json)?)
         .with_context(|| format!("{}: cannot write", path.display()))?;

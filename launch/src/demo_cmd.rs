@@ -6,6 +6,8 @@ use std::process::ExitCode;
 
 use anyhow::{Context, Result};
 
+use bdis_core::formats::summary::TrackingSummary;
+
 use crate::plan::plan_for_sequence;
 use crate::run_cmd::{execute_and_report, make_run_dir};
 use crate::{eval_cmd, synth_cmd};
@@ -75,16 +77,14 @@ pub fn demo(args: DemoArgs) -> Result<ExitCode> {
         ),
         Err(e) => println!("  tracking    no trajectory to evaluate ({e:#})"),
     }
-    let tracking: Option<serde_json::Value> =
-        std::fs::read_to_string(run_dir.join("tracking.json")).ok().and_then(|t| serde_json::from_str(&t).ok());
-    if let Some(t) = &tracking {
-        let ms = |key: &str| t[key].as_f64().unwrap_or(f64::NAN);
-        println!(
+    match TrackingSummary::read(&run_dir.join("tracking.json")) {
+        Ok(t) => println!(
             "  tracking    CPU per frame p50 {:.1} ms (ORB on both images, stereo matching, pose, local map), per keyframe {:.1} ms; {} frames lost",
-            ms("frame_cpu_ms_p50"),
-            ms("keyframe_cpu_ms_p50"),
-            t["lost"]
-        );
+            t.frame_cpu_ms_p50.unwrap_or(f64::NAN),
+            t.keyframe_cpu_ms_p50.unwrap_or(f64::NAN),
+            t.lost
+        ),
+        Err(e) => println!("  tracking    no summary ({e})"),
     }
     if let Some(d) = &depth {
         println!(
@@ -100,15 +100,17 @@ pub fn demo(args: DemoArgs) -> Result<ExitCode> {
             s.p99 / 1000.0
         );
     }
-    let mosaic: Option<serde_json::Value> =
-        std::fs::read_to_string(run_dir.join("mosaic.json")).ok().and_then(|t| serde_json::from_str(&t).ok());
-    if let Some(m) = &mosaic {
+    let mosaic = bdis_mosaic::MosaicSummary::read(&run_dir.join("mosaic.json"));
+    if let Err(e) = &mosaic {
+        println!("  map         no summary ({e})");
+    }
+    if let Ok(m) = &mosaic {
         println!(
             "  map         {} points from {} keyframes ({} pose corrections applied), update p50 {:.1} ms per keyframe",
-            m["points"],
-            m["keyframes_inserted"],
-            m["corrections_applied"],
-            m["update_ms_p50"].as_f64().unwrap_or(f64::NAN)
+            m.points,
+            m.keyframes_inserted,
+            m.corrections_applied,
+            m.update_ms_p50.unwrap_or(f64::NAN)
         );
         // The map against the renderer's mesh, brought into its frame by the alignment of the keyframe trajectory
         // (the poses that place the map's points).

@@ -130,13 +130,12 @@ pub fn map(args: MapArgs) -> Result<()> {
     }
     bar.finish_and_clear();
     let written = write_map(&mosaic, &args.out)?;
-    insert_ms.sort_by(f64::total_cmp);
     println!(
         "{} keyframes → {} points; mosaic update p50 {:.2} ms, max {:.2} ms per keyframe",
         chosen.len(),
         mosaic.n_points(),
-        insert_ms[insert_ms.len() / 2],
-        insert_ms[insert_ms.len() - 1]
+        bdis_core::stats::percentile(&mut insert_ms, 0.5).unwrap_or(0.0),
+        bdis_core::stats::percentile(&mut insert_ms, 1.0).unwrap_or(0.0)
     );
     println!("{written}");
     Ok(())

@@ -49,6 +49,45 @@ pub struct RunResult {
     pub events: Vec<String>,
 }
 
+/// `latency.json` (`bdis.v1.run`): how a run went — every service's end and restarts, the latency of every
+/// process and hop, end to end, and the restarts and swaps as they happened.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct RunRecord {
+    pub schema: String,
+    pub name: String,
+    pub ipc_prefix: String,
+    pub duration_s: f64,
+    pub stop_requested: bool,
+    pub failure: Option<String>,
+    pub services: Vec<ServiceResult>,
+    pub processes: Vec<crate::latency::ProcessReport>,
+    pub hops: Vec<crate::latency::HopReport>,
+    pub end_to_end: Vec<crate::latency::EndToEndReport>,
+    pub events: Vec<String>,
+    pub telemetry_records_lost: u64,
+}
+
+impl RunRecord {
+    pub const SCHEMA: &'static str = "bdis.v1.run";
+
+    pub fn new(name: &str, ipc_prefix: &str, result: &RunResult) -> Self {
+        Self {
+            schema: Self::SCHEMA.to_string(),
+            name: name.to_string(),
+            ipc_prefix: ipc_prefix.to_string(),
+            duration_s: result.duration_s,
+            stop_requested: result.stop_requested,
+            failure: result.failure.clone(),
+            services: result.services.clone(),
+            processes: result.latency.processes.clone(),
+            hops: result.latency.hops.clone(),
+            end_to_end: result.latency.end_to_end.clone(),
+            events: result.events.clone(),
+            telemetry_records_lost: result.latency.telemetry_records_lost,
+        }
+    }
+}
+
 /// One service of the run and its current instance.
 #[derive(Debug)]
 struct Slot {

@@ -149,20 +149,7 @@ pub fn execute_and_write(
     let leftovers = bdis_slam::run_dir::remove_leftovers(&prefix);
     tracing::debug!("removed {leftovers} shared-memory leftovers of {prefix}");
 
-    let json = serde_json::json!({
-        "schema": "bdis.v1.run",
-        "name": name,
-        "ipc_prefix": prefix,
-        "duration_s": result.duration_s,
-        "stop_requested": result.stop_requested,
-        "failure": result.failure,
-        "services": result.services,
-        "processes": result.latency.processes,
-        "hops": result.latency.hops,
-        "end_to_end": result.latency.end_to_end,
-        "events": result.events,
-        "telemetry_records_lost": result.latency.telemetry_records_lost,
-    });
+    let json = bdis_slam::run::RunRecord::new(&name, &prefix, &result);
     let latency_path = run_dir.join("latency.json");
     std::fs::write(&latency_path, serde_json::to_string_pretty(&json)?)
         .with_context(|| format!("{}: cannot write", latency_path.display()))?;

@@ -9,7 +9,7 @@ use bdis_ipc::map::{MapPoint, MapQuery, MapSnapshotHeader};
 use bdis_ipc::telemetry::MessageTiming;
 use bdis_ipc::track::pose_from_array;
 use bdis_ipc::{DepthView, Ipc, KeyframePose, TelemetryPublisher, Topic, event_id, monotonic_ns};
-use bdis_mosaic::{DepthKeyframe, Mosaic};
+use bdis_mosaic::{DepthKeyframe, Mosaic, MosaicSummary};
 use bdis_node::{Ended, Flow};
 use iceoryx2::prelude::*;
 
@@ -286,34 +286,31 @@ fn write_results(
 ) -> Result<()> {
     let outputs = bdis_mosaic::write_outputs(mosaic, dir, preview_width)?;
     let mut update_ms = counters.update_ms.clone();
-    update_ms.sort_by(f64::total_cmp);
-    let pick = |q: f64| update_ms.get(((update_ms.len() as f64 - 1.0) * q).round().max(0.0) as usize).copied();
+    let mut pick = |q: f64| bdis_core::stats::percentile(&mut update_ms, q);
     // Keyframe ids are consecutive from the tracker: a gap is a keyframe the stereo service never delivered.
     let missing = counters.highest_kf_id.map_or(0, |h| (h + 1).saturating_sub(mosaic.n_keyframes() as u64));
-    let summary = serde_json::json!({
-        "schema": "bdis.v1.mosaic",
-        "end_of_stream": end_of_stream,
-        "keyframes_inserted": counters.inserted,
-        "keyframes_in_map": mosaic.n_keyframes(),
-        "keyframes_missing": missing,
-        "duplicates": counters.duplicates,
-        "malformed": counters.malformed,
-        "corrections_applied": counters.corrections,
-        "snapshots_served": counters.snapshots,
-        "points": mosaic.n_points(),
-        "points_replaced": counters.removed,
-        "points_kept_behind": counters.kept_occluded,
-        "update_ms_p50": pick(0.5),
-        "update_ms_p99": pick(0.99),
-        "overlapping_keyframes_max": counters.overlapping.iter().max(),
-        "params": mosaic.params,
-        "map_ply": outputs.ply,
-        "map_png": outputs.png,
-        "map_bin": outputs.bin,
-    });
-    let path = dir.join("mosaic.json");
-    std::fs::write(&path, serde_json::to_string_pretty(&summary)?)
-        .with_context(|| format!("{}: cannot write", path.display()))?;
+    let summary = MosaicSummary {
+        schema: MosaicSummary::SCHEMA.to_string(),
+        end_of_stream,
+        keyframes_inserted: counters.inserted,
+        keyframes_in_map: mosaic.n_keyframes() as u64,
+        keyframes_missing: missing,
+        duplicates: counters.duplicates,
+        malformed: counters.malformed,
+        corrections_applied: counters.corrections,
+        snapshots_served: counters.snapshots,
+        points: mosaic.n_points() as u64,
+        points_replaced: counters.removed,
+        points_kept_behind: counters.kept_occluded,
+        update_ms_p50: pick(0.5),
+        update_ms_p99: pick(0.99),
+        overlapping_keyframes_max: counters.overlapping.iter().max().map(|&n| n as u64),
+        params: mosaic.params,
+        map_ply: outputs.ply.clone(),
+        map_png: outputs.png.clone(),
+        map_bin: outputs.bin.clone(),
+    };
+    summary.write(&dir.join("mosaic.json"))?;
     tracing::info!(
         "{} keyframes, {} points; update p50 {:.2} ms; {}",
         counters.inserted,

@@ -7,6 +7,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
 use bdis_core::RectifiedCamera;
+use bdis_core::formats::summary::TrackingSummary;
 use bdis_core::geometry::StampedPose;
 use bdis_ipc::telemetry::MessageTiming;
 use bdis_ipc::track::{pose_to_array, tracking_state};
@@ -324,28 +325,22 @@ fn write_summary(
     counts: &mut Counts,
     dir: &Path,
 ) -> Result<()> {
-    let median = |v: &mut Vec<f64>| {
-        v.sort_by(f64::total_cmp);
-        v.get(v.len() / 2).copied()
+    use bdis_core::stats::percentile;
+    let summary = TrackingSummary {
+        schema: TrackingSummary::SCHEMA.to_string(),
+        frames: earlier.frames.len() as u64 + counts.frames,
+        frames_of_earlier_instances: earlier.frames.len() as u64,
+        lost: counts.lost,
+        relocalisations: counts.relocalised,
+        keyframes_created: world.kf_offset + counts.keyframes,
+        keyframes_in_map: tracker.map.n_good_keyframes() as u64,
+        map_points: tracker.map.points.iter().filter(|p| !p.bad).count() as u64,
+        frame_cpu_ms_p50: percentile(&mut counts.frame_ms, 0.5),
+        frame_cpu_ms_p99: percentile(&mut counts.frame_ms, 0.99),
+        keyframe_cpu_ms_p50: percentile(&mut counts.keyframe_ms, 0.5),
+        keyframe_cpu_ms_p99: percentile(&mut counts.keyframe_ms, 0.99),
     };
-    let p99 = |v: &[f64]| v.get(((v.len() as f64 * 0.99) as usize).min(v.len().saturating_sub(1))).copied();
-    let summary = serde_json::json!({
-        "schema": "bdis.v1.tracking",
-        "frames": earlier.frames.len() as u64 + counts.frames,
-        "frames_of_earlier_instances": earlier.frames.len(),
-        "lost": counts.lost,
-        "relocalisations": counts.relocalised,
-        "keyframes_created": world.kf_offset + counts.keyframes,
-        "keyframes_in_map": tracker.map.n_good_keyframes(),
-        "map_points": tracker.map.points.iter().filter(|p| !p.bad).count(),
-        "frame_cpu_ms_p50": median(&mut counts.frame_ms),
-        "frame_cpu_ms_p99": p99(&counts.frame_ms),
-        "keyframe_cpu_ms_p50": median(&mut counts.keyframe_ms),
-        "keyframe_cpu_ms_p99": p99(&counts.keyframe_ms),
-    });
-    let path = dir.join("tracking.json");
-    std::fs::write(&path, serde_json::to_string_pretty(&summary)?)
-        .with_context(|| format!("{}: cannot write", path.display()))?;
+    summary.write(&dir.join("tracking.json"))?;
     Ok(())
 }
 

@@ -8,6 +8,7 @@ pub mod calib;
 pub mod formats;
 pub mod geometry;
 pub mod settings;
+pub mod stats;
 
 pub use calib::{Distortion, RectifiedCamera, StereoCamera};
 pub use geometry::Pose;

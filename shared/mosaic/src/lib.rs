@@ -17,6 +17,7 @@
 
 mod render;
 mod store;
+mod summary;
 
 use std::collections::BTreeMap;
 
@@ -25,6 +26,7 @@ use serde::{Deserialize, Serialize};
 
 pub use render::{PreviewView, render_preview};
 pub use store::{MOSAIC_FORMAT, Outputs, load, save, write_outputs};
+pub use summary::MosaicSummary;
 
 #[derive(Debug, thiserror::Error)]
 pub enum MosaicError {

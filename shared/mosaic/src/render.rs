@@ -21,11 +21,7 @@ pub struct PreviewView {
 const BACKGROUND: Rgb<u8> = Rgb([24, 24, 28]);
 
 fn percentile(values: &mut [f64], q: f64) -> f64 {
-    if values.is_empty() {
-        return 0.0;
-    }
-    let k = ((values.len() - 1) as f64 * q).round() as usize;
-    *values.select_nth_unstable_by(k, f64::total_cmp).1
+    bdis_core::stats::percentile(values, q).unwrap_or(0.0)
 }
 
 /// Renders the map `width` pixels wide (the height follows the map's shape). `None` for an empty map.

@@ -1,10 +1,12 @@
-//! File formats: PFM (disparity, depth), binary PLY (maps, meshes), TUM and KITTI trajectories.
+//! File formats: PFM (disparity, depth), binary PLY (maps, meshes), TUM and KITTI trajectories, the tracker's
+//! run summary (tracking.json).
 
 use std::fmt;
 use std::path::{Path, PathBuf};
 
 pub mod pfm;
 pub mod ply;
+pub mod summary;
 pub mod trajectory;
 
 /// A file that could not be read or written, with the place in it when known.

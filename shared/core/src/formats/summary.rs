@@ -1,0 +1,49 @@
+//! `tracking.json` (`bdis.v1.tracking`): what the tracking service did in a run, over all its instances. The
+//! service writes it at the end of the stream; the launcher's demo and benchmark read it.
+
+use std::path::Path;
+
+use serde::{Deserialize, Serialize};
+
+use super::{FormatError, invalid, io_error};
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct TrackingSummary {
+    /// `bdis.v1.tracking`.
+    pub schema: String,
+    /// Frames tracked, by every instance of the run.
+    pub frames: u64,
+    /// Of those, the frames of instances that crashed (from the journal).
+    pub frames_of_earlier_instances: u64,
+    pub lost: u64,
+    pub relocalisations: u64,
+    /// Keyframe ids handed out (the next id is this number).
+    pub keyframes_created: u64,
+    /// Keyframes in the last instance's map after culling.
+    pub keyframes_in_map: u64,
+    pub map_points: u64,
+    /// Tracking-thread CPU per frame without a new keyframe, and per keyframe (tracking plus local mapping),
+    /// ms, by the nearest-rank rule (`bdis_core::stats::percentile`); `None` without such frames.
+    pub frame_cpu_ms_p50: Option<f64>,
+    pub frame_cpu_ms_p99: Option<f64>,
+    pub keyframe_cpu_ms_p50: Option<f64>,
+    pub keyframe_cpu_ms_p99: Option<f64>,
+}
+
+impl TrackingSummary {
+    pub const SCHEMA: &'static str = "bdis.v1.tracking";
+
+    pub fn read(path: &Path) -> Result<Self, FormatError> {
+        let text = std::fs::read_to_string(path).map_err(io_error(path))?;
+        let summary: Self = serde_json::from_str(&text).map_err(|e| invalid(path, Some(e.line()), e.to_string()))?;
+        if summary.schema != Self::SCHEMA {
+            return Err(invalid(path, None, format!("schema `{}`, expected `{}`", summary.schema, Self::SCHEMA)));
+        }
+        Ok(summary)
+    }
+
+    pub fn write(&self, path: &Path) -> Result<(), FormatError> {
+        let text = serde_json::to_string_pretty(self).map_err(|e| invalid(path, None, e.to_string()))?;
+        std::fs::write(path, text).map_err(io_error(path))
+    }
+}
