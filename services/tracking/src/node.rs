@@ -72,7 +72,7 @@ struct Outputs {
 impl Outputs {
     /// A new keyframe with its images (copied from the frame, which goes back to acquisition).
     fn keyframe(&mut self, tracker: &Tracker, kf: usize, header: &FrameHeader, payload: &[u8]) -> Result<()> {
-        let pose = self.world.to_world(&tracker.map.keyframes[kf].camera_from_world.inverse());
+        let pose = self.world.to_world(&tracker.map().keyframes[kf].camera_from_world.inverse());
         let kf_id = self.world.kf_id(kf);
         // Journalled before it goes out: a crash in between leaves a gap in the ids, never a reused id.
         self.journal.write(|line| journal::keyframe_line(line, kf_id, header.t_source_ns, &pose));
@@ -103,10 +103,10 @@ impl Outputs {
             return Ok(());
         }
         self.generation += 1;
-        let culled = tracker.map.culled_following(&report.moved);
+        let culled = tracker.map().culled_following(&report.moved);
         let moved = report.moved.iter().map(|&k| (k, 0)).chain(culled.into_iter().map(|k| (k, 1)));
         for (k, culled) in moved {
-            let pose = self.world.to_world(&tracker.map.keyframe_pose(k).inverse());
+            let pose = self.world.to_world(&tracker.map().keyframe_pose(k).inverse());
             let kf_id = self.world.kf_id(k);
             let record = KeyframePose {
                 kf_id,
@@ -333,8 +333,8 @@ fn write_summary(
         lost: counts.lost,
         relocalisations: counts.relocalised,
         keyframes_created: world.kf_offset + counts.keyframes,
-        keyframes_in_map: tracker.map.n_good_keyframes() as u64,
-        map_points: tracker.map.points.iter().filter(|p| !p.bad).count() as u64,
+        keyframes_in_map: tracker.map().n_good_keyframes() as u64,
+        map_points: tracker.map().points.iter().filter(|p| !p.bad).count() as u64,
         frame_cpu_ms_p50: percentile(&mut counts.frame_ms, 0.5),
         frame_cpu_ms_p99: percentile(&mut counts.frame_ms, 0.99),
         keyframe_cpu_ms_p50: percentile(&mut counts.keyframe_ms, 0.5),

@@ -58,13 +58,13 @@ fn main() {
                 res.inliers,
                 res.new_keyframe,
                 ms,
-                tracker.map.n_good_keyframes(),
-                tracker.map.points.iter().filter(|p| !p.bad).count()
+                tracker.map().n_good_keyframes(),
+                tracker.map().points.iter().filter(|p| !p.bad).count()
             );
         }
     }
     tracker.finish();
-    eprintln!("refined measurements: σ {:.3} of their octave's", tracker.map.refined_sigma);
+    eprintln!("refined measurements: σ {:.3} of their octave's", tracker.map().refined_sigma);
     cpu.sort_by(f64::total_cmp);
     kf_ms.sort_by(f64::total_cmp);
     eprintln!(

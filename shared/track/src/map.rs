@@ -446,3 +446,52 @@ impl Map {
         dist >= 0.8 * point.min_dist && dist <= 1.2 * point.max_dist && d.dot(&point.normal) >= 0.5 * dist
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn keyframe(id: KfId, parent: Option<KfId>, bad: bool) -> KeyFrame {
+        KeyFrame {
+            id,
+            frame_id: id as u64,
+            t_ns: 0,
+            camera_from_world: Isometry3::identity(),
+            keypoints: Vec::new(),
+            descriptors: Vec::new(),
+            u_right: Vec::new(),
+            depth: Vec::new(),
+            grid: FeatureGrid::new(64.0, 48.0),
+            points: Vec::new(),
+            refined: Vec::new(),
+            connections: BTreeMap::new(),
+            ordered: Vec::new(),
+            parent,
+            children: BTreeSet::new(),
+            bad,
+            camera_from_parent: bad.then(Isometry3::identity),
+        }
+    }
+
+    #[test]
+    fn a_culled_keyframe_moves_with_its_first_live_ancestor() {
+        // 0 ← 1 (culled) ← 2 (culled); 0 ← 3 ← 4 (culled); 5 (culled, no parent).
+        let map = Map {
+            keyframes: vec![
+                keyframe(0, None, false),
+                keyframe(1, Some(0), true),
+                keyframe(2, Some(1), true),
+                keyframe(3, Some(0), false),
+                keyframe(4, Some(3), true),
+                keyframe(5, None, true),
+            ],
+            ..Default::default()
+        };
+        assert_eq!(map.culled_following(&[0]), vec![1, 2], "through a chain of culled parents");
+        assert_eq!(map.culled_following(&[3]), vec![4]);
+        assert_eq!(map.culled_following(&[0, 3]), vec![1, 2, 4]);
+        assert!(map.culled_following(&[]).is_empty());
+        // A live keyframe never "follows": it has its own correction when it moved.
+        assert!(!map.culled_following(&[0]).contains(&3));
+    }
+}

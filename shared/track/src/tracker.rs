@@ -78,7 +78,7 @@ pub struct Tracker {
     scales: Scales,
     settings: TrackerSettings,
     builder: FrameBuilder,
-    pub map: Map,
+    map: Map,
     mapper: LocalMapper,
     state: TrackingState,
     current: Frame,
@@ -175,6 +175,11 @@ impl Tracker {
 
     pub fn state(&self) -> TrackingState {
         self.state
+    }
+
+    /// The map, read-only: the tracker and its local mapping are its one owner.
+    pub fn map(&self) -> &Map {
+        &self.map
     }
 
     pub fn camera(&self) -> &RectifiedCamera {

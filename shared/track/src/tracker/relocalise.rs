@@ -131,7 +131,8 @@ impl Tracker {
                     let (u, v) = self.cam.project(&pc);
                     let k = &self.current.keypoints[*i];
                     let e2 = (u - f64::from(k.x)).powi(2) + (v - f64::from(k.y)).powi(2);
-                    e2 < 5.991 / self.scales.inv_sigma2[usize::from(k.octave)]
+                    // The reprojection gate of a monocular observation at the keypoint's octave (χ², 2 DoF, 95 %).
+                    e2 < crate::optim::CHI2_MONO / self.scales.inv_sigma2[usize::from(k.octave)]
                 })
                 .count();
             if inliers > best.0 {
