@@ -62,12 +62,18 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
         let settings = args.settings.clone().unwrap_or(written.settings);
         rendered = Some((run_dir, settings));
     }
-    let (launch, launch_path) = match (&args.launch_file, &args.sequence, &rendered) {
-        (Some(path), _, _) => (LaunchFile::load(path)?, path.clone()),
-        (None, Some(_), Some((run_dir, settings))) => (
+    // The sequence to plan for: the rendered one, or the one given.
+    let sequence = match (&args.sequence, &rendered) {
+        (Some(_), Some((run_dir, settings))) => Some((run_dir.join("sequence"), Some(settings.clone()))),
+        (Some(sequence), None) => Some((sequence.clone(), args.settings.clone())),
+        (None, _) => None,
+    };
+    let (launch, launch_path) = match (&args.launch_file, sequence) {
+        (Some(path), _) => (LaunchFile::load(path)?, path.clone()),
+        (None, Some((sequence, settings))) => (
             plan_for_sequence(
-                &run_dir.join("sequence"),
-                Some(settings),
+                &sequence,
+                settings.as_deref(),
                 args.pacing,
                 args.checksums,
                 args.stereo_every,
@@ -76,19 +82,7 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
             )?,
             PathBuf::from("launch.toml"),
         ),
-        (None, Some(sequence), None) => (
-            plan_for_sequence(
-                sequence,
-                args.settings.as_deref(),
-                args.pacing,
-                args.checksums,
-                args.stereo_every,
-                args.track,
-                &args.map_params,
-            )?,
-            PathBuf::from("launch.toml"),
-        ),
-        (None, None, _) => anyhow::bail!("give a launch file or --sequence"),
+        (None, None) => anyhow::bail!("give a launch file or --sequence"),
     };
     let name = launch.run.name.clone().unwrap_or_else(|| "run".into());
     let run_dir = match rendered {
