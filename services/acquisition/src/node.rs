@@ -191,3 +191,85 @@ pub fn run(config: Config) -> Result<()> {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The node as a whole, in process, over real shared memory, paced by its consumer: every frame once, in
+    /// order, only when asked for, decoded in place (the left grey plane is the PNG's BT.601 grey), then the end
+    /// of the stream numbered after the last frame.
+    #[test]
+    #[allow(clippy::unwrap_used, clippy::expect_used)]
+    fn every_frame_once_in_order_when_the_consumer_asks() {
+        let prefix = format!("banode{}_", std::process::id());
+        let dir = std::env::temp_dir().join(format!("bdis-acquisition-node-{}", std::process::id()));
+        let (w, h, n) = (48u32, 32u32, 5usize);
+        for side in ["left", "right"] {
+            std::fs::create_dir_all(dir.join(side)).unwrap();
+            for i in 1..=n as u32 {
+                let img = image::RgbImage::from_fn(w, h, |x, y| image::Rgb([(x * 5 + i) as u8, (y * 7) as u8, 90]));
+                img.save(dir.join(format!("{side}/{i}.png"))).unwrap();
+            }
+        }
+        let input = bdis_source::check_input(&dir, None).unwrap();
+        let config = Config {
+            layout: FrameLayout::packed(w, h).unwrap(),
+            frame_count: input.sequence.len(),
+            input,
+            pacing: Pacing::OnDemand,
+            schedule_fps: 30.0,
+            name: "acquisition".into(),
+            ipc_prefix: prefix.clone(),
+        };
+        // The consumer exists before acquisition: it counts as one credit.
+        let ipc = Ipc::open("node-test", &prefix).unwrap();
+        let frames = ipc.frames().unwrap();
+        let subscriber = ipc.frame_subscriber(&frames).unwrap();
+        let frame_events = ipc.listener(&ipc.events(Topic::Frames).unwrap()).unwrap();
+        let credits = ipc.notifier(&ipc.frames_consumed().unwrap()).unwrap();
+
+        let node = std::thread::spawn(move || run(config));
+        let mut seen = Vec::new();
+        let deadline = || std::time::Instant::now() + std::time::Duration::from_secs(20);
+        loop {
+            let header = bdis_ipc::wait_for(&frame_events, deadline(), || {
+                let Some(sample) = subscriber.receive().map_err(bdis_ipc::iox("frames"))? else { return Ok(None) };
+                let header = *sample.user_header();
+                if !header.is_end_of_stream() {
+                    let view = bdis_ipc::FrameView::new(sample.user_header(), sample.payload()).unwrap();
+                    let expected = |x: u32, y: u32| {
+                        let (r, g, b) = (x * 5 + header.frame_seq as u32 + 1, y * 7, 90u32);
+                        ((r * 4899 + g * 9617 + b * 1868 + 8192) >> 14) as u8
+                    };
+                    assert_eq!(view.left_gray[(3 * w + 10) as usize], expected(10, 3), "frame {}", header.frame_seq);
+                    // Nothing more is sent until this one is released (the end of the stream needs no credit).
+                    if header.frame_seq + 1 < n as u64 {
+                        assert!(subscriber.receive().unwrap().is_none(), "frame {} sent unasked", header.frame_seq + 1);
+                    }
+                }
+                Ok(Some(header))
+            });
+            let Some(header) = header.unwrap() else {
+                let ended = if node.is_finished() { format!("{:?}", node.join()) } else { "still running".into() };
+                panic!("no frame within the deadline; acquisition: {ended}");
+            };
+            if header.is_end_of_stream() {
+                assert_eq!(header.frame_seq, n as u64, "the end of the stream is numbered after the last frame");
+                break;
+            }
+            seen.push(header.frame_seq);
+            bdis_ipc::notify(&credits, event_id::CONSUMED).unwrap();
+        }
+        node.join().unwrap().unwrap();
+        assert_eq!(seen, (0..n as u64).collect::<Vec<_>>());
+
+        drop((subscriber, frames, credits, ipc));
+        let _ = std::fs::remove_dir_all(&dir);
+        for e in std::fs::read_dir("/dev/shm").into_iter().flatten().flatten() {
+            if e.file_name().to_string_lossy().starts_with(&prefix) {
+                let _ = std::fs::remove_file(e.path());
+            }
+        }
+    }
+}

@@ -320,3 +320,106 @@ fn write_results(
     );
     Ok(())
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use bdis_ipc::{DepthHeader, KeyframeMeta, StereoIntrinsics};
+    use bdis_mosaic::MosaicParams;
+
+    /// The node as a whole, in process, over real shared memory: two depth keyframes of a plane, a pose
+    /// correction the second was made after, a sample without a pose, then the end of the stream. The map has both
+    /// keyframes, the correction applied before the second was inserted, the bad sample counted, and its files
+    /// written.
+    #[test]
+    #[allow(clippy::unwrap_used, clippy::expect_used)]
+    fn depth_keyframes_and_corrections_in_a_map_out_over_shared_memory() {
+        let prefix = format!("bmnode{}_", std::process::id());
+        let out_dir = std::env::temp_dir().join(format!("bdis-mosaic-node-{}", std::process::id()));
+        std::fs::create_dir_all(&out_dir).unwrap();
+        let config = Config {
+            mosaic: Mosaic::new(MosaicParams::default()),
+            out_dir: out_dir.clone(),
+            save_every: 0,
+            preview_width: 128,
+            name: "mosaic".into(),
+            ipc_prefix: prefix.clone(),
+        };
+        let ipc = Ipc::open("node-test", &prefix).unwrap();
+        let telemetry = ipc.telemetry().unwrap();
+        let telemetry_records = ipc.telemetry_subscriber(&telemetry).unwrap();
+        let telemetry_events = ipc.listener(&ipc.events(Topic::Telemetry).unwrap()).unwrap();
+        let (w, h) = (64u32, 48u32);
+        let depth = ipc.depth().unwrap();
+        let depth_publisher = ipc.depth_publisher(&depth, DepthHeader::payload_len(w, h)).unwrap();
+        let depth_events = ipc.notifier(&ipc.events(Topic::Depth).unwrap()).unwrap();
+        let corrections = ipc.corrections().unwrap();
+        let correction_publisher = corrections.publisher_builder().create().unwrap();
+        let correction_events = ipc.notifier(&ipc.events(Topic::Corrections).unwrap()).unwrap();
+
+        let node = std::thread::spawn(move || run(config));
+        let deadline = || std::time::Instant::now() + std::time::Duration::from_secs(20);
+        let ready = bdis_ipc::wait_for(&telemetry_events, deadline(), || {
+            while let Some(r) = telemetry_records.receive().map_err(bdis_ipc::iox("telemetry"))? {
+                if r.payload().process() == "mosaic" && r.payload().kind() == Some(bdis_ipc::TelemetryKind::Ready) {
+                    return Ok(Some(()));
+                }
+            }
+            Ok(None)
+        });
+        assert!(matches!(ready, Ok(Some(()))), "the node reports ready");
+
+        // A plane 50 mm in front of each keyframe (disparity 20 px with bf = 1000).
+        let intrinsics = StereoIntrinsics { fx: 50.0, fy: 50.0, cx: 31.5, cy: 23.5, bf: 1000.0 };
+        let n = (w * h) as usize;
+        let send_depth = |meta: KeyframeMeta| {
+            let mut header = DepthHeader { meta, frame_seq: meta.kf_id, ..Default::default() };
+            header.set_layout(w, h);
+            let mut loan = depth_publisher.loan_slice_uninit(DepthHeader::payload_len(w, h)).unwrap();
+            let payload = loan.payload_mut();
+            let (payload, rgb) = payload.split_at_mut(8 * n);
+            let written = bdis_node::copy_floats_into(payload, &[vec![20.0f32; n], vec![1.0f32; n]].concat())
+                + bdis_node::copy_into(rgb, &vec![150u8; 3 * n]);
+            assert_eq!(written, DepthHeader::payload_len(w, h));
+            // SAFETY: every byte was written just above.
+            let mut sample = unsafe { loan.assume_init() };
+            *sample.user_header_mut() = header;
+            sample.send().unwrap();
+            bdis_ipc::notify(&depth_events, event_id::NEW_SAMPLE).unwrap();
+        };
+        let pose = |x: f64| [x, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0];
+        send_depth(KeyframeMeta { kf_id: 0, world_from_camera: pose(0.0), intrinsics, corrections_generation: 0 });
+        // Bundle adjustment moves keyframe 0 by 2 mm (generation 1); keyframe 1 is made after that.
+        let correction = KeyframePose { kf_id: 0, world_from_camera: pose(2.0), generation: 1, culled: 0, reserved: 0 };
+        correction_publisher.send_copy(correction).unwrap();
+        bdis_ipc::notify(&correction_events, event_id::NEW_SAMPLE).unwrap();
+        send_depth(KeyframeMeta { kf_id: 1, world_from_camera: pose(5.0), intrinsics, corrections_generation: 1 });
+        // Keyframes picked from frames have no pose: not a keyframe of this map.
+        send_depth(KeyframeMeta { kf_id: 2, world_from_camera: [0.0; 7], intrinsics, corrections_generation: 1 });
+        bdis_node::send_end_of_stream(
+            &depth_publisher,
+            DepthHeader { frame_seq: 3, flags: DepthHeader::END_OF_STREAM, ..Default::default() },
+        )
+        .unwrap();
+        bdis_ipc::notify(&depth_events, event_id::END_OF_STREAM).unwrap();
+        node.join().unwrap().unwrap();
+
+        let summary = MosaicSummary::read(&out_dir.join("mosaic.json")).unwrap();
+        assert!(summary.end_of_stream);
+        assert_eq!((summary.keyframes_inserted, summary.keyframes_in_map), (2, 2), "{summary:?}");
+        assert_eq!((summary.malformed, summary.corrections_applied, summary.keyframes_missing), (1, 1, 0));
+        assert!(summary.points > 0, "{summary:?}");
+        assert!(out_dir.join("map.ply").is_file() && out_dir.join("map.bin").is_file());
+        let map = bdis_mosaic::load(&out_dir.join("map.bin")).unwrap();
+        let x = |kf_id: u64| map.keyframes().find(|k| k.kf_id == kf_id).unwrap().world_from_camera.translation.x;
+        assert_eq!((x(0), x(1)), (2.0, 5.0), "the correction moved keyframe 0, and only it");
+
+        drop((depth_publisher, correction_publisher, depth, corrections, telemetry_records, telemetry, ipc));
+        let _ = std::fs::remove_dir_all(&out_dir);
+        for e in std::fs::read_dir("/dev/shm").into_iter().flatten().flatten() {
+            if e.file_name().to_string_lossy().starts_with(&prefix) {
+                let _ = std::fs::remove_file(e.path());
+            }
+        }
+    }
+}
