@@ -266,10 +266,6 @@ mod tests {
 
         drop((subscriber, frames, credits, ipc));
         let _ = std::fs::remove_dir_all(&dir);
-        for e in std::fs::read_dir("/dev/shm").into_iter().flatten().flatten() {
-            if e.file_name().to_string_lossy().starts_with(&prefix) {
-                let _ = std::fs::remove_file(e.path());
-            }
-        }
+        bdis_ipc::remove_run_files(&prefix);
     }
 }

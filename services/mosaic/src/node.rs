@@ -346,9 +346,7 @@ mod tests {
             ipc_prefix: prefix.clone(),
         };
         let ipc = Ipc::open("node-test", &prefix).unwrap();
-        let telemetry = ipc.telemetry().unwrap();
-        let telemetry_records = ipc.telemetry_subscriber(&telemetry).unwrap();
-        let telemetry_events = ipc.listener(&ipc.events(Topic::Telemetry).unwrap()).unwrap();
+        let ready = bdis_ipc::ReadyWatch::open(&ipc).unwrap();
         let (w, h) = (64u32, 48u32);
         let depth = ipc.depth().unwrap();
         let depth_publisher = ipc.depth_publisher(&depth, DepthHeader::payload_len(w, h)).unwrap();
@@ -359,15 +357,7 @@ mod tests {
 
         let node = std::thread::spawn(move || run(config));
         let deadline = || std::time::Instant::now() + std::time::Duration::from_secs(20);
-        let ready = bdis_ipc::wait_for(&telemetry_events, deadline(), || {
-            while let Some(r) = telemetry_records.receive().map_err(bdis_ipc::iox("telemetry"))? {
-                if r.payload().process() == "mosaic" && r.payload().kind() == Some(bdis_ipc::TelemetryKind::Ready) {
-                    return Ok(Some(()));
-                }
-            }
-            Ok(None)
-        });
-        assert!(matches!(ready, Ok(Some(()))), "the node reports ready");
+        assert!(ready.wait("mosaic", deadline()).unwrap(), "the node reports ready");
 
         // A plane 50 mm in front of each keyframe (disparity 20 px with bf = 1000).
         let intrinsics = StereoIntrinsics { fx: 50.0, fy: 50.0, cx: 31.5, cy: 23.5, bf: 1000.0 };
@@ -414,12 +404,8 @@ mod tests {
         let x = |kf_id: u64| map.keyframes().find(|k| k.kf_id == kf_id).unwrap().world_from_camera.translation.x;
         assert_eq!((x(0), x(1)), (2.0, 5.0), "the correction moved keyframe 0, and only it");
 
-        drop((depth_publisher, correction_publisher, depth, corrections, telemetry_records, telemetry, ipc));
+        drop((depth_publisher, correction_publisher, depth, corrections, ready, ipc));
         let _ = std::fs::remove_dir_all(&out_dir);
-        for e in std::fs::read_dir("/dev/shm").into_iter().flatten().flatten() {
-            if e.file_name().to_string_lossy().starts_with(&prefix) {
-                let _ = std::fs::remove_file(e.path());
-            }
-        }
+        bdis_ipc::remove_run_files(&prefix);
     }
 }

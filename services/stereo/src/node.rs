@@ -397,9 +397,7 @@ mod tests {
             ipc_prefix: prefix.clone(),
         };
         let ipc = Ipc::open("node-test", &prefix).unwrap();
-        let telemetry = ipc.telemetry().unwrap();
-        let telemetry_records = ipc.telemetry_subscriber(&telemetry).unwrap();
-        let telemetry_events = ipc.listener(&ipc.events(Topic::Telemetry).unwrap()).unwrap();
+        let ready = bdis_ipc::ReadyWatch::open(&ipc).unwrap();
         let depth = ipc.depth().unwrap();
         let depth_subscriber = ipc.depth_subscriber(&depth).unwrap();
         let depth_events = ipc.listener(&ipc.events(Topic::Depth).unwrap()).unwrap();
@@ -410,15 +408,7 @@ mod tests {
 
         let node = std::thread::spawn(move || run(config));
         let deadline = || std::time::Instant::now() + std::time::Duration::from_secs(20);
-        let ready = bdis_ipc::wait_for(&telemetry_events, deadline(), || {
-            while let Some(r) = telemetry_records.receive().map_err(bdis_ipc::iox("telemetry"))? {
-                if r.payload().process() == "stereo" && r.payload().kind() == Some(bdis_ipc::TelemetryKind::Ready) {
-                    return Ok(Some(()));
-                }
-            }
-            Ok(None)
-        });
-        assert!(matches!(ready, Ok(Some(()))), "the node reports ready");
+        assert!(ready.wait("stereo", deadline()).unwrap(), "the node reports ready");
 
         // A tissue plane 50 mm away, seen with a disparity of 4 px (the renderer's).
         let scene = bdis_synth::PlaneScene { depth_mm: 50.0, texture: bdis_synth::TissueTexture { seed: 11 } };
@@ -487,11 +477,7 @@ mod tests {
                 meta.kf_id
             );
         }
-        drop((publisher, keyframes, depth_subscriber, depth, telemetry_records, telemetry, ipc));
-        for e in std::fs::read_dir("/dev/shm").into_iter().flatten().flatten() {
-            if e.file_name().to_string_lossy().starts_with(&prefix) {
-                let _ = std::fs::remove_file(e.path());
-            }
-        }
+        drop((publisher, keyframes, depth_subscriber, depth, ready, ipc));
+        bdis_ipc::remove_run_files(&prefix);
     }
 }

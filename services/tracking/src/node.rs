@@ -423,9 +423,7 @@ mod tests {
         let frames = ipc.frames().unwrap();
         let frame_publisher = ipc.frame_publisher(&frames, layout.payload_len()).unwrap();
         let frame_events = ipc.notifier(&ipc.events(Topic::Frames).unwrap()).unwrap();
-        let telemetry = ipc.telemetry().unwrap();
-        let telemetry_records = ipc.telemetry_subscriber(&telemetry).unwrap();
-        let telemetry_events = ipc.listener(&ipc.events(Topic::Telemetry).unwrap()).unwrap();
+        let ready = bdis_ipc::ReadyWatch::open(&ipc).unwrap();
         let poses = ipc.poses().unwrap();
         let pose_events = ipc.listener(&ipc.events(Topic::Poses).unwrap()).unwrap();
         let pose_subscriber = poses.subscriber_builder().buffer_size(qos_poses_buffer()).create().unwrap();
@@ -434,15 +432,7 @@ mod tests {
 
         let node = std::thread::spawn(move || run(config));
         let deadline = || std::time::Instant::now() + std::time::Duration::from_secs(60);
-        let ready = bdis_ipc::wait_for(&telemetry_events, deadline(), || {
-            while let Some(r) = telemetry_records.receive().map_err(bdis_ipc::iox("telemetry"))? {
-                if r.payload().process() == "tracking" && r.payload().kind() == Some(bdis_ipc::TelemetryKind::Ready) {
-                    return Ok(Some(()));
-                }
-            }
-            Ok(None)
-        });
-        assert!(matches!(ready, Ok(Some(()))), "the node reports ready");
+        assert!(ready.wait("tracking", deadline()).unwrap(), "the node reports ready");
         let mut received_poses: Vec<PoseRecord> = Vec::new();
         let mut received_keyframes = Vec::new();
         // Paced by the tracker: the next frame goes out once the last one's pose is back (as on-demand
@@ -502,23 +492,9 @@ mod tests {
         let journal = Continuation::parse(&std::fs::read_to_string(out_dir.join("tracking.journal")).unwrap()).unwrap();
         assert_eq!((journal.frames.len(), journal.next_kf_id()), (n, received_keyframes.len() as u64));
 
-        drop((
-            frame_publisher,
-            pose_subscriber,
-            keyframe_subscriber,
-            frames,
-            poses,
-            keyframes,
-            telemetry_records,
-            telemetry,
-        ));
-        drop(ipc);
+        drop((frame_publisher, pose_subscriber, keyframe_subscriber, frames, poses, keyframes, ready, ipc));
         let _ = std::fs::remove_dir_all(&out_dir);
-        for e in std::fs::read_dir("/dev/shm").into_iter().flatten().flatten() {
-            if e.file_name().to_string_lossy().starts_with(&prefix) {
-                let _ = std::fs::remove_file(e.path());
-            }
-        }
+        bdis_ipc::remove_run_files(&prefix);
     }
 
     fn qos_poses_buffer() -> usize {

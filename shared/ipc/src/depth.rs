@@ -137,6 +137,6 @@ mod tests {
             assert_eq!(loan.payload().as_ptr() as usize % 8, 0);
         }
         drop((publisher, service, ipc));
-        crate::tests::remove_run_files(&prefix);
+        crate::remove_run_files(&prefix);
     }
 }

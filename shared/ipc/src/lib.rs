@@ -39,7 +39,7 @@ pub use clock::monotonic_ns;
 pub use depth::{DepthHeader, DepthView};
 pub use frame::{FrameHeader, FrameLayout, FrameView};
 pub use map::{MapPoint, MapQuery, MapSnapshotHeader};
-pub use telemetry::{TelemetryKind, TelemetryPublisher, TelemetryRecord};
+pub use telemetry::{ReadyWatch, TelemetryKind, TelemetryPublisher, TelemetryRecord};
 pub use track::{KeyframeHeader, KeyframeMeta, KeyframePose, PoseRecord, StereoIntrinsics};
 
 pub use error::{IceoryxError, IpcError, Transient, error_chain, iox};
@@ -178,6 +178,18 @@ pub fn cleanup_dead_nodes_of_run(prefix: &str) -> Result<usize, IpcError> {
     })
     .map_err(iox("list nodes"))?;
     Ok(cleaned)
+}
+
+/// Removes every file of the run with `prefix` from /dev/shm (once its processes are gone: iceoryx2 keeps the
+/// global management file after the last node); returns how many.
+pub fn remove_run_files(prefix: &str) -> usize {
+    let mut removed = 0;
+    for e in std::fs::read_dir("/dev/shm").into_iter().flatten().flatten() {
+        if e.file_name().to_string_lossy().starts_with(prefix) && std::fs::remove_file(e.path()).is_ok() {
+            removed += 1;
+        }
+    }
+    removed
 }
 
 /// How many live nodes the run with `prefix` has.

@@ -235,3 +235,32 @@ impl TelemetryPublisher {
         self.template.messages
     }
 }
+
+/// Waits for a process of the run to report ready, for a tool or a test that starts a service itself and must
+/// not send before the service has subscribed (the launcher's aggregator does this, and more, for a whole run).
+/// Open it before the process starts: records sent before the subscription are not seen.
+#[derive(Debug)]
+pub struct ReadyWatch {
+    records: iceoryx2::port::subscriber::Subscriber<ipc::Service, TelemetryRecord, ()>,
+    events: iceoryx2::port::listener::Listener<ipc::Service>,
+}
+
+impl ReadyWatch {
+    pub fn open(ipc: &Ipc) -> Result<Self, IpcError> {
+        let service = ipc.telemetry()?;
+        Ok(Self { records: ipc.telemetry_subscriber(&service)?, events: ipc.listener(&ipc.events(Topic::Telemetry)?)? })
+    }
+
+    /// Whether `process` reported ready before `deadline`.
+    pub fn wait(&self, process: &str, deadline: std::time::Instant) -> Result<bool, IpcError> {
+        let ready = crate::wait_for(&self.events, deadline, || {
+            while let Some(r) = self.records.receive().map_err(iox("receive telemetry"))? {
+                if r.payload().process() == process && r.payload().kind() == Some(TelemetryKind::Ready) {
+                    return Ok(Some(()));
+                }
+            }
+            Ok(None)
+        })?;
+        Ok(ready.is_some())
+    }
+}

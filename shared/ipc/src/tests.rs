@@ -30,14 +30,5 @@ fn no_file_of_a_run_is_accessible_by_other_users() {
     }
     drop(ipc);
     // iceoryx2 keeps the global management file after the last node; a test leaves nothing behind.
-    remove_run_files(&prefix);
-}
-
-/// Removes what a test run with `prefix` left in /dev/shm.
-pub(crate) fn remove_run_files(prefix: &str) {
-    for e in std::fs::read_dir("/dev/shm").into_iter().flatten().flatten() {
-        if e.file_name().to_string_lossy().starts_with(prefix) {
-            let _ = std::fs::remove_file(e.path());
-        }
-    }
+    crate::remove_run_files(&prefix);
 }
