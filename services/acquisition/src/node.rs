@@ -152,7 +152,7 @@ pub fn run(config: Config) -> Result<()> {
             break;
         }
         if let Err(e) = bdis_ipc::notify(&notifier, event_id::NEW_SAMPLE) {
-            tracing::warn!("frame {index}: {}", bdis_ipc::error_chain(&e));
+            tracing::warn!("frame {index}: {:#}", anyhow::Error::from(e));
         }
         published += 1;
         telemetry.message(
@@ -176,7 +176,7 @@ pub fn run(config: Config) -> Result<()> {
         },
     );
     if let Err(e) = bdis_ipc::notify(&notifier, event_id::END_OF_STREAM) {
-        tracing::warn!("end of stream: {}", bdis_ipc::error_chain(&e));
+        tracing::warn!("end of stream: {:#}", anyhow::Error::from(e));
     }
     match end {
         End::Completed | End::StopRequested => {

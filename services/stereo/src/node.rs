@@ -72,10 +72,6 @@ impl DepthOutput {
             )
             .with_context(|| format!("frame {}", header.frame_seq))?;
         let n = w * h;
-        // The matcher's output has one value per pixel; the writes below fill the payload only if it does.
-        if self.out.disparity.len() != n || self.out.confidence.len() != n || view.left_rgb.len() != 3 * n {
-            bail!("frame {}: the matcher's output does not cover the {w}×{h} image", header.frame_seq);
-        }
         let bytes = DepthHeader::payload_len(self.width, self.height);
         let mut loan = self.publisher.loan_slice_uninit(bytes).context("loan a depth keyframe")?;
         dh.density_permille = (self.out.density() * 1000.0).round() as u32;
@@ -85,10 +81,11 @@ impl DepthOutput {
         let written = bdis_node::copy_floats_into(&mut payload[d..d + 4 * n], &self.out.disparity)
             + bdis_node::copy_floats_into(&mut payload[c..c + 4 * n], &self.out.confidence)
             + bdis_node::copy_into(&mut payload[r..r + 3 * n], view.left_rgb);
+        // The matcher's output and the frame's RGB must cover the image: a shorter one leaves bytes unwritten.
         if written != bytes {
             bail!("frame {}: wrote {written} of the depth keyframe's {bytes} bytes", header.frame_seq);
         }
-        // SAFETY: the three arrays above filled every byte of the payload (payload_len = 8n + 3n, checked).
+        // SAFETY: the three copies above wrote every byte of the payload (their count was checked).
         let mut depth_sample = unsafe { loan.assume_init() };
         dh.t_publish_ns = monotonic_ns();
         *depth_sample.user_header_mut() = dh;

@@ -35,18 +35,6 @@ pub fn iox<E: std::error::Error + Send + Sync + 'static>(context: impl Into<Stri
     move |e| IpcError::Iceoryx { context, source: Box::new(e) }
 }
 
-/// An error and its causes on one line (`a: b: c`), for log lines: `Display` of an error shows only itself.
-pub fn error_chain(e: &(dyn std::error::Error + 'static)) -> String {
-    let mut text = e.to_string();
-    let mut cause = e.source();
-    while let Some(c) = cause {
-        text.push_str(": ");
-        text.push_str(&c.to_string());
-        cause = c.source();
-    }
-    text
-}
-
 /// Opening a service can fail for a moment while another process's dead-node cleanup or creation of the same
 /// service is in progress (upstream #1578): worth a short retry, unlike every other failure.
 pub trait Transient {

@@ -42,7 +42,7 @@ pub use map::{MapPoint, MapQuery, MapSnapshotHeader};
 pub use telemetry::{ReadyWatch, TelemetryKind, TelemetryPublisher, TelemetryRecord};
 pub use track::{KeyframeHeader, KeyframeMeta, KeyframePose, PoseRecord, StereoIntrinsics};
 
-pub use error::{IceoryxError, IpcError, Transient, error_chain, iox};
+pub use error::{IceoryxError, IpcError, Transient, iox};
 pub use topic::{Topic, event_id};
 
 /// The environment variable through which the launcher hands each child its run's name prefix.
