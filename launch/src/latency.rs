@@ -74,6 +74,8 @@ struct ProcessAcc {
     last_item: Option<u64>,
     /// What the latest instance restored from a save (it has every message up to this one).
     restored: Option<u64>,
+    /// Input samples refused by validation, per `topic/reason`, over all instances.
+    rejected: BTreeMap<String, u64>,
 }
 
 /// One process instance: readiness, liveness and record numbering are per process, not per service name.
@@ -95,6 +97,8 @@ pub struct LatencyAggregator {
     /// (topic, consumer) → receive − publish.
     hops: BTreeMap<(String, String), Histogram<u64>>,
     records_lost: u64,
+    /// Telemetry records that were not records (unknown kind, no process name): refused here.
+    records_refused: u64,
 }
 
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
@@ -119,6 +123,16 @@ pub struct ProcessReport {
     /// Instances after the first (restarts and swaps).
     #[serde(default)]
     pub restarts: u32,
+    /// Input samples the process refused (validation at the shared-memory boundary), per `topic/reason`.
+    #[serde(default)]
+    pub rejected: BTreeMap<String, u64>,
+}
+
+impl ProcessReport {
+    /// Input samples refused, all topics and reasons.
+    pub fn rejected_total(&self) -> u64 {
+        self.rejected.values().sum()
+    }
 }
 
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
@@ -147,6 +161,9 @@ pub struct LatencyReport {
     pub end_to_end: Vec<EndToEndReport>,
     /// Telemetry records the launcher missed (gaps in record sequence numbers): figures are then partial.
     pub telemetry_records_lost: u64,
+    /// Telemetry records refused as malformed (unknown kind, no process name).
+    #[serde(default)]
+    pub telemetry_records_refused: u64,
 }
 
 impl LatencyAggregator {
@@ -155,7 +172,16 @@ impl LatencyAggregator {
     }
 
     pub fn record(&mut self, r: &TelemetryRecord) {
-        let Some(kind) = r.kind() else { return };
+        let kind = match bdis_ipc::validate::telemetry(r) {
+            Ok(kind) => kind,
+            Err(e) => {
+                if self.records_refused == 0 {
+                    tracing::warn!("telemetry: refused: {e}; further refusals are counted in latency.json");
+                }
+                self.records_refused += 1;
+                return;
+            }
+        };
         let now = std::time::Instant::now();
         let instance = self.instances.entry(r.pid).or_insert_with(|| InstanceAcc {
             ready: false,
@@ -185,6 +211,7 @@ impl LatencyAggregator {
             instances: 1,
             last_item: None,
             restored: None,
+            rejected: BTreeMap::new(),
         });
         if kind == TelemetryKind::Ready && r.pid != acc.pid {
             // A new instance (restart or swap) takes over the name.
@@ -204,6 +231,10 @@ impl LatencyAggregator {
         match kind {
             TelemetryKind::Ready => instance.ready = true,
             TelemetryKind::Heartbeat => {}
+            TelemetryKind::Rejected => {
+                let reason = bdis_ipc::validate::Reason::from_u32(r.reason).map_or("unknown", |r| r.name());
+                *acc.rejected.entry(format!("{}/{reason}", r.input_topic())).or_default() += 1;
+            }
             TelemetryKind::Message => {
                 instance.last_item = Some(instance.last_item.map_or(r.frame_seq, |l| l.max(r.frame_seq)));
                 acc.last_item = Some(acc.last_item.map_or(r.frame_seq, |l| l.max(r.frame_seq)));
@@ -262,6 +293,7 @@ impl LatencyAggregator {
                     }
                     .to_string(),
                     restarts: p.instances - 1,
+                    rejected: p.rejected.clone(),
                 }
             })
             .collect();
@@ -302,7 +334,13 @@ impl LatencyAggregator {
                 })
             })
             .collect();
-        LatencyReport { processes, hops, end_to_end, telemetry_records_lost: self.records_lost }
+        LatencyReport {
+            processes,
+            hops,
+            end_to_end,
+            telemetry_records_lost: self.records_lost,
+            telemetry_records_refused: self.records_refused,
+        }
     }
 }
 
@@ -345,6 +383,25 @@ impl LatencyReport {
                 p.cpu_time_s,
                 p.restarts
             );
+        }
+        let refused: Vec<(&str, &str, u64)> = self
+            .processes
+            .iter()
+            .flat_map(|p| p.rejected.iter().map(move |(k, n)| (p.name.as_str(), k.as_str(), *n)))
+            .collect();
+        if !refused.is_empty() || self.telemetry_records_refused > 0 {
+            let _ = writeln!(out);
+            let _ = writeln!(out, "{:<14} {:<34} {:>8}", "refused by", "topic/reason", "samples");
+            for (process, what, n) in refused {
+                let _ = writeln!(out, "{process:<14} {what:<34} {n:>8}");
+            }
+            if self.telemetry_records_refused > 0 {
+                let _ = writeln!(
+                    out,
+                    "{:<14} {:<34} {:>8}",
+                    "launcher", "telemetry/unknown-value", self.telemetry_records_refused
+                );
+            }
         }
         if !self.end_to_end.is_empty() {
             let _ = writeln!(out);

@@ -7,7 +7,7 @@ use std::time::Duration;
 
 use anyhow::{Context, Result, anyhow, bail};
 use bdis_ipc::telemetry::MessageTiming;
-use bdis_ipc::{FrameView, Ipc, TelemetryPublisher, Topic, event_id, monotonic_ns};
+use bdis_ipc::{Ipc, TelemetryPublisher, Topic, event_id, monotonic_ns};
 use bdis_slam::probe::FrameChecker;
 use iceoryx2::prelude::*;
 use iceoryx2::waitset::WaitSetRunResult;
@@ -127,10 +127,10 @@ fn probe_frames(args: &ProbeArgs) -> Result<()> {
                 end_of_stream = true;
                 break 'outer;
             }
-            match FrameView::new(sample.user_header(), sample.payload()) {
+            match bdis_ipc::validate::frame(sample.user_header(), sample.payload()) {
                 Ok(view) => checker.frame(&view, t_receive_ns),
-                Err(e) => {
-                    tracing::warn!("{e}");
+                Err(rejection) => {
+                    telemetry.rejected(Topic::Frames, &rejection);
                     checker.malformed();
                 }
             }
@@ -268,8 +268,8 @@ fn probe_depth(args: &ProbeArgs) -> Result<()> {
                 checker.end_of_stream();
                 break 'outer;
             }
-            match bdis_ipc::DepthView::new(sample.user_header(), sample.payload()) {
-                Ok(view) => {
+            match bdis_ipc::validate::depth(sample.user_header(), sample.payload()) {
+                Ok((view, _pose)) => {
                     checker.keyframe(&view, t_receive_ns);
                     if args.preview.is_some() {
                         // A copy only when a preview is asked for: the sample goes back to the producer now.
@@ -281,8 +281,8 @@ fn probe_depth(args: &ProbeArgs) -> Result<()> {
                         last.3.extend_from_slice(view.rgb);
                     }
                 }
-                Err(e) => {
-                    tracing::warn!("{e}");
+                Err(rejection) => {
+                    telemetry.rejected(Topic::Depth, &rejection);
                     checker.malformed();
                 }
             }
@@ -385,6 +385,8 @@ struct PoseSummary {
     lost: u64,
     not_initialized: u64,
     keyframes: u64,
+    /// Records refused (an undefined state, an OK pose that is not rigid).
+    malformed: u64,
     end_of_stream: bool,
     frame_seqs_in_order: bool,
     last_world_from_camera: Option<[f64; 7]>,
@@ -420,6 +422,11 @@ fn probe_poses(args: &ProbeArgs) -> Result<()> {
             if r.state == tracking_state::END_OF_STREAM {
                 summary.end_of_stream = true;
                 break 'outer;
+            }
+            if let Err(rejection) = bdis_ipc::validate::pose_record(&r) {
+                telemetry.rejected(Topic::Poses, &rejection);
+                summary.malformed += 1;
+                continue;
             }
             summary.records += 1;
             match r.state {

@@ -82,7 +82,7 @@ pub fn top(mut args: TopArgs) -> Result<()> {
             args.ipc_prefix, args.interval
         );
         out += &format!(
-            "{:<14} {:>7} {:>4} {:>6} {:>8} {:>8} {:>7} {:>16} {:>16} {:>8} {:>9}\n",
+            "{:<14} {:>7} {:>4} {:>6} {:>8} {:>8} {:>7} {:>7} {:>16} {:>16} {:>8} {:>9}\n",
             "process",
             "pid",
             "core",
@@ -90,14 +90,15 @@ pub fn top(mut args: TopArgs) -> Result<()> {
             "rate Hz",
             "msgs",
             "dropped",
+            "refused",
             "processing ms",
             "output age ms",
             "restarts",
             "state"
         );
         out += &format!(
-            "{:<14} {:>7} {:>4} {:>6} {:>8} {:>8} {:>7} {:>16} {:>16} {:>8} {:>9}\n",
-            "", "", "", "", "now", "", "", "p50 / p99", "p50 / p99", "", ""
+            "{:<14} {:>7} {:>4} {:>6} {:>8} {:>8} {:>7} {:>7} {:>16} {:>16} {:>8} {:>9}\n",
+            "", "", "", "", "now", "", "", "", "p50 / p99", "p50 / p99", "", ""
         );
         let ms = |p: Option<bdis_slam::latency::Percentiles>| {
             p.map_or_else(|| "-".to_string(), |p| format!("{:.2} / {:.2}", p.p50 / 1000.0, p.p99 / 1000.0))
@@ -127,7 +128,7 @@ pub fn top(mut args: TopArgs) -> Result<()> {
                 None => "starting".into(),
             };
             out += &format!(
-                "{:<14} {:>7} {:>4} {:>6} {:>8} {:>8} {:>7} {:>16} {:>16} {:>8} {:>9}\n",
+                "{:<14} {:>7} {:>4} {:>6} {:>8} {:>8} {:>7} {:>7} {:>16} {:>16} {:>8} {:>9}\n",
                 p.name,
                 p.pid,
                 core,
@@ -135,6 +136,7 @@ pub fn top(mut args: TopArgs) -> Result<()> {
                 rate_now,
                 p.messages,
                 p.dropped,
+                p.rejected_total(),
                 ms(p.processing_us),
                 ms(p.age_us),
                 // Instances seen starting (a swap or a restart) since this view started.

@@ -117,6 +117,7 @@ fn the_plot_has_a_bar_per_process_and_hop_scaled_by_p50() {
         age_us: Some(p(us * 2.0)),
         ended: "finished".into(),
         restarts: 0,
+        rejected: Default::default(),
     };
     let report = LatencyReport {
         processes: vec![process("fast", 50.0), process("slow<&>", 20_000.0)],
@@ -128,6 +129,7 @@ fn the_plot_has_a_bar_per_process_and_hop_scaled_by_p50() {
         }],
         end_to_end: Vec::new(),
         telemetry_records_lost: 0,
+        telemetry_records_refused: 0,
     };
     let svg = report.svg();
     assert!(svg.starts_with("<svg") && svg.trim_end().ends_with("</svg>"));

@@ -89,12 +89,20 @@ fn floats(bytes: &[u8], kf_id: u64) -> Result<&[f32], DepthLayoutError> {
 
 impl<'a> DepthView<'a> {
     pub fn new(header: &'a DepthHeader, payload: &'a [u8]) -> Result<Self, DepthLayoutError> {
-        let n = header.width as usize * header.height as usize;
-        let needed = (header.disparity_offset as usize + 4 * n)
-            .max(header.confidence_offset as usize + 4 * n)
-            .max(header.rgb_offset as usize + 3 * n);
+        // Checked: a header can claim any sizes, and 4·w·h wraps 64 bits for the largest.
+        let too_short = |needed: usize| DepthLayoutError::PayloadTooShort {
+            kf_id: header.meta.kf_id,
+            needed,
+            actual: payload.len(),
+        };
+        let n = (header.width as usize).checked_mul(header.height as usize).ok_or(too_short(usize::MAX))?;
+        let end = |off: u32, per_pixel: usize| n.checked_mul(per_pixel).and_then(|b| b.checked_add(off as usize));
+        let needed = [end(header.disparity_offset, 4), end(header.confidence_offset, 4), end(header.rgb_offset, 3)]
+            .into_iter()
+            .try_fold(0usize, |m, e| e.map(|e| m.max(e)))
+            .unwrap_or(usize::MAX);
         if needed > payload.len() {
-            return Err(DepthLayoutError::PayloadTooShort { kf_id: header.meta.kf_id, needed, actual: payload.len() });
+            return Err(too_short(needed));
         }
         let span = |off: u32, len: usize| &payload[off as usize..off as usize + len];
         Ok(Self {

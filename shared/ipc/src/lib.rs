@@ -34,6 +34,7 @@ pub mod process;
 pub mod shm;
 pub mod telemetry;
 pub mod track;
+pub mod validate;
 
 pub use clock::monotonic_ns;
 pub use depth::{DepthHeader, DepthView};

@@ -24,6 +24,9 @@ pub enum TelemetryKind {
     /// Nothing to report, but alive: sent when a process has been quiet for [`HEARTBEAT_PERIOD`], so the launcher
     /// can tell an idle service from a hung one (its liveness deadline).
     Heartbeat = 5,
+    /// One input sample refused by validation ([`crate::validate`]): `input_topic` names the topic it came on,
+    /// `reason` says why ([`crate::validate::Reason`]), `frame_seq` the id it carried.
+    Rejected = 6,
 }
 
 /// A process that has sent no record for this long sends a heartbeat at its next wake-up. Services wake at least
@@ -38,16 +41,17 @@ impl TelemetryKind {
             3 => Self::Finished,
             4 => Self::Failed,
             5 => Self::Heartbeat,
+            6 => Self::Rejected,
             _ => return None,
         })
     }
 }
 
-/// One record on the telemetry topic (`bdis.v1.TelemetryRecord`). Times are CLOCK_MONOTONIC ns, 0 = not
+/// One record on the telemetry topic (`bdis.v2.TelemetryRecord`). Times are CLOCK_MONOTONIC ns, 0 = not
 /// applicable (a source has no upstream).
 #[repr(C)]
 #[derive(Debug, Default, Clone, Copy, PartialEq, Eq, ZeroCopySend)]
-#[type_name("bdis.v1.TelemetryRecord")]
+#[type_name("bdis.v2.TelemetryRecord")]
 pub struct TelemetryRecord {
     pub kind: u32,
     pub pid: u32,
@@ -75,6 +79,11 @@ pub struct TelemetryRecord {
     /// checkpoint), so the launcher knows what a restarted consumer already has; 0 = nothing restored (the
     /// default, so a record built field by field cannot claim a restore by accident).
     pub restored_next: u64,
+    /// Input samples this process refused so far (all topics, all reasons).
+    pub rejected: u64,
+    /// In a `Rejected` record: the [`crate::validate::Reason`].
+    pub reason: u32,
+    pub reserved: u32,
 }
 
 impl TelemetryRecord {
@@ -132,6 +141,8 @@ pub struct TelemetryPublisher {
     template: TelemetryRecord,
     failures: u64,
     last_sent_ns: u64,
+    /// (topic, reason) pairs already logged: each is logged once, then only counted.
+    logged_rejections: Vec<(Topic, crate::validate::Reason)>,
 }
 
 impl TelemetryPublisher {
@@ -150,7 +161,14 @@ impl TelemetryPublisher {
             output_topic: fixed(output.map_or("", Topic::short_name)),
             ..Default::default()
         };
-        Ok(Self { publisher, notifier, template, failures: 0, last_sent_ns: clock::monotonic_ns() })
+        Ok(Self {
+            publisher,
+            notifier,
+            template,
+            failures: 0,
+            last_sent_ns: clock::monotonic_ns(),
+            logged_rejections: Vec::new(),
+        })
     }
 
     fn send(&mut self, kind: TelemetryKind, timing: MessageTiming, wake_launcher: bool) {
@@ -233,6 +251,37 @@ impl TelemetryPublisher {
 
     pub fn messages(&self) -> u64 {
         self.template.messages
+    }
+
+    /// Records an input sample refused on `topic`: counted, reported to the launcher, and logged the first time
+    /// this (topic, reason) occurs — a publisher sending garbage at frame rate must not flood the log.
+    pub fn rejected(&mut self, topic: Topic, rejection: &crate::validate::Rejection) {
+        let key = (topic, rejection.reason);
+        if !self.logged_rejections.contains(&key) {
+            self.logged_rejections.push(key);
+            tracing::warn!(
+                "{}: refused ({}): {}; further refusals of this kind are counted, not logged",
+                topic.short_name(),
+                rejection.reason.name(),
+                rejection.detail
+            );
+        }
+        self.template.rejected += 1;
+        let input = self.template.input_topic;
+        self.template.input_topic = fixed(topic.short_name());
+        self.template.reason = rejection.reason as u32;
+        self.send(
+            TelemetryKind::Rejected,
+            MessageTiming { frame_seq: rejection.id, t_done_ns: clock::monotonic_ns(), ..Default::default() },
+            false,
+        );
+        self.template.input_topic = input;
+        self.template.reason = 0;
+    }
+
+    /// Input samples refused so far.
+    pub fn rejected_count(&self) -> u64 {
+        self.template.rejected
     }
 }
 
