@@ -7,8 +7,8 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result};
 use bdis_ipc::map::{MapPoint, MapQuery, MapSnapshotHeader};
 use bdis_ipc::telemetry::MessageTiming;
-use bdis_ipc::track::pose_from_array;
-use bdis_ipc::{DepthView, Ipc, KeyframePose, TelemetryPublisher, Topic, event_id, monotonic_ns};
+use bdis_ipc::validate::{self, StreamGuard};
+use bdis_ipc::{Ipc, KeyframePose, TelemetryPublisher, Topic, event_id, monotonic_ns};
 use bdis_mosaic::{DepthKeyframe, Mosaic, MosaicSummary};
 use bdis_node::{Ended, Flow};
 use iceoryx2::prelude::*;
@@ -28,6 +28,13 @@ pub struct Config {
 }
 
 type CorrectionSubscriber = iceoryx2::port::subscriber::Subscriber<ipc::Service, KeyframePose, ()>;
+
+/// The service's two input streams, and what it knows of the depth stream (for its end).
+struct Input {
+    depth: iceoryx2::port::subscriber::Subscriber<ipc::Service, [u8], bdis_ipc::DepthHeader>,
+    corrections: CorrectionSubscriber,
+    stream: StreamGuard,
+}
 
 /// What the service counts for mosaic.json.
 #[derive(Debug, Default)]
@@ -65,6 +72,8 @@ pub fn run(config: Config) -> Result<()> {
     let snapshot_responses = ipc.notifier(&snapshot_service_events)?;
     let mut telemetry = TelemetryPublisher::new(&ipc, &name, Some(Topic::Depth), None)?;
 
+    let mut input =
+        Input { depth: depth_subscriber, corrections: correction_subscriber, stream: StreamGuard::default() };
     let mut counters = Counters::default();
     let mut pending = PendingCorrections::default();
     let mut end_of_stream = false;
@@ -78,9 +87,8 @@ pub fn run(config: Config) -> Result<()> {
     let wake_on = [&depth_events, &correction_events, &snapshot_requests];
     let served = bdis_node::serve(&wake_on, &mut telemetry, |telemetry| -> Result<Flow> {
         // Corrections first: those a keyframe was made after were sent before it.
-        receive_corrections(&correction_subscriber, &mut pending)?;
-        end_of_stream =
-            take_depth(&depth_subscriber, &correction_subscriber, &mut mosaic, &mut pending, &mut counters, telemetry)?;
+        receive_corrections(&input.corrections, &mut pending, telemetry)?;
+        end_of_stream = take_depth(&mut input, &mut mosaic, &mut pending, &mut counters, telemetry)?;
         counters.snapshots += answer_snapshots(&server, &snapshot_responses, &mosaic, &counters)?;
         if save_every > 0 && counters.inserted >= checkpointed + save_every && !end_of_stream {
             // A checkpoint: everything made so far survives a crash of this process. (At the end of the stream
@@ -107,10 +115,11 @@ pub fn run(config: Config) -> Result<()> {
     };
     // Corrections sent before the end of the stream (the tracker's last bundle adjustment) are applied before
     // the map is written; the map so far is written even when something failed.
-    if let Err(e) = receive_corrections(&correction_subscriber, &mut pending) {
+    if let Err(e) = receive_corrections(&input.corrections, &mut pending, &mut telemetry) {
         tracing::warn!("{e:#}");
     }
-    counters.corrections += pending.apply_up_to(u64::MAX, &mut mosaic);
+    counters.corrections += pending
+        .apply_up_to(u64::MAX, counters.highest_kf_id, &mut mosaic, |r| telemetry.rejected(Topic::Corrections, &r));
     let written = write_results(&mosaic, &counters, &out_dir, preview_width, end_of_stream);
     match (failure, written) {
         (None, Ok(())) => {
@@ -124,46 +133,72 @@ pub fn run(config: Config) -> Result<()> {
     }
 }
 
-/// Queues every pose correction waiting.
-fn receive_corrections(subscriber: &CorrectionSubscriber, pending: &mut PendingCorrections) -> Result<()> {
+/// Queues every pose correction waiting that is well formed and not older than the last one queued (the
+/// tracker sends them in generation order, several per generation).
+fn receive_corrections(
+    subscriber: &CorrectionSubscriber,
+    pending: &mut PendingCorrections,
+    telemetry: &mut TelemetryPublisher,
+) -> Result<()> {
     while let Some(sample) = subscriber.receive().context("receive a pose correction")? {
-        pending.push(*sample.payload());
+        let correction = *sample.payload();
+        let checked = validate::correction(&correction).and_then(|_| match pending.last_generation() {
+            Some(last) if correction.generation < last => Err(validate::Rejection::new(
+                validate::Reason::StaleId,
+                correction.generation,
+                format!(
+                    "correction of keyframe {}: generation {} after generation {last}",
+                    correction.kf_id, correction.generation
+                ),
+            )),
+            _ => Ok(()),
+        });
+        match checked {
+            Ok(()) => pending.push(correction),
+            Err(rejection) => telemetry.rejected(Topic::Corrections, &rejection),
+        }
     }
     Ok(())
 }
 
 /// Takes every depth keyframe waiting; returns whether the end of the stream came.
 fn take_depth(
-    subscriber: &iceoryx2::port::subscriber::Subscriber<ipc::Service, [u8], bdis_ipc::DepthHeader>,
-    corrections: &CorrectionSubscriber,
+    input: &mut Input,
     mosaic: &mut Mosaic,
     pending: &mut PendingCorrections,
     counters: &mut Counters,
     telemetry: &mut TelemetryPublisher,
 ) -> Result<bool> {
     loop {
-        let Some(sample) = subscriber.receive().context("receive a depth keyframe")? else { return Ok(false) };
+        let Some(sample) = input.depth.receive().context("receive a depth keyframe")? else { return Ok(false) };
         let t_receive_ns = monotonic_ns();
         let header = *sample.user_header();
         if header.is_end_of_stream() {
-            return Ok(true);
+            match input.stream.end_of_stream(header.frame_seq, "depth") {
+                Ok(()) => return Ok(true),
+                Err(rejection) => {
+                    telemetry.rejected(Topic::Depth, &rejection);
+                    continue;
+                }
+            }
         }
-        let view = match DepthView::new(sample.user_header(), sample.payload()) {
-            Ok(v) => v,
-            Err(e) => {
-                // A malformed sample is reported and skipped: the map so far is not lost over it.
-                tracing::warn!("{e}");
+        let (view, pose) = match validate::depth(sample.user_header(), sample.payload()) {
+            Ok((view, Some(pose))) => (view, pose),
+            Ok((_, None)) => {
+                // Well formed, but a keyframe made from frames without a tracker has no place in a map.
+                tracing::warn!(
+                    "depth keyframe {} has no pose (the stereo service reads frames, not the tracker's keyframes): skipped",
+                    header.meta.kf_id
+                );
                 counters.malformed += 1;
                 continue;
             }
-        };
-        let Some(pose) = pose_from_array(&header.meta.world_from_camera) else {
-            tracing::warn!(
-                "depth keyframe {} has no pose (the stereo service reads frames, not the tracker's keyframes): skipped",
-                header.meta.kf_id
-            );
-            counters.malformed += 1;
-            continue;
+            Err(rejection) => {
+                // Refused and counted: the map so far is not lost over it.
+                telemetry.rejected(Topic::Depth, &rejection);
+                counters.malformed += 1;
+                continue;
+            }
         };
         let keyframe = DepthKeyframe {
             kf_id: header.meta.kf_id,
@@ -175,8 +210,11 @@ fn take_depth(
             rgb: view.rgb,
         };
         // Corrections this keyframe was made after were sent before it, so they are in the queue by now.
-        receive_corrections(corrections, pending)?;
-        counters.corrections += pending.apply_up_to(header.meta.corrections_generation, mosaic);
+        receive_corrections(&input.corrections, pending, telemetry)?;
+        let newest = counters.highest_kf_id.max(Some(header.meta.kf_id));
+        counters.corrections += pending.apply_up_to(header.meta.corrections_generation, newest, mosaic, |r| {
+            telemetry.rejected(Topic::Corrections, &r)
+        });
         let start = monotonic_ns();
         let report = match mosaic.insert(&keyframe) {
             Ok(r) => r,
@@ -187,7 +225,9 @@ fn take_depth(
             }
         };
         let t_done_ns = monotonic_ns();
+        let origin = sample.origin();
         drop(sample);
+        input.stream.taken(header.meta.kf_id, header.frame_seq, origin);
         if report.duplicate {
             counters.duplicates += 1;
             continue;
@@ -363,7 +403,8 @@ mod tests {
         let intrinsics = StereoIntrinsics { fx: 50.0, fy: 50.0, cx: 31.5, cy: 23.5, bf: 1000.0 };
         let n = (w * h) as usize;
         let send_depth = |meta: KeyframeMeta| {
-            let mut header = DepthHeader { meta, frame_seq: meta.kf_id, ..Default::default() };
+            let mut header =
+                DepthHeader { meta, frame_seq: meta.kf_id, algorithm: DepthHeader::BDIS, ..Default::default() };
             header.set_layout(w, h);
             let mut loan = depth_publisher.loan_slice_uninit(DepthHeader::payload_len(w, h)).unwrap();
             let payload = loan.payload_mut();

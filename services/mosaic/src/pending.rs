@@ -6,31 +6,63 @@ use std::collections::VecDeque;
 
 use bdis_ipc::KeyframePose;
 use bdis_ipc::track::pose_from_array;
+use bdis_ipc::validate::{Reason, Rejection};
 use bdis_mosaic::Mosaic;
 
 #[derive(Debug, Default)]
 pub struct PendingCorrections {
     queue: VecDeque<KeyframePose>,
+    /// The generation of the last correction queued (they arrive in order).
+    last_generation: Option<u64>,
 }
 
 impl PendingCorrections {
     /// A correction as it arrived (the tracker sends them in generation order).
     pub fn push(&mut self, record: KeyframePose) {
+        self.last_generation = Some(record.generation);
         self.queue.push_back(record);
     }
 
+    /// The generation of the last correction queued.
+    pub fn last_generation(&self) -> Option<u64> {
+        self.last_generation
+    }
+
     /// Applies the corrections up to `generation` (all of them with `u64::MAX`); returns how many moved a
-    /// keyframe's pose. One that is not a rigid pose, or that the map refuses, is reported and dropped.
-    pub fn apply_up_to(&mut self, generation: u64, mosaic: &mut Mosaic) -> u64 {
+    /// keyframe's pose. A correction concerns a keyframe the tracker had made before it, so one for a keyframe
+    /// after `newest_kf_id` (the keyframe about to be inserted, or the newest the map has had) never existed: it
+    /// is refused through `refused`, as is one that is not a rigid pose.
+    pub fn apply_up_to(
+        &mut self,
+        generation: u64,
+        newest_kf_id: Option<u64>,
+        mosaic: &mut Mosaic,
+        mut refused: impl FnMut(Rejection),
+    ) -> u64 {
         let mut applied = 0;
         while self.queue.front().is_some_and(|c| c.generation <= generation) {
             let Some(record) = self.queue.pop_front() else { break };
-            match pose_from_array(&record.world_from_camera) {
-                Some(pose) => match mosaic.correct_pose(record.kf_id, pose) {
-                    Ok(_) => applied += 1,
-                    Err(e) => tracing::warn!("correction ignored: {e}"),
-                },
-                None => tracing::warn!("correction of keyframe {} ignored: not a rigid pose", record.kf_id),
+            if newest_kf_id.is_none_or(|newest| record.kf_id > newest) {
+                refused(Rejection::new(
+                    Reason::UnknownKeyframe,
+                    record.kf_id,
+                    format!(
+                        "correction of keyframe {} (generation {}): no such keyframe was made",
+                        record.kf_id, record.generation
+                    ),
+                ));
+                continue;
+            }
+            let outcome = pose_from_array(&record.world_from_camera)
+                .ok_or_else(|| "not a rigid pose".to_string())
+                .and_then(|pose| mosaic.correct_pose(record.kf_id, pose).map_err(|e| e.to_string()));
+            match outcome {
+                Ok(_) => applied += 1,
+                Err(why) => refused(Rejection::new(
+                    Reason::Pose,
+                    record.kf_id,
+                    format!("correction of keyframe {}: {why}", record.kf_id),
+                )),
             }
         }
         applied
@@ -80,11 +112,11 @@ mod tests {
         for (generation, x) in [(1, 1.0), (2, 2.0), (3, 3.0)] {
             pending.push(correction(0, generation, x));
         }
-        assert_eq!(pending.apply_up_to(2, &mut mosaic), 2);
+        assert_eq!(pending.apply_up_to(2, Some(0), &mut mosaic, |r| panic!("{r}")), 2);
         assert_eq!(pending.len(), 1, "generation 3 waits for a keyframe made after it");
         let x = mosaic.keyframes().next().unwrap().world_from_camera.translation.x;
         assert_eq!(x, 2.0, "the last applied correction wins");
-        assert_eq!(pending.apply_up_to(u64::MAX, &mut mosaic), 1);
+        assert_eq!(pending.apply_up_to(u64::MAX, Some(0), &mut mosaic, |r| panic!("{r}")), 1);
         assert_eq!(pending.len(), 0);
     }
 
@@ -99,7 +131,11 @@ mod tests {
         nan.world_from_camera[6] = 1.0;
         pending.push(nan);
         pending.push(correction(0, 2, 5.0));
-        assert_eq!(pending.apply_up_to(u64::MAX, &mut mosaic), 1);
+        // A keyframe after the newest the map has had was never made.
+        pending.push(correction(1, 2, 6.0));
+        let mut refused = Vec::new();
+        assert_eq!(pending.apply_up_to(u64::MAX, Some(0), &mut mosaic, |r| refused.push(r.reason)), 1);
+        assert_eq!(refused, [Reason::Pose, Reason::Pose, Reason::UnknownKeyframe]);
         let pose = mosaic.keyframes().next().unwrap().world_from_camera;
         assert_eq!(pose, Isometry3::from_parts(Translation3::new(5.0, 0.0, 0.0), UnitQuaternion::identity()));
     }

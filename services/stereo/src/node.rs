@@ -3,9 +3,10 @@
 
 use std::path::PathBuf;
 
-use anyhow::{Context, Result, anyhow, bail};
+use anyhow::{Context, Result, bail};
 use bdis_core::RectifiedCamera;
 use bdis_ipc::telemetry::MessageTiming;
+use bdis_ipc::validate::{self, Admit, StreamGuard};
 use bdis_ipc::{
     DepthHeader, FrameHeader, FrameView, Ipc, KeyframeHeader, KeyframeMeta, StereoIntrinsics, TelemetryPublisher,
     Topic, event_id, monotonic_ns,
@@ -112,11 +113,14 @@ impl DepthOutput {
 
 /// The depth header every keyframe of this instance starts from: intrinsics from the settings, the algorithm.
 fn base_header(camera: &RectifiedCamera, algorithm: Algorithm) -> DepthHeader {
-    DepthHeader {
+    let mut base = DepthHeader {
         meta: KeyframeMeta { intrinsics: StereoIntrinsics::of(camera), ..Default::default() },
         algorithm: if algorithm == Algorithm::Bdis { DepthHeader::BDIS } else { DepthHeader::DIS },
         ..Default::default()
-    }
+    };
+    // The camera's size: input of another size is refused.
+    base.set_layout(camera.width, camera.height);
+    base
 }
 
 /// A keyframe picked from acquisition's frames: its id is the frame's sequence number, it has no pose.
@@ -132,12 +136,6 @@ fn header_for_frame(base: DepthHeader, frame: &FrameHeader) -> DepthHeader {
 /// A tracker keyframe: what it is (id, pose, intrinsics, correction generation) travels on to the map as is.
 fn header_for_keyframe(base: DepthHeader, kh: &KeyframeHeader) -> DepthHeader {
     DepthHeader { meta: kh.meta, frame_seq: kh.frame.frame_seq, t_capture_ns: kh.frame.t_capture_ns, ..base }
-}
-
-/// With frames as input: frame `frame_seq` is a keyframe when it is every `every`-th and this instance has not
-/// done it (acquisition replays frames to a consumer that joins).
-fn is_new_keyframe(frame_seq: u64, every: u64, last_kf: Option<u64>) -> bool {
-    frame_seq.is_multiple_of(every) && last_kf.is_none_or(|k| frame_seq > k)
 }
 
 pub fn run(config: Config) -> Result<()> {
@@ -212,7 +210,7 @@ fn from_frames(
     let subscriber = ipc.frame_subscriber(&frames)?;
     let frame_events = ipc.listener(&ipc.events(Topic::Frames)?)?;
     let credits = ipc.notifier(&ipc.frames_consumed()?)?;
-    let mut last_kf: Option<u64> = None;
+    let mut stream: StreamGuard = StreamGuard::default();
     let mut published = 0u64;
     telemetry.ready();
     // Ready for a frame. An on-demand acquisition that is already running sends again what it sent but nobody
@@ -222,23 +220,46 @@ fn from_frames(
         while let Some(sample) = subscriber.receive().context("receive a frame")? {
             let t_receive_ns = monotonic_ns();
             let header = *sample.user_header();
+            let origin = sample.origin();
             if header.is_end_of_stream() {
+                if let Err(rejection) = stream.end_of_stream(header.frame_seq, "frames") {
+                    telemetry.rejected(Topic::Frames, &rejection);
+                    continue;
+                }
                 output.end_of_stream(header.frame_seq)?;
                 tracing::info!("end of stream: {published} keyframes");
                 return Ok(Flow::Finished);
             }
-            // A frame that is not a keyframe, or one this instance already did (replay), is released at once.
-            if !is_new_keyframe(header.frame_seq, every, last_kf) {
-                drop(sample);
-                bdis_ipc::notify(&credits, event_id::CONSUMED)?;
-                continue;
-            }
-            let view = frame_view(sample.user_header(), sample.payload())?;
+            let checked = stream.admit(header.frame_seq, origin, "frame").and_then(|admit| {
+                Ok((admit, validate::packed_frame(&header, sample.payload(), Some((base.width, base.height)))?))
+            });
+            // A frame that is not a keyframe, one this instance already did (replay), or one refused is released
+            // at once; the credit goes back only for what acquisition sent (a stray sample earns none).
+            let view = match checked {
+                Ok((Admit::New, view)) if header.frame_seq.is_multiple_of(every) => view,
+                Ok((admit, _)) => {
+                    if admit == Admit::New {
+                        stream.taken(header.frame_seq, header.frame_seq, origin);
+                    }
+                    drop(sample);
+                    bdis_ipc::notify(&credits, event_id::CONSUMED)?;
+                    continue;
+                }
+                Err(rejection) => {
+                    telemetry.rejected(Topic::Frames, &rejection);
+                    let from_producer = !stream.knows_producer() || stream.is_producer(origin);
+                    drop(sample);
+                    if from_producer {
+                        bdis_ipc::notify(&credits, event_id::CONSUMED)?;
+                    }
+                    continue;
+                }
+            };
             let density = output.publish(&view, header_for_frame(base, &header))?;
             let t_done_ns = monotonic_ns();
             drop(sample);
             bdis_ipc::notify(&credits, event_id::CONSUMED)?;
-            last_kf = Some(header.frame_seq);
+            stream.taken(header.frame_seq, header.frame_seq, origin);
             published += 1;
             report(telemetry, header.frame_seq, header.frame_seq, &header, t_receive_ns, t_done_ns, density);
         }
@@ -262,24 +283,49 @@ fn from_keyframes(
 ) -> Result<u64> {
     let events = ipc.listener(&ipc.events(Topic::Keyframes)?)?;
     // Keyframes up to `resume_after` were done by a predecessor (history replays them).
-    let mut last_kf: Option<u64> = resume_after;
+    let mut stream: StreamGuard = StreamGuard::resuming_after(resume_after);
     let mut published = 0u64;
     let ended = bdis_node::serve(&[&events], telemetry, |telemetry| -> Result<Flow> {
         while let Some(sample) = subscriber.receive().context("receive a keyframe")? {
             let t_receive_ns = monotonic_ns();
             let kh = *sample.user_header();
+            let origin = sample.origin();
             if kh.frame.is_end_of_stream() {
+                if let Err(rejection) = stream.end_of_stream(kh.frame.frame_seq, "keyframes") {
+                    telemetry.rejected(Topic::Keyframes, &rejection);
+                    continue;
+                }
                 output.end_of_stream(kh.frame.frame_seq)?;
                 tracing::info!("end of stream: {published} keyframes");
                 return Ok(Flow::Finished);
             }
-            if last_kf.is_some_and(|k| kh.meta.kf_id <= k) {
+            let checked = stream
+                .admit(kh.meta.kf_id, origin, "keyframe")
+                .and_then(|admit| Ok((admit, validate::keyframe(&kh, sample.payload())?)));
+            let view = match checked {
+                Ok((Admit::New, (view, _pose))) => view,
+                // Done by this instance or its predecessor (history replays them).
+                Ok((Admit::Replay, _)) => continue,
+                Err(rejection) => {
+                    telemetry.rejected(Topic::Keyframes, &rejection);
+                    continue;
+                }
+            };
+            if (kh.frame.width, kh.frame.height) != (base.width, base.height) {
+                let rejection = validate::Rejection::new(
+                    validate::Reason::Dimensions,
+                    kh.meta.kf_id,
+                    format!(
+                        "keyframe {} is {}×{}, but this service's camera is {}×{}",
+                        kh.meta.kf_id, kh.frame.width, kh.frame.height, base.width, base.height
+                    ),
+                );
+                telemetry.rejected(Topic::Keyframes, &rejection);
                 continue;
             }
-            let view = frame_view(&sample.user_header().frame, sample.payload())?;
             let density = output.publish(&view, header_for_keyframe(base, &kh))?;
             let t_done_ns = monotonic_ns();
-            last_kf = Some(kh.meta.kf_id);
+            stream.taken(kh.meta.kf_id, kh.frame.frame_seq, origin);
             published += 1;
             report(telemetry, kh.meta.kf_id, kh.frame.frame_seq, &kh.frame, t_receive_ns, t_done_ns, density);
         }
@@ -289,14 +335,6 @@ fn from_keyframes(
         tracing::info!("stop requested after {published} keyframes");
     }
     Ok(published)
-}
-
-fn frame_view<'a>(header: &'a FrameHeader, payload: &'a [u8]) -> Result<FrameView<'a>> {
-    match FrameView::new(header, payload) {
-        Ok(v) if v.header.gray_stride == v.header.width => Ok(v),
-        Ok(_) => bail!("frame {}: padded grey rows are not supported", header.frame_seq),
-        Err(e) => Err(anyhow!("{e}")),
-    }
 }
 
 fn report(
@@ -365,16 +403,6 @@ mod tests {
         assert_eq!(dh.algorithm, DepthHeader::DIS);
         // All zero: not a rigid pose, so the mosaic skips it rather than placing it at the origin.
         assert_eq!(dh.meta.world_from_camera, [0.0; 7]);
-    }
-
-    #[test]
-    fn every_nth_frame_once_even_when_acquisition_replays() {
-        let picked: Vec<u64> = (0..12).filter(|&s| is_new_keyframe(s, 5, None)).collect();
-        assert_eq!(picked, [0, 5, 10]);
-        // After keyframe 5, a replay of frames 0..=5 picks nothing again; 10 is new.
-        assert!(!is_new_keyframe(5, 5, Some(5)));
-        assert!(!is_new_keyframe(0, 5, Some(5)));
-        assert!(is_new_keyframe(10, 5, Some(5)));
     }
 
     /// The node as a whole, in process, over real shared memory: two tracker keyframes in, their depth keyframes

@@ -11,9 +11,10 @@ use bdis_core::formats::summary::TrackingSummary;
 use bdis_core::geometry::StampedPose;
 use bdis_ipc::telemetry::MessageTiming;
 use bdis_ipc::track::{pose_to_array, tracking_state};
+use bdis_ipc::validate::{self, Admit, StreamGuard};
 use bdis_ipc::{
-    FrameHeader, FrameView, Ipc, KeyframeHeader, KeyframeMeta, KeyframePose, PoseRecord, StereoIntrinsics,
-    TelemetryPublisher, Topic, event_id, monotonic_ns,
+    FrameHeader, Ipc, KeyframeHeader, KeyframeMeta, KeyframePose, PoseRecord, StereoIntrinsics, TelemetryPublisher,
+    Topic, event_id, monotonic_ns,
 };
 use bdis_node::{Ended, Flow};
 use bdis_track::mapper::MapperReport;
@@ -178,7 +179,9 @@ pub fn run(config: Config) -> Result<()> {
     let mut telemetry = TelemetryPublisher::new(&ipc, &name, Some(Topic::Frames), Some(Topic::Keyframes))?;
 
     let mut finished = false;
-    let mut last_seq: Option<u64> = earlier.last_frame_seq();
+    // Frames this run's earlier instances tracked are replays to skip; ids must grow; an end of stream must be
+    // numbered after the last frame (see bdis_ipc::validate::StreamGuard).
+    let mut stream: StreamGuard = StreamGuard::resuming_after(earlier.last_frame_seq());
     let mut counts =
         Counts { frame_ms: Vec::with_capacity(4096), keyframe_ms: Vec::with_capacity(1024), ..Default::default() };
     telemetry.ready();
@@ -195,8 +198,12 @@ pub fn run(config: Config) -> Result<()> {
         while let Some(sample) = subscriber.receive().context("receive a frame")? {
             let t_receive_ns = monotonic_ns();
             let header = *sample.user_header();
+            let origin = sample.origin();
             if header.is_end_of_stream() {
-                // The last bundle adjustment's corrections go out before the end of the stream, so the mosaic,
+                if let Err(rejection) = stream.end_of_stream(header.frame_seq, "frames") {
+                    telemetry.rejected(Topic::Frames, &rejection);
+                    continue;
+                } // The last bundle adjustment's corrections go out before the end of the stream, so the mosaic,
                 // which stops at the end of the depth stream, has applied them when it writes the map.
                 let last = tracker.finish();
                 out.corrections(&tracker, &last)?;
@@ -205,26 +212,33 @@ pub fn run(config: Config) -> Result<()> {
                 tracing::info!("end of stream after {} frames", counts.frames);
                 return Ok(Flow::Finished);
             }
-            // A frame sent again after a consumer joined (on-demand replay) that this instance already tracked.
-            if last_seq.is_some_and(|l| header.frame_seq <= l) {
-                drop(sample);
-                bdis_ipc::notify(&credits, event_id::CONSUMED)?;
-                continue;
-            }
-            let view = match FrameView::new(sample.user_header(), sample.payload()) {
-                Ok(v) if v.header.gray_stride == v.header.width => v,
-                Ok(_) => bail!("frame {}: padded grey rows are not supported", header.frame_seq),
-                Err(e) => bail!("{e}"),
+            // A frame refused, or sent again after a consumer joined (on-demand replay) that this instance already
+            // tracked, is released at once. The credit goes back only for what acquisition sent (it waits for
+            // it); a stray publisher's sample earns none, or it would make acquisition run ahead and overflow.
+            let checked = stream.admit(header.frame_seq, origin, "frame").and_then(|admit| {
+                let view =
+                    validate::packed_frame(&header, sample.payload(), Some((width, height))).map_err(|mut r| {
+                        if r.reason == validate::Reason::Dimensions {
+                            r.detail += &format!(" (Camera.width × Camera.height in {})", settings.display());
+                        }
+                        r
+                    })?;
+                Ok((admit, view))
+            });
+            let view = match checked {
+                Ok((Admit::New, view)) => view,
+                Ok((Admit::Replay, _)) | Err(_) => {
+                    if let Err(rejection) = &checked {
+                        telemetry.rejected(Topic::Frames, rejection);
+                    }
+                    let from_producer = !stream.knows_producer() || stream.is_producer(origin);
+                    drop(sample);
+                    if from_producer {
+                        bdis_ipc::notify(&credits, event_id::CONSUMED)?;
+                    }
+                    continue;
+                }
             };
-            if (header.width, header.height) != (width, height) {
-                bail!(
-                    "frame {} is {}×{}, but {} says Camera.width × Camera.height = {width}×{height}",
-                    header.frame_seq,
-                    header.width,
-                    header.height,
-                    settings.display()
-                );
-            }
             // The tracking thread's CPU (bundle adjustment runs on a worker thread and is not part of it).
             let cpu_start = bdis_ipc::clock::thread_cpu_ns();
             let result = tracker
@@ -270,7 +284,7 @@ pub fn run(config: Config) -> Result<()> {
             } else {
                 counts.frame_ms.push(cpu_ns as f64 / 1e6);
             }
-            last_seq = Some(header.frame_seq);
+            stream.taken(header.frame_seq, header.frame_seq, origin);
             if result.state != TrackingState::Ok || result.new_keyframe.is_some() || header.frame_seq % 50 == 0 {
                 tracing::info!(
                     "frame {}: {:?}, {} inliers{}, {:.1} ms CPU",

@@ -25,7 +25,7 @@ use nalgebra::{Isometry3, Matrix3, Point3, Vector3};
 use serde::{Deserialize, Serialize};
 
 pub use render::{PreviewView, render_preview};
-pub use store::{MOSAIC_FORMAT, Outputs, load, save, write_outputs};
+pub use store::{MOSAIC_FORMAT, Outputs, decode, load, save, write_outputs};
 pub use summary::MosaicSummary;
 
 #[derive(Debug, thiserror::Error)]
@@ -262,7 +262,7 @@ pub struct Mosaic {
     covered: Vec<bool>,
 }
 
-fn check_pose(kf_id: u64, pose: &Isometry3<f64>) -> Result<(), MosaicError> {
+pub(crate) fn check_pose(kf_id: u64, pose: &Isometry3<f64>) -> Result<(), MosaicError> {
     let q = pose.rotation.quaternion();
     let finite = pose.translation.vector.iter().chain(q.coords.iter()).all(|v| v.is_finite());
     if !finite || (q.norm() - 1.0).abs() > 1e-6 {
@@ -520,7 +520,14 @@ impl Mosaic {
         corrections: Vec<(u64, Isometry3<f64>)>,
     ) -> Self {
         let mut m = Self::new(params);
-        m.keyframes = keyframes.into_iter().map(|k| (k.kf_id, k)).collect();
+        // Bounds are derived data: recomputed rather than trusted from the file.
+        m.keyframes = keyframes
+            .into_iter()
+            .map(|mut k| {
+                k.update_bounds();
+                (k.kf_id, k)
+            })
+            .collect();
         m.corrections = corrections.into_iter().collect();
         m
     }

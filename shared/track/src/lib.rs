@@ -4,6 +4,7 @@
 pub mod frame;
 pub mod geometry;
 pub mod ids;
+pub mod journal;
 pub mod map;
 pub mod mapper;
 pub mod optim;
