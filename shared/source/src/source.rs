@@ -117,6 +117,11 @@ fn image_size(path: &Path) -> Result<(u32, u32), SourceError> {
 pub fn read_times(path: &Path) -> Result<Vec<f64>, SourceError> {
     let text = std::fs::read_to_string(path)
         .map_err(|e| SourceError::Io { path: path.to_path_buf(), detail: e.to_string() })?;
+    parse_times(&text, path)
+}
+
+/// [`read_times`] on text already read; `path` names it in errors.
+pub fn parse_times(text: &str, path: &Path) -> Result<Vec<f64>, SourceError> {
     let mut times = Vec::new();
     for (i, line) in text.lines().enumerate() {
         let line = line.trim();
@@ -142,6 +147,11 @@ pub fn read_times(path: &Path) -> Result<Vec<f64>, SourceError> {
 pub fn read_kitti_calib(path: &Path) -> Result<StereoCamera, SourceError> {
     let text = std::fs::read_to_string(path)
         .map_err(|e| SourceError::Io { path: path.to_path_buf(), detail: e.to_string() })?;
+    parse_kitti_calib(&text, path)
+}
+
+/// [`read_kitti_calib`] on text already read; `path` names it in errors.
+pub fn parse_kitti_calib(text: &str, path: &Path) -> Result<StereoCamera, SourceError> {
     let bad = |field: &str, detail: String| SourceError::Calibration {
         path: path.to_path_buf(),
         field: field.into(),

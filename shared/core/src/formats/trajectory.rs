@@ -45,6 +45,9 @@ pub fn parse_tum(text: &str, path: &Path) -> Result<Vec<StampedPose>, FormatErro
     data_lines(text)
         .map(|(line_no, line)| {
             let v: [f64; 8] = numbers(line, path, line_no, "TUM pose `t tx ty tz qx qy qz qw`")?;
+            if !v[0].is_finite() {
+                return Err(invalid(path, Some(line_no), format!("TUM pose: time `{}` is not finite", v[0])));
+            }
             let world_from_camera = pose_from_translation_quaternion([v[1], v[2], v[3]], [v[4], v[5], v[6], v[7]])
                 .ok_or_else(|| invalid(path, Some(line_no), "TUM pose: non-finite value or zero quaternion"))?;
             Ok(StampedPose { t_s: v[0], world_from_camera })

@@ -1,0 +1,192 @@
+//! Fuzz targets: one function per parser of user-supplied files and per validator of shared-memory messages.
+//! Each takes arbitrary bytes and must neither panic nor allocate without bound; where a parse succeeds it
+//! also checks what the parse promises (sizes that agree, finite numbers, rigid poses), so a fuzzer finds
+//! wrong answers as well as crashes.
+//!
+//! Two drivers call them: `tests/fuzz/libfuzzer` (cargo fuzz, coverage-guided, for long runs) and this crate's
+//! `tests/smoke.rs` (stable Rust, a fixed budget of deterministic mutations of the committed corpus, in CI).
+
+use std::path::Path;
+
+mod ipc;
+
+pub use ipc::{correction, depth, frame, keyframe, pose_record, telemetry};
+
+/// A fuzz target: its name (the corpus folder) and its function.
+pub type Target = (&'static str, fn(&[u8]));
+
+/// Every target. The names are the folders of `corpus/` and the binaries of `libfuzzer/fuzz_targets/`.
+pub const TARGETS: &[Target] = &[
+    ("settings_yaml", settings_yaml),
+    ("settings_toml", settings_toml),
+    ("pfm", pfm),
+    ("ply", ply),
+    ("tum", tum),
+    ("kitti_poses", kitti_poses),
+    ("times", times),
+    ("kitti_calib", kitti_calib),
+    ("journal", journal),
+    ("map_bin", map_bin),
+    ("launch_file", launch_file),
+    ("ipc_frame", frame),
+    ("ipc_keyframe", keyframe),
+    ("ipc_depth", depth),
+    ("ipc_correction", correction),
+    ("ipc_pose", pose_record),
+    ("ipc_telemetry", telemetry),
+];
+
+fn path() -> &'static Path {
+    Path::new("fuzz-input")
+}
+
+/// Text parsers get the bytes as a user's file would reach them: read as UTF-8, or refused before parsing.
+fn text(data: &[u8]) -> Option<&str> {
+    std::str::from_utf8(data).ok()
+}
+
+fn assert_rigid(p: &nalgebra::Isometry3<f64>) {
+    assert!(p.translation.vector.iter().all(|v| v.is_finite()), "non-finite translation {p}");
+    let q = p.rotation.quaternion();
+    assert!((q.norm() - 1.0).abs() < 1e-6, "rotation not unit: {q:?}");
+}
+
+pub fn settings_yaml(data: &[u8]) {
+    let Some(t) = text(data) else { return };
+    if let Ok(raw) = bdis_core::settings::raw::RawSettings::parse_opencv_yaml(t, path()) {
+        settings_checked(&raw);
+    }
+}
+
+pub fn settings_toml(data: &[u8]) {
+    let Some(t) = text(data) else { return };
+    if let Ok(raw) = bdis_core::settings::raw::RawSettings::parse_toml(t, path()) {
+        settings_checked(&raw);
+    }
+}
+
+/// Settings that validate describe a usable camera: positive focal lengths and baseline, finite numbers.
+fn settings_checked(raw: &bdis_core::settings::raw::RawSettings) {
+    if let Ok(s) = bdis_core::settings::Settings::from_raw(raw) {
+        let c = &s.camera;
+        assert!(c.fx > 0.0 && c.fy > 0.0 && c.bf > 0.0, "accepted camera {c:?}");
+        assert!(c.cx.is_finite() && c.cy.is_finite(), "accepted camera {c:?}");
+    }
+}
+
+pub fn pfm(data: &[u8]) {
+    if let Ok(img) = bdis_core::formats::pfm::parse(data, path()) {
+        assert_eq!(img.data.len(), img.width * img.height * img.channels, "PFM size disagrees with its data");
+    }
+}
+
+pub fn ply(data: &[u8]) {
+    if let Ok(cloud) = bdis_core::formats::ply::parse(data, path()) {
+        if let Some(c) = &cloud.colors {
+            assert_eq!(c.len(), cloud.positions.len(), "PLY colours disagree with positions");
+        }
+        for (name, values) in &cloud.scalars {
+            assert_eq!(values.len(), cloud.positions.len(), "PLY property {name} disagrees with positions");
+        }
+        for f in &cloud.faces {
+            assert!(f.iter().all(|&i| (i as usize) < cloud.positions.len()), "PLY face {f:?} past the vertices");
+        }
+    }
+}
+
+pub fn tum(data: &[u8]) {
+    let Some(t) = text(data) else { return };
+    if let Ok(poses) = bdis_core::formats::trajectory::parse_tum(t, path()) {
+        for p in &poses {
+            assert!(p.t_s.is_finite(), "non-finite time");
+            assert_rigid(&p.world_from_camera);
+        }
+    }
+}
+
+pub fn kitti_poses(data: &[u8]) {
+    let Some(t) = text(data) else { return };
+    if let Ok(poses) = bdis_core::formats::trajectory::parse_kitti(t, path()) {
+        poses.iter().for_each(assert_rigid);
+    }
+}
+
+pub fn times(data: &[u8]) {
+    let Some(t) = text(data) else { return };
+    if let Ok(times) = bdis_source::source::parse_times(t, path()) {
+        assert!(times.iter().all(|t| t.is_finite()), "non-finite time accepted");
+        assert!(times.windows(2).all(|w| w[0] <= w[1]), "times out of order accepted");
+    }
+}
+
+pub fn kitti_calib(data: &[u8]) {
+    let Some(t) = text(data) else { return };
+    if let Ok(c) = bdis_source::source::parse_kitti_calib(t, path()) {
+        assert!(c.fx > 0.0 && c.fy > 0.0 && c.bf > 0.0 && c.cx.is_finite() && c.cy.is_finite(), "accepted {c:?}");
+    }
+}
+
+pub fn journal(data: &[u8]) {
+    let Some(t) = text(data) else { return };
+    if let Ok(c) = bdis_track::journal::Continuation::parse(t) {
+        for (_, _, p) in &c.frames {
+            if let Some(p) = p {
+                assert_rigid(p);
+            }
+        }
+        c.keyframes.values().for_each(|(_, p)| assert_rigid(p));
+        // What a restarted tracker does with it first.
+        let _ = c.next_kf_id();
+        if let Some(p) = c.last_frame_seq().and_then(|s| c.predict(s.saturating_add(3))) {
+            assert_rigid(&p);
+        }
+    }
+}
+
+pub fn map_bin(data: &[u8]) {
+    if let Ok(map) = bdis_mosaic::decode(data, path()) {
+        // A map that loads can be used: its cloud built and its keyframes walked.
+        let cloud = map.world_cloud();
+        assert!(cloud.positions.iter().all(|p| p.iter().all(|v| v.is_finite())), "non-finite map point");
+    }
+}
+
+pub fn launch_file(data: &[u8]) {
+    let Some(t) = text(data) else { return };
+    let _ = bdis_slam::launch_file::LaunchFile::parse(t, path());
+}
+
+/// Seeds that are easier made than committed by hand: a small `map.bin` written by the mosaic itself.
+pub fn generated_seeds(target: &str) -> Vec<Vec<u8>> {
+    match target {
+        "map_bin" => small_map_bin().into_iter().collect(),
+        _ => Vec::new(),
+    }
+}
+
+fn small_map_bin() -> Option<Vec<u8>> {
+    use bdis_mosaic::{DepthKeyframe, Mosaic, MosaicParams, RectifiedCamera};
+    let (w, h) = (8u32, 6u32);
+    let n = (w * h) as usize;
+    let disparity: Vec<f32> = (0..n).map(|i| 10.0 + (i % 7) as f32).collect();
+    let confidence = vec![0.9f32; n];
+    let rgb = vec![100u8; 3 * n];
+    let mut mosaic = Mosaic::new(MosaicParams::default());
+    let kf = DepthKeyframe {
+        kf_id: 0,
+        t_capture_ns: 0,
+        world_from_camera: nalgebra::Isometry3::identity(),
+        intrinsics: RectifiedCamera { fx: 10.0, fy: 10.0, cx: 4.0, cy: 3.0, bf: 100.0, width: w, height: h },
+        disparity: &disparity,
+        confidence: &confidence,
+        rgb: &rgb,
+    };
+    mosaic.insert(&kf).ok()?;
+    let dir = std::env::temp_dir().join(format!("bdis-fuzz-seed-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).ok()?;
+    let path = dir.join("map.bin");
+    bdis_mosaic::save(&mosaic, &path).ok()?;
+    let bytes = std::fs::read(&path).ok();
+    let _ = std::fs::remove_dir_all(&dir);
+    bytes
+}
