@@ -94,6 +94,7 @@ fn probe_frames(args: &ProbeArgs) -> Result<()> {
     let mut stop_requested = false;
     let mut failure: Option<anyhow::Error> = None;
     let mut end_of_stream = false;
+    let mut stream: bdis_ipc::validate::StreamGuard = Default::default();
     'outer: loop {
         let mut deadline_missed = false;
         let result = waitset
@@ -123,12 +124,19 @@ fn probe_frames(args: &ProbeArgs) -> Result<()> {
             last_rx = t_receive_ns;
             let header = *sample.user_header();
             if header.is_end_of_stream() {
+                if let Err(rejection) = stream.end_of_stream(header.frame_seq, "frames") {
+                    telemetry.rejected(Topic::Frames, &rejection);
+                    continue;
+                }
                 checker.end_of_stream();
                 end_of_stream = true;
                 break 'outer;
             }
             match bdis_ipc::validate::frame(sample.user_header(), sample.payload()) {
-                Ok(view) => checker.frame(&view, t_receive_ns),
+                Ok(view) => {
+                    checker.frame(&view, t_receive_ns);
+                    stream.taken(header.frame_seq, header.frame_seq, sample.origin());
+                }
                 Err(rejection) => {
                     telemetry.rejected(Topic::Frames, &rejection);
                     checker.malformed();
@@ -240,6 +248,7 @@ fn probe_depth(args: &ProbeArgs) -> Result<()> {
     let mut no_producer_since: Option<u64> = None;
     let mut last_status = monotonic_ns();
     let mut failure = None;
+    let mut stream: bdis_ipc::validate::StreamGuard = Default::default();
     'outer: loop {
         let mut deadline_missed = false;
         let result = waitset
@@ -265,12 +274,17 @@ fn probe_depth(args: &ProbeArgs) -> Result<()> {
             let t_receive_ns = monotonic_ns();
             let header = *sample.user_header();
             if header.is_end_of_stream() {
+                if let Err(rejection) = stream.end_of_stream(header.frame_seq, "depth") {
+                    telemetry.rejected(Topic::Depth, &rejection);
+                    continue;
+                }
                 checker.end_of_stream();
                 break 'outer;
             }
             match bdis_ipc::validate::depth(sample.user_header(), sample.payload()) {
                 Ok((view, _pose)) => {
                     checker.keyframe(&view, t_receive_ns);
+                    stream.taken(header.meta.kf_id, header.frame_seq, sample.origin());
                     if args.preview.is_some() {
                         // A copy only when a preview is asked for: the sample goes back to the producer now.
                         last.0 = header.width;

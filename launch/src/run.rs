@@ -65,6 +65,9 @@ pub struct RunRecord {
     pub end_to_end: Vec<crate::latency::EndToEndReport>,
     pub events: Vec<String>,
     pub telemetry_records_lost: u64,
+    /// Telemetry records refused as malformed (see `LatencyReport::telemetry_records_refused`).
+    #[serde(default)]
+    pub telemetry_records_refused: u64,
 }
 
 impl RunRecord {
@@ -84,6 +87,7 @@ impl RunRecord {
             end_to_end: result.latency.end_to_end.clone(),
             events: result.events.clone(),
             telemetry_records_lost: result.latency.telemetry_records_lost,
+            telemetry_records_refused: result.latency.telemetry_records_refused,
         }
     }
 }

@@ -133,29 +133,16 @@ pub fn run(config: Config) -> Result<()> {
     }
 }
 
-/// Queues every pose correction waiting that is well formed and not older than the last one queued (the
-/// tracker sends them in generation order, several per generation).
+/// Queues every pose correction waiting that is well formed and not late (see [`PendingCorrections::push`]).
 fn receive_corrections(
     subscriber: &CorrectionSubscriber,
     pending: &mut PendingCorrections,
     telemetry: &mut TelemetryPublisher,
 ) -> Result<()> {
     while let Some(sample) = subscriber.receive().context("receive a pose correction")? {
-        let correction = *sample.payload();
-        let checked = validate::correction(&correction).and_then(|_| match pending.last_generation() {
-            Some(last) if correction.generation < last => Err(validate::Rejection::new(
-                validate::Reason::StaleId,
-                correction.generation,
-                format!(
-                    "correction of keyframe {}: generation {} after generation {last}",
-                    correction.kf_id, correction.generation
-                ),
-            )),
-            _ => Ok(()),
-        });
-        match checked {
-            Ok(()) => pending.push(correction),
-            Err(rejection) => telemetry.rejected(Topic::Corrections, &rejection),
+        let checked = validate::correction(sample.payload()).and_then(|_| pending.push(*sample.payload()));
+        if let Err(rejection) = checked {
+            telemetry.rejected(Topic::Corrections, &rejection);
         }
     }
     Ok(())
@@ -209,6 +196,12 @@ fn take_depth(
             confidence: view.confidence,
             rgb: view.rgb,
         };
+        // A keyframe the map has (a replacement stereo instance redoes some) changes nothing, not even which
+        // corrections are applied when.
+        if mosaic.contains(header.meta.kf_id) {
+            counters.duplicates += 1;
+            continue;
+        }
         // Corrections this keyframe was made after were sent before it, so they are in the queue by now.
         receive_corrections(&input.corrections, pending, telemetry)?;
         let newest = counters.highest_kf_id.max(Some(header.meta.kf_id));

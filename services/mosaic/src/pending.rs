@@ -12,20 +12,28 @@ use bdis_mosaic::Mosaic;
 #[derive(Debug, Default)]
 pub struct PendingCorrections {
     queue: VecDeque<KeyframePose>,
-    /// The generation of the last correction queued (they arrive in order).
-    last_generation: Option<u64>,
+    /// Every correction up to this generation has been applied: the tracker sent them before the keyframe
+    /// that said so, so one arriving now is late (or not the tracker's).
+    applied_through: u64,
 }
 
 impl PendingCorrections {
     /// A correction as it arrived (the tracker sends them in generation order).
-    pub fn push(&mut self, record: KeyframePose) {
-        self.last_generation = Some(record.generation);
+    /// Queues a correction, or refuses it when its generation has already been applied. Only what keyframes
+    /// said moves that mark, so no correction can make later ones look stale.
+    pub fn push(&mut self, record: KeyframePose) -> Result<(), Rejection> {
+        if record.generation <= self.applied_through {
+            return Err(Rejection::new(
+                Reason::StaleId,
+                record.generation,
+                format!(
+                    "correction of keyframe {}: generation {} arrived after generation {} was applied",
+                    record.kf_id, record.generation, self.applied_through
+                ),
+            ));
+        }
         self.queue.push_back(record);
-    }
-
-    /// The generation of the last correction queued.
-    pub fn last_generation(&self) -> Option<u64> {
-        self.last_generation
+        Ok(())
     }
 
     /// Applies the corrections up to `generation` (all of them with `u64::MAX`); returns how many moved a
@@ -40,8 +48,19 @@ impl PendingCorrections {
         mut refused: impl FnMut(Rejection),
     ) -> u64 {
         let mut applied = 0;
-        while self.queue.front().is_some_and(|c| c.generation <= generation) {
-            let Some(record) = self.queue.pop_front() else { break };
+        if generation != u64::MAX {
+            self.applied_through = self.applied_through.max(generation);
+        }
+        // In arrival order (the tracker's order), every queued correction up to `generation`: a correction from
+        // the future at the front must not hold back those behind it.
+        let mut kept = 0;
+        for i in 0..self.queue.len() {
+            let record = self.queue[i];
+            if record.generation > generation {
+                self.queue[kept] = record;
+                kept += 1;
+                continue;
+            }
             if newest_kf_id.is_none_or(|newest| record.kf_id > newest) {
                 refused(Rejection::new(
                     Reason::UnknownKeyframe,
@@ -65,6 +84,7 @@ impl PendingCorrections {
                 )),
             }
         }
+        self.queue.truncate(kept);
         applied
     }
 
@@ -110,7 +130,7 @@ mod tests {
         let mut mosaic = map_with_one_keyframe();
         let mut pending = PendingCorrections::default();
         for (generation, x) in [(1, 1.0), (2, 2.0), (3, 3.0)] {
-            pending.push(correction(0, generation, x));
+            pending.push(correction(0, generation, x)).unwrap();
         }
         assert_eq!(pending.apply_up_to(2, Some(0), &mut mosaic, |r| panic!("{r}")), 2);
         assert_eq!(pending.len(), 1, "generation 3 waits for a keyframe made after it");
@@ -126,13 +146,13 @@ mod tests {
         let mut pending = PendingCorrections::default();
         let mut bad = correction(0, 1, 0.0);
         bad.world_from_camera = [0.0; 7];
-        pending.push(bad);
+        pending.push(bad).unwrap();
         let mut nan = correction(0, 1, f64::NAN);
         nan.world_from_camera[6] = 1.0;
-        pending.push(nan);
-        pending.push(correction(0, 2, 5.0));
+        pending.push(nan).unwrap();
+        pending.push(correction(0, 2, 5.0)).unwrap();
         // A keyframe after the newest the map has had was never made.
-        pending.push(correction(1, 2, 6.0));
+        pending.push(correction(1, 2, 6.0)).unwrap();
         let mut refused = Vec::new();
         assert_eq!(pending.apply_up_to(u64::MAX, Some(0), &mut mosaic, |r| refused.push(r.reason)), 1);
         assert_eq!(refused, [Reason::Pose, Reason::Pose, Reason::UnknownKeyframe]);

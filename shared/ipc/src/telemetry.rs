@@ -270,10 +270,12 @@ impl TelemetryPublisher {
         let input = self.template.input_topic;
         self.template.input_topic = fixed(topic.short_name());
         self.template.reason = rejection.reason as u32;
+        // Signalled (unlike message records): refusals are rare in a healthy run, and whoever watches for them
+        // (the launcher, a test's rogue publisher) learns of each at once.
         self.send(
             TelemetryKind::Rejected,
             MessageTiming { frame_seq: rejection.id, t_done_ns: clock::monotonic_ns(), ..Default::default() },
-            false,
+            true,
         );
         self.template.input_topic = input;
         self.template.reason = 0;

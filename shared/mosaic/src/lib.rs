@@ -296,6 +296,11 @@ impl Mosaic {
         self.keyframes.len()
     }
 
+    /// Whether the map has keyframe `kf_id` (a depth keyframe with this id again is a duplicate).
+    pub fn contains(&self, kf_id: u64) -> bool {
+        self.keyframes.contains_key(&kf_id)
+    }
+
     pub fn n_points(&self) -> usize {
         self.keyframes.values().map(|k| k.points.len()).sum()
     }

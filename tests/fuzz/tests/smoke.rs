@@ -140,3 +140,17 @@ fn good_seeds_are_accepted_so_the_targets_reach_past_the_first_check() {
     let map = bdis_fuzz::generated_seeds("map_bin");
     assert!(bdis_mosaic::decode(&map[0], p).is_ok());
 }
+
+/// Writes the generated seeds into `corpus/` for libFuzzer (`cargo test -p bdis-fuzz -- --ignored`); the smoke
+/// test makes them itself, so the corpus needs them only for the long runs.
+#[test]
+#[ignore]
+fn write_generated_seeds() {
+    for &(name, _) in bdis_fuzz::TARGETS {
+        for (i, seed) in bdis_fuzz::generated_seeds(name).iter().enumerate() {
+            let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("corpus").join(name);
+            std::fs::create_dir_all(&dir).unwrap();
+            std::fs::write(dir.join(format!("generated-{i}")), seed).unwrap();
+        }
+    }
+}

@@ -257,6 +257,28 @@ pub fn parse(bytes: &[u8], path: &Path) -> Result<PointCloud, FormatError> {
         None => return Err(invalid(path, None, "PLY: no format line")),
     };
 
+    // A header can claim any count: before anything is reserved or looped over, the claim is checked against
+    // the body, in which every record takes at least one byte per property (ASCII: a digit; binary: its size).
+    // Without this, `element vertex 1000000000000` in a 100-byte file asked for terabytes (found by fuzzing).
+    let mut least_bytes: u64 = 0;
+    for element in &elements {
+        let per_record: u64 = element
+            .properties
+            .iter()
+            .map(|p| if ascii.is_some() { 1 } else { p.list_count.unwrap_or(p.value).size() as u64 })
+            .sum();
+        if element.count > 0 && per_record == 0 {
+            return Err(invalid(path, None, format!("PLY: element `{}` has no properties", element.name)));
+        }
+        least_bytes = least_bytes.saturating_add(per_record.saturating_mul(element.count as u64));
+    }
+    if least_bytes > data.len() as u64 {
+        return Err(invalid(
+            path,
+            None,
+            format!("PLY: the header claims at least {least_bytes} bytes of elements, the body has {}", data.len()),
+        ));
+    }
     let mut cloud = PointCloud::default();
     let mut record = Vec::new();
     for element in &elements {
