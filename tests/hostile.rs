@@ -3,7 +3,8 @@
 //! mosaic, a poses probe) runs twice on the same rendered colon sequence, once clean and once with `bdis-rogue`
 //! joining it and sending malformed samples on every topic (see tests/fixture/src/rogue.rs). No service may
 //! die, every bad sample must be counted by the process it reached (latency.json), and the trajectory and the
-//! map must be byte-identical to the clean run's.
+//! map must be byte-identical to the clean run's. The run also shows its privacy: the run folder and its files
+//! are owner-only, and the services that hold frames write no core dump.
 
 mod common;
 
@@ -14,7 +15,8 @@ use std::time::Duration;
 
 use common::*;
 
-/// 320×240 (as the tracking tests) and long enough at 10 Hz for the rogue's samples (a few seconds of them).
+/// 320×240 (as the tracking tests); at 5 Hz the run lasts 14 s, many times what the rogue needs (about a second
+/// for all its samples on an idle machine).
 const FRAMES: usize = 70;
 
 fn render(dir: &Path) {
@@ -34,7 +36,7 @@ fn run_command(seq: &Path, prefix: &str, run_dir: &Path) -> Command {
         .arg(seq)
         .arg("--settings")
         .arg(seq.join("settings.yaml"))
-        .args(["--pacing", "on-demand:10hz", "--ipc-prefix", prefix, "--out"])
+        .args(["--pacing", "on-demand:5hz", "--ipc-prefix", prefix, "--out"])
         .arg(run_dir);
     cmd
 }
@@ -59,6 +61,38 @@ fn refusals(latency: &serde_json::Value) -> BTreeMap<String, BTreeMap<String, u6
         .collect()
 }
 
+/// The pids and names of `parent`'s children (from /proc).
+fn children(parent: u32) -> Vec<(u32, String)> {
+    let mut out = Vec::new();
+    for e in std::fs::read_dir("/proc").unwrap().flatten() {
+        let Ok(pid) = e.file_name().to_string_lossy().parse::<u32>() else { continue };
+        let Ok(stat) = std::fs::read_to_string(format!("/proc/{pid}/stat")) else { continue };
+        // `pid (comm) state ppid …`: the name may hold spaces, so split after the last ')'.
+        let (Some(open), Some(close)) = (stat.find('('), stat.rfind(')')) else { continue };
+        let ppid = stat[close + 1..].split_whitespace().nth(1).and_then(|p| p.parse::<u32>().ok());
+        if ppid == Some(parent) {
+            out.push((pid, stat[open + 1..close].to_string()));
+        }
+    }
+    out
+}
+
+/// Every file under `dir` (and `dir`) is owner-only: patient images, maps and logs are not for other users.
+fn assert_private(dir: &Path) {
+    use std::os::unix::fs::PermissionsExt;
+    let mode = std::fs::metadata(dir).unwrap().permissions().mode() & 0o777;
+    assert_eq!(mode, 0o700, "{} is {mode:o}", dir.display());
+    for e in std::fs::read_dir(dir).unwrap().flatten() {
+        let path = e.path();
+        if path.is_dir() {
+            assert_private(&path);
+        } else {
+            let mode = e.metadata().unwrap().permissions().mode() & 0o777;
+            assert_eq!(mode & 0o077, 0, "{} is {mode:o}", path.display());
+        }
+    }
+}
+
 #[test]
 fn a_rogue_publisher_on_every_topic_is_refused_counted_and_changes_nothing() {
     let tmp = TempDir::new("hostile");
@@ -80,6 +114,25 @@ fn a_rogue_publisher_on_every_topic_is_refused_counted_and_changes_nothing() {
     let dir = tmp.path().join("attacked");
     let prefix = prefix("rogue");
     let mut run = run_command(&seq, &prefix, &dir).stdout(std::process::Stdio::piped()).spawn().unwrap();
+    // The services that hold frames write no core dump (a crash must not put patient images on disk).
+    let services = ["bdis-acquisitio", "bdis-tracking", "bdis-stereo", "bdis-mosaic"];
+    let start = std::time::Instant::now();
+    let mut checked = std::collections::BTreeSet::new();
+    while checked.len() < services.len() && start.elapsed() < Duration::from_secs(30) {
+        for (pid, name) in children(run.id()) {
+            if services.contains(&name.as_str()) && !checked.contains(&name) {
+                let limits = std::fs::read_to_string(format!("/proc/{pid}/limits")).unwrap_or_default();
+                let core = limits.lines().find(|l| l.starts_with("Max core file size")).unwrap_or("");
+                let soft = core.split_whitespace().nth(4);
+                if soft.is_some() {
+                    assert_eq!(soft, Some("0"), "{name}: {core}");
+                    checked.insert(name);
+                }
+            }
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    assert_eq!(checked.len(), services.len(), "saw the services {checked:?}");
     let probe = Command::new(bdis_slam())
         .args(["probe", "poses", "--name", "probe-poses", "--idle-timeout", "120", "--ipc-prefix", &prefix])
         .stdout(std::process::Stdio::null())
@@ -138,6 +191,9 @@ fn a_rogue_publisher_on_every_topic_is_refused_counted_and_changes_nothing() {
     assert_eq!(attacked["telemetry_records_refused"], launcher_expected, "{stdout}\n{manifest:#?}");
     // The run's table says so too.
     assert!(stdout.contains("refused by"), "{stdout}");
+
+    // The run folder and everything in it are owner-only.
+    assert_private(&dir);
 
     // The good stream's results are untouched.
     for file in ["trajectory.tum", "keyframes.tum", "map.ply"] {

@@ -240,10 +240,13 @@ fn swap_replaces_a_running_service_and_refuses_what_it_cannot_do() {
     assert_eq!(v["earlier_instances"].as_array().unwrap().len(), 3, "{v}");
 
     // Without a launcher on that prefix, one line says so.
+    let nobody = common::prefix("nolauncher");
     let out = run_with_timeout(
-        Command::new(bdis_slam()).args(["swap", "stereo", "--ipc-prefix", &common::prefix("nolauncher")]),
+        Command::new(bdis_slam()).args(["swap", "stereo", "--ipc-prefix", &nobody]),
         Duration::from_secs(30),
     );
     assert_eq!(out.status.code(), Some(1));
     assert!(text(&out.stderr).contains("no launcher is running with shared-memory prefix"), "{}", text(&out.stderr));
+    // …and leaves nothing in /dev/shm.
+    assert_no_leftovers(&nobody);
 }

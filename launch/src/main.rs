@@ -25,6 +25,11 @@ mod top_cmd;
 struct Cli {
     #[command(subcommand)]
     command: Command,
+    /// Let the user's group read what a run writes (folders 0750, files 0640). By default run folders and their
+    /// files — images, maps, previews, logs — are readable by their owner only (0700, 0600): they hold patient
+    /// data.
+    #[arg(long, global = true, env = bdis_ipc::process::SHARE_WITH_GROUP_ENV)]
+    share_with_group: bool,
 }
 
 #[derive(Debug, Subcommand)]
@@ -59,6 +64,11 @@ enum Command {
 fn main() -> ExitCode {
     bdis_ipc::process::init_logging();
     let cli = Cli::parse();
+    if cli.share_with_group {
+        // SAFETY: before any thread exists; the services started later inherit the setting.
+        unsafe { std::env::set_var(bdis_ipc::process::SHARE_WITH_GROUP_ENV, "1") };
+    }
+    bdis_ipc::process::private_files();
     let result = match cli.command {
         Command::Run(args) => run_cmd::run(args),
         Command::Probe(args) => probe_cmd::probe(args).map(|()| ExitCode::SUCCESS),

@@ -96,7 +96,17 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
 pub fn make_run_dir(out: Option<&Path>, name: &str) -> Result<PathBuf> {
     match out {
         Some(dir) => {
+            let existed = dir.exists();
             std::fs::create_dir_all(dir).with_context(|| format!("{}: cannot create the run folder", dir.display()))?;
+            // A new folder is private by the umask; one that existed keeps its mode (it may be the user's own
+            // folder of other things), with a word when others can read it.
+            use std::os::unix::fs::PermissionsExt;
+            if existed && std::fs::metadata(dir).is_ok_and(|m| m.permissions().mode() & 0o007 != 0) {
+                tracing::warn!(
+                    "{}: other users can read this folder; the run's images and maps hold patient data",
+                    dir.display()
+                );
+            }
             Ok(dir.to_path_buf())
         }
         None => {

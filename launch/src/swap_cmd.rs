@@ -50,6 +50,12 @@ pub fn swap(mut args: SwapArgs) -> Result<()> {
     let ipc = Ipc::open("swap", &args.ipc_prefix)?;
     let service = ipc.control()?;
     if service.dynamic_config().number_of_servers() == 0 {
+        // Opening the control service made the run's files in /dev/shm; with nobody else on that prefix (a
+        // mistyped one), they are removed again rather than left behind.
+        drop((service, ipc));
+        if bdis_ipc::live_nodes_of_run(&args.ipc_prefix).is_ok_and(|n| n == 0) {
+            bdis_ipc::remove_run_files(&args.ipc_prefix);
+        }
         bail!("no launcher is running with shared-memory prefix `{}`", args.ipc_prefix);
     }
     let client = service.client_builder().create().map_err(|e| anyhow!("create the control client: {e:?}"))?;

@@ -47,6 +47,7 @@ struct Args {
 
 fn main() -> ExitCode {
     bdis_node::init_logging();
+    bdis_node::protect_patient_data();
     bdis_node::finish("bdis-acquisition", run(Args::parse()))
 }
 

@@ -58,6 +58,7 @@ struct Args {
 
 fn main() -> ExitCode {
     bdis_node::init_logging();
+    bdis_node::protect_patient_data();
     bdis_node::finish("bdis-stereo", run(Args::parse()))
 }
 

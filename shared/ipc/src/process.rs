@@ -29,3 +29,45 @@ pub fn finish(program: &str, result: anyhow::Result<()>) -> ExitCode {
         }
     }
 }
+
+/// Set to `1` to let run folders and their files be read by the user's group (a site where the console's
+/// operators share a group): folders 0750, files 0640 instead of 0700 and 0600.
+pub const SHARE_WITH_GROUP_ENV: &str = "BDIS_SHARE_WITH_GROUP";
+/// Set to `1` to allow core dumps of the services that hold frames (for debugging a crash on a bench, never on a
+/// console with patient data).
+pub const CORE_DUMPS_ENV: &str = "BDIS_CORE_DUMPS";
+
+fn env_is_one(name: &str) -> bool {
+    std::env::var(name).is_ok_and(|v| v == "1")
+}
+
+/// Patient images stay with the user who recorded them: every file and folder this process creates is
+/// owner-only (0600 / 0700), or group-readable with [`SHARE_WITH_GROUP_ENV`]. The mode comes from the umask, so
+/// it covers every writer (maps, previews, logs, copied sequences) without a permission argument at each, and
+/// child processes inherit it. Returns the umask set.
+pub fn private_files() -> u32 {
+    let mask = if env_is_one(SHARE_WITH_GROUP_ENV) { 0o027 } else { 0o077 };
+    // SAFETY: umask has no preconditions and cannot fail.
+    unsafe { libc::umask(mask) };
+    mask as u32
+}
+
+/// For a service that holds frames in memory: no core dump, so a crash does not write patient images to disk
+/// (the kernel's core pattern may name any place). RLIMIT_CORE 0 stops core files; PR_SET_DUMPABLE 0 also stops
+/// a core pattern that pipes to a collector. [`CORE_DUMPS_ENV`] keeps dumps allowed. Best effort: a failure is
+/// logged, not fatal. Returns whether dumps are now off.
+pub fn no_core_dumps() -> bool {
+    if env_is_one(CORE_DUMPS_ENV) {
+        tracing::warn!("{CORE_DUMPS_ENV}=1: a crash of this process may write its frames to disk");
+        return false;
+    }
+    let zero = libc::rlimit { rlim_cur: 0, rlim_max: 0 };
+    // SAFETY: setrlimit reads the struct passed by reference; prctl with PR_SET_DUMPABLE takes integer arguments.
+    let (limit, dumpable) =
+        unsafe { (libc::setrlimit(libc::RLIMIT_CORE, &zero), libc::prctl(libc::PR_SET_DUMPABLE, 0, 0, 0, 0)) };
+    if limit != 0 || dumpable != 0 {
+        tracing::warn!("could not turn core dumps off: {}", std::io::Error::last_os_error());
+        return false;
+    }
+    true
+}

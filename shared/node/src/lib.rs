@@ -20,6 +20,13 @@ use iceoryx2::waitset::WaitSetRunResult;
 
 pub use bdis_ipc::process::{finish, init_logging};
 
+/// What a service holding frames does first: owner-only files (see [`bdis_ipc::process::private_files`]) and
+/// no core dumps ([`bdis_ipc::process::no_core_dumps`]).
+pub fn protect_patient_data() {
+    bdis_ipc::process::private_files();
+    bdis_ipc::process::no_core_dumps();
+}
+
 /// How long a service sleeps at most with nothing arriving: the telemetry keepalive goes out at least this often,
 /// well inside the launcher's liveness deadlines.
 pub const WAKE_DEADLINE: Duration = Duration::from_secs(1);

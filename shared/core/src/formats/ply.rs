@@ -219,7 +219,13 @@ pub fn parse(bytes: &[u8], path: &Path) -> Result<PointCloud, FormatError> {
             [] | ["comment", ..] | ["obj_info", ..] => {}
             ["ply"] if i == 0 => {}
             _ if i == 0 => return Err(invalid(path, line_no, "not a PLY file (first line must be `ply`)")),
+            ["format", _, "1.0"] if format.is_some() => {
+                return Err(invalid(path, line_no, "PLY: a second format line"));
+            }
             ["format", f, "1.0"] => format = Some(f.to_string()),
+            ["element", name, _] if elements.iter().any(|e| e.name == *name) => {
+                return Err(invalid(path, line_no, format!("PLY: element `{name}` declared twice")));
+            }
             ["element", name, count] => elements.push(Element {
                 name: name.to_string(),
                 count: count
