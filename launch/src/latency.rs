@@ -172,7 +172,7 @@ impl LatencyAggregator {
     }
 
     pub fn record(&mut self, r: &TelemetryRecord) {
-        let kind = match bdis_ipc::validate::telemetry(r) {
+        let kind = match bdis_ipc::telemetry::validate(r) {
             Ok(kind) => kind,
             Err(e) => {
                 if self.records_refused == 0 {

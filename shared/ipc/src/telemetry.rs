@@ -7,6 +7,7 @@ use iceoryx2::port::notifier::Notifier;
 use iceoryx2::port::publisher::Publisher;
 use iceoryx2::prelude::*;
 
+use crate::validate::{Reason, Rejection};
 use crate::{Ipc, IpcError, Topic, clock, event_id, fixed, iox, text};
 
 /// What a telemetry record reports.
@@ -122,6 +123,25 @@ impl TelemetryRecord {
     }
 }
 
+/// A telemetry record: a defined kind and a process name.
+pub fn validate(r: &TelemetryRecord) -> Result<TelemetryKind, Rejection> {
+    let kind = r.kind().ok_or_else(|| {
+        Rejection::new(
+            Reason::UnknownValue,
+            r.record_seq,
+            format!("telemetry from pid {}: unknown kind {}", r.pid, r.kind),
+        )
+    })?;
+    if r.process().is_empty() || r.process() == "?" {
+        return Err(Rejection::new(
+            Reason::UnknownValue,
+            r.record_seq,
+            format!("telemetry from pid {}: no process name", r.pid),
+        ));
+    }
+    Ok(kind)
+}
+
 /// The times of one handled message.
 #[derive(Debug, Clone, Copy, Default)]
 pub struct MessageTiming {
@@ -142,7 +162,7 @@ pub struct TelemetryPublisher {
     failures: u64,
     last_sent_ns: u64,
     /// (topic, reason) pairs already logged: each is logged once, then only counted.
-    logged_rejections: Vec<(Topic, crate::validate::Reason)>,
+    logged_rejections: Vec<(Topic, Reason)>,
 }
 
 impl TelemetryPublisher {
@@ -255,7 +275,7 @@ impl TelemetryPublisher {
 
     /// Records an input sample refused on `topic`: counted, reported to the launcher, and logged the first time
     /// this (topic, reason) occurs — a publisher sending garbage at frame rate must not flood the log.
-    pub fn rejected(&mut self, topic: Topic, rejection: &crate::validate::Rejection) {
+    pub fn rejected(&mut self, topic: Topic, rejection: &Rejection) {
         let key = (topic, rejection.reason);
         if !self.logged_rejections.contains(&key) {
             self.logged_rejections.push(key);
@@ -313,5 +333,22 @@ impl ReadyWatch {
             Ok(None)
         })?;
         Ok(ready.is_some())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn records_need_a_defined_kind_and_a_process() {
+        let mut r =
+            TelemetryRecord { kind: TelemetryKind::Message as u32, process: fixed("tracking"), ..Default::default() };
+        assert_eq!(validate(&r), Ok(TelemetryKind::Message));
+        r.kind = 99;
+        assert_eq!(validate(&r).unwrap_err().reason, Reason::UnknownValue);
+        r.kind = TelemetryKind::Ready as u32;
+        r.process = [0; 32];
+        assert_eq!(validate(&r).unwrap_err().reason, Reason::UnknownValue);
     }
 }

@@ -6,13 +6,14 @@
 //! What this is not: a defence against a malicious process of the same user, which could as well ptrace or
 //! kill the pipeline. It keeps every consumer memory-safe and alive whatever arrives, keeps malformed samples
 //! out of the trajectory and the map, and counts them (`Rejected` telemetry records, per topic and reason).
+//! (The telemetry record's own check is `validate` in the telemetry module, beside the record, so that this module
+//! does not depend on telemetry, which reports what it refuses.)
 
 use iceoryx2::identifiers::UniquePublisherId;
 use nalgebra::Isometry3;
 
 use crate::depth::{DepthHeader, DepthView};
 use crate::frame::{FrameHeader, FrameLayout, FrameView};
-use crate::telemetry::{TelemetryKind, TelemetryRecord};
 use crate::track::{KeyframeHeader, KeyframeMeta, KeyframePose, PoseRecord, StereoIntrinsics, tracking_state};
 
 /// Why a received sample was refused. The numbers travel in telemetry (`TelemetryRecord::reason`).
@@ -282,25 +283,6 @@ pub fn pose_record(r: &PoseRecord) -> Result<Option<Isometry3<f64>>, Rejection> 
         tracking_state::NOT_INITIALIZED | tracking_state::LOST | tracking_state::END_OF_STREAM => Ok(None),
         s => Err(Rejection::new(Reason::UnknownValue, id, format!("pose of frame {id}: unknown state {s}"))),
     }
-}
-
-/// A telemetry record: a defined kind and a process name.
-pub fn telemetry(r: &TelemetryRecord) -> Result<TelemetryKind, Rejection> {
-    let kind = r.kind().ok_or_else(|| {
-        Rejection::new(
-            Reason::UnknownValue,
-            r.record_seq,
-            format!("telemetry from pid {}: unknown kind {}", r.pid, r.kind),
-        )
-    })?;
-    if r.process().is_empty() || r.process() == "?" {
-        return Err(Rejection::new(
-            Reason::UnknownValue,
-            r.record_seq,
-            format!("telemetry from pid {}: no process name", r.pid),
-        ));
-    }
-    Ok(kind)
 }
 
 /// What a consumer knows of one input stream: the last id it took (frame sequence number or keyframe id), the

@@ -158,7 +158,7 @@ pub fn telemetry(data: &[u8]) {
     let mut r = TelemetryRecord { kind: f.u32() % 8, pid: f.u32(), record_seq: f.u64(), ..Default::default() };
     r.process = f.take();
     r.reason = f.u32();
-    if let Ok(kind) = validate::telemetry(&r) {
+    if let Ok(kind) = bdis_ipc::telemetry::validate(&r) {
         assert_eq!(TelemetryKind::from_u32(r.kind), Some(kind));
         assert!(!r.process().is_empty());
         let _ = validate::Reason::from_u32(r.reason).map(validate::Reason::name);

@@ -98,18 +98,6 @@ fn corrections_poses_and_telemetry_have_defined_values() {
     assert!(pose_record(&PoseRecord { state: tracking_state::LOST, ..ok }).unwrap().is_none());
     assert_eq!(pose_record(&PoseRecord { state: 77, ..ok }).unwrap_err().reason, Reason::UnknownValue);
     assert_eq!(pose_record(&PoseRecord { world_from_camera: [0.0; 7], ..ok }).unwrap_err().reason, Reason::Pose);
-
-    let mut r = TelemetryRecord {
-        kind: TelemetryKind::Message as u32,
-        process: crate::fixed("tracking"),
-        ..Default::default()
-    };
-    assert_eq!(telemetry(&r), Ok(TelemetryKind::Message));
-    r.kind = 99;
-    assert_eq!(telemetry(&r).unwrap_err().reason, Reason::UnknownValue);
-    r.kind = TelemetryKind::Ready as u32;
-    r.process = [0; 32];
-    assert_eq!(telemetry(&r).unwrap_err().reason, Reason::UnknownValue);
 }
 
 #[test]
