@@ -26,7 +26,7 @@ pub fn pose_from_translation_quaternion(t: [f64; 3], q_xyzw: [f64; 4]) -> Option
     let norm = q.norm();
     // Written so that a NaN norm is rejected too.
     #[allow(clippy::neg_cmp_op_on_partial_ord)]
-    if !(norm > 1e-6) {
+    if !(norm > 1e-6 && norm.is_finite()) {
         return None;
     }
     let rotation =

@@ -49,7 +49,7 @@ pub fn private_files() -> u32 {
     let mask = if env_is_one(SHARE_WITH_GROUP_ENV) { 0o027 } else { 0o077 };
     // SAFETY: umask has no preconditions and cannot fail.
     unsafe { libc::umask(mask) };
-    mask as u32
+    mask
 }
 
 /// For a service that holds frames in memory: no core dump, so a crash does not write patient images to disk

@@ -236,7 +236,7 @@ pub fn depth<'a>(
     ]
     .into_iter()
     .try_fold(0u64, |m, e| e.map(|e| m.max(e)));
-    if !needed.is_some_and(|n| n <= payload.len() as u64) {
+    if needed.is_none_or(|n| n > payload.len() as u64) {
         return Err(Rejection::new(
             Reason::PayloadSize,
             id,
