@@ -123,9 +123,9 @@ fn good_seeds_are_accepted_so_the_targets_reach_past_the_first_check() {
     let read =
         |t: &str, f: &str| std::fs::read(PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("corpus").join(t).join(f));
     let text = |t: &str, f: &str| String::from_utf8(read(t, f).unwrap()).unwrap();
-    assert!(formats::pfm::parse(&read("pfm", "small.pfm").unwrap(), p).is_ok());
-    assert!(formats::ply::parse(&read("ply", "binary.ply").unwrap(), p).is_ok());
-    assert!(formats::ply::parse(&read("ply", "ascii.ply").unwrap(), p).is_ok());
+    assert!(formats::pfm::parse(&read("pfm", "small-pf").unwrap(), p).is_ok());
+    assert!(formats::ply::parse(&read("ply", "binary-le").unwrap(), p).is_ok());
+    assert!(formats::ply::parse(&read("ply", "ascii").unwrap(), p).is_ok());
     assert_eq!(formats::trajectory::parse_tum(&text("tum", "traj.tum"), p).unwrap().len(), 2);
     assert_eq!(formats::trajectory::parse_kitti(&text("kitti_poses", "poses.txt"), p).unwrap().len(), 2);
     assert_eq!(bdis_source::source::parse_times(&text("times", "times.txt"), p).unwrap().len(), 4);
