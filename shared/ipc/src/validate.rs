@@ -93,9 +93,24 @@ impl Rejection {
     }
 }
 
-/// The end of `len` bytes at `offset`, `None` past `u64` (a header can claim any numbers).
-fn span_end(offset: u32, len: u64) -> Option<u64> {
-    u64::from(offset).checked_add(len)
+/// Refuses a header whose spans (offset, bytes; `None` = more than 2^64) reach past the payload. The sizes are
+/// a header's claims, so everything is computed in checked 64-bit arithmetic.
+fn spans_fit(spans: [(u32, Option<u64>); 3], payload: &[u8], id: u64, what: &str) -> Result<(), Rejection> {
+    let needed = spans
+        .into_iter()
+        .try_fold(0u64, |m, (offset, len)| len.and_then(|l| u64::from(offset).checked_add(l)).map(|e| m.max(e)));
+    if needed.is_none_or(|n| n > payload.len() as u64) {
+        return Err(Rejection::new(
+            Reason::PayloadSize,
+            id,
+            format!(
+                "{what} {id}: header describes {} bytes but the payload has {}",
+                needed.map_or_else(|| "more than 2^64".to_string(), |n| n.to_string()),
+                payload.len()
+            ),
+        ));
+    }
+    Ok(())
 }
 
 /// A frame (frames topic, or the frame part of a keyframe): its layout against the payload. The returned view
@@ -111,26 +126,14 @@ pub fn frame<'a>(header: &'a FrameHeader, payload: &'a [u8]) -> Result<FrameView
         ));
     }
     let h = u64::from(l.height);
-    let gray = u64::from(l.gray_stride) * h;
-    let rgb = u64::from(l.rgb_stride) * h;
-    let needed =
-        [span_end(l.left_gray_offset, gray), span_end(l.right_gray_offset, gray), span_end(l.left_rgb_offset, rgb)]
-            .into_iter()
-            .try_fold(0u64, |m, e| e.map(|e| m.max(e)));
-    match needed {
-        Some(n) if n <= payload.len() as u64 => {}
-        _ => {
-            return Err(Rejection::new(
-                Reason::PayloadSize,
-                id,
-                format!(
-                    "frame {id}: header describes {} bytes of images but the payload has {}",
-                    needed.map_or_else(|| "more than 2^64".to_string(), |n| n.to_string()),
-                    payload.len()
-                ),
-            ));
-        }
-    }
+    let gray = u64::from(l.gray_stride).checked_mul(h);
+    let rgb = u64::from(l.rgb_stride).checked_mul(h);
+    spans_fit(
+        [(l.left_gray_offset, gray), (l.right_gray_offset, gray), (l.left_rgb_offset, rgb)],
+        payload,
+        id,
+        "frame",
+    )?;
     // In bounds (checked above), so the view's own check passes; it is kept as the one place that slices.
     FrameView::new(header, payload).map_err(|e| Rejection::new(Reason::PayloadSize, id, e.to_string()))
 }
@@ -229,24 +232,13 @@ pub fn depth<'a>(
         ));
     }
     let n = u64::from(header.width) * u64::from(header.height);
-    let needed = [
-        span_end(header.disparity_offset, 4 * n),
-        span_end(header.confidence_offset, 4 * n),
-        span_end(header.rgb_offset, 3 * n),
-    ]
-    .into_iter()
-    .try_fold(0u64, |m, e| e.map(|e| m.max(e)));
-    if needed.is_none_or(|n| n > payload.len() as u64) {
-        return Err(Rejection::new(
-            Reason::PayloadSize,
-            id,
-            format!(
-                "depth keyframe {id}: header describes {} bytes but the payload has {}",
-                needed.map_or_else(|| "more than 2^64".to_string(), |n| n.to_string()),
-                payload.len()
-            ),
-        ));
-    }
+    let floats = n.checked_mul(4);
+    spans_fit(
+        [(header.disparity_offset, floats), (header.confidence_offset, floats), (header.rgb_offset, n.checked_mul(3))],
+        payload,
+        id,
+        "depth keyframe",
+    )?;
     intrinsics(&header.meta.intrinsics, id, "depth keyframe")?;
     let p = if header.meta.world_from_camera == [0.0; 7] {
         None
