@@ -1,7 +1,9 @@
-//! Tracks a plain sequence folder (left/<n>.png, right/<n>.png, times.txt, settings.yaml, n from 1) offline and
-//! writes the trajectory as TUM: a development tool (the product runs the `bdis-tracking` service).
+//! Tracks a sequence folder (left/*.png, right/*.png sorted by number, times.txt, settings.yaml unless
+//! `--settings F` is given) offline and writes the trajectory as TUM, with a per-frame line on standard error:
+//! a development tool (the product runs the `bdis-tracking` service).
 //!
 //! cargo run --release -p bdis-track --example track_sequence -- <dir> <out.tum> [max frames] [--whole-pixel]
+//!     [--settings F] [--verbose]
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 use bdis_track::{Tracker, TrackerSettings};
 use std::io::Write;
@@ -20,10 +22,26 @@ fn main() {
     let a: Vec<String> = std::env::args().collect();
     let dir = std::path::Path::new(&a[1]);
     let max: usize = a.get(3).and_then(|s| s.parse().ok()).unwrap_or(usize::MAX);
-    let settings = bdis_core::settings::Settings::load(&dir.join("settings.yaml")).unwrap();
-    let times: Vec<f64> =
-        std::fs::read_to_string(dir.join("times.txt")).unwrap().lines().map(|l| l.trim().parse().unwrap()).collect();
-    let (_, w, h) = grey(&dir.join("left/1.png"));
+    let settings_path = a
+        .iter()
+        .position(|x| x == "--settings")
+        .map_or_else(|| dir.join("settings.yaml"), |i| std::path::PathBuf::from(&a[i + 1]));
+    let verbose = a.iter().any(|x| x == "--verbose");
+    let settings = bdis_core::settings::Settings::load(&settings_path).unwrap();
+    let times: Vec<f64> = std::fs::read_to_string(dir.join("times.txt"))
+        .unwrap()
+        .lines()
+        .filter(|l| !l.trim().is_empty())
+        .map(|l| l.trim().parse().unwrap())
+        .collect();
+    let list = |side: &str| {
+        let mut files: Vec<std::path::PathBuf> =
+            std::fs::read_dir(dir.join(side)).unwrap().map(|e| e.unwrap().path()).collect();
+        files.sort_by_key(|p| p.file_stem().and_then(|s| s.to_str()).and_then(|s| s.parse::<u64>().ok()));
+        files
+    };
+    let (lefts, rights) = (list("left"), list("right"));
+    let (_, w, h) = grey(&lefts[0]);
     let cam = settings.camera.rectified(w as u32, h as u32).expect("rectified images");
     let ts = TrackerSettings {
         th_depth: settings.th_depth,
@@ -36,8 +54,8 @@ fn main() {
     let mut kf_ms = Vec::new();
     let mut steps = [0.0f64; 5];
     for (i, &t) in times.iter().enumerate().take(max) {
-        let (l, _, _) = grey(&dir.join(format!("left/{}.png", i + 1)));
-        let (r, _, _) = grey(&dir.join(format!("right/{}.png", i + 1)));
+        let (l, _, _) = grey(&lefts[i]);
+        let (r, _, _) = grey(&rights[i]);
         let start = std::time::Instant::now();
         let res = tracker.track((t * 1e9).round() as u64, &l, &r).unwrap();
         let ms = start.elapsed().as_secs_f64() * 1e3;
@@ -51,7 +69,7 @@ fn main() {
         } else {
             cpu.push(ms);
         }
-        if i % 20 == 0 || res.state != bdis_track::TrackingState::Ok {
+        if verbose || i % 20 == 0 || res.state != bdis_track::TrackingState::Ok {
             eprintln!(
                 "frame {i}: {:?} inliers {} kf {:?} {:.1} ms, map {} kfs {} points",
                 res.state,

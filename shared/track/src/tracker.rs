@@ -4,12 +4,14 @@
 //! `motion` (§5.3–§5.4), `local_map` (§5.6), `measurements` (sub-pixel, ours), `keyframe` (§5.8–§5.9) and
 //! `relocalise` (§5.7).
 
+mod appearance;
 mod keyframe;
 mod local_map;
 mod measurements;
 mod motion;
 mod relocalise;
 
+pub use appearance::AppearanceFix;
 pub use relocalise::rigid_fit;
 
 use crate::frame::{Frame, FrameBuilder, Scales};
@@ -114,6 +116,7 @@ pub struct Tracker {
     /// and then for the point) and whether its right-image match was refined.
     new_point_anchors: Vec<Option<(Anchor, bool)>>,
     residual_scratch: Vec<f64>,
+    appearance: appearance::AppearanceScratch,
 }
 
 impl Tracker {
@@ -170,6 +173,7 @@ impl Tracker {
             to_anchor: Vec::with_capacity(1 << 12),
             new_point_anchors: Vec::with_capacity(1 << 12),
             residual_scratch: Vec::with_capacity(1 << 12),
+            appearance: appearance::AppearanceScratch::default(),
         })
     }
 
