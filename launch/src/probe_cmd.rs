@@ -396,6 +396,8 @@ fn probe_telemetry(args: &ProbeArgs) -> Result<()> {
 struct PoseSummary {
     records: u64,
     ok: u64,
+    /// Tracked, but the tracker did not trust the pose.
+    uncertain: u64,
     lost: u64,
     not_initialized: u64,
     keyframes: u64,
@@ -448,6 +450,7 @@ fn probe_poses(args: &ProbeArgs) -> Result<()> {
                     summary.ok += 1;
                     summary.last_world_from_camera = Some(r.world_from_camera);
                 }
+                tracking_state::UNCERTAIN => summary.uncertain += 1,
                 tracking_state::LOST => summary.lost += 1,
                 _ => summary.not_initialized += 1,
             }
@@ -468,8 +471,8 @@ fn probe_poses(args: &ProbeArgs) -> Result<()> {
             );
         }
         status(&format!(
-            "poses: {} ({} ok, {} lost, {} keyframes)",
-            summary.records, summary.ok, summary.lost, summary.keyframes
+            "poses: {} ({} ok, {} uncertain, {} lost, {} keyframes)",
+            summary.records, summary.ok, summary.uncertain, summary.lost, summary.keyframes
         ));
         if args.max_frames.is_some_and(|m| summary.records >= m) {
             break;
@@ -483,9 +486,10 @@ fn probe_poses(args: &ProbeArgs) -> Result<()> {
         std::fs::write(&path, text).with_context(|| format!("{}: cannot write the probe summary", path.display()))?;
     }
     println!(
-        "poses: {} records, {} ok, {} lost, {} keyframes, end of stream: {}",
+        "poses: {} records, {} ok, {} uncertain, {} lost, {} keyframes, end of stream: {}",
         summary.records,
         summary.ok,
+        summary.uncertain,
         summary.lost,
         summary.keyframes,
         if summary.end_of_stream { "yes" } else { "no" }

@@ -6,6 +6,7 @@
 
 mod journal;
 mod node;
+mod quality_log;
 mod world;
 
 use std::path::PathBuf;

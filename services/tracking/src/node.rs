@@ -10,7 +10,7 @@ use bdis_core::RectifiedCamera;
 use bdis_core::formats::summary::TrackingSummary;
 use bdis_core::geometry::StampedPose;
 use bdis_ipc::telemetry::MessageTiming;
-use bdis_ipc::track::{pose_to_array, tracking_state};
+use bdis_ipc::track::{doubt, pose_method, pose_to_array, tracking_state};
 use bdis_ipc::validate::{self, Admit, StreamGuard};
 use bdis_ipc::{
     FrameHeader, Ipc, KeyframeHeader, KeyframeMeta, KeyframePose, PoseRecord, StereoIntrinsics, TelemetryPublisher,
@@ -18,7 +18,7 @@ use bdis_ipc::{
 };
 use bdis_node::{Ended, Flow};
 use bdis_track::mapper::MapperReport;
-use bdis_track::{Tracker, TrackingState};
+use bdis_track::{Doubt, PoseMethod, Tracker, TrackingState};
 use iceoryx2::port::notifier::Notifier;
 use iceoryx2::port::publisher::Publisher;
 use iceoryx2::port::update_connections::UpdateConnections;
@@ -49,7 +49,29 @@ fn state_code(state: TrackingState) -> u32 {
     match state {
         TrackingState::NotInitialized => tracking_state::NOT_INITIALIZED,
         TrackingState::Ok => tracking_state::OK,
+        TrackingState::Uncertain => tracking_state::UNCERTAIN,
         TrackingState::Lost => tracking_state::LOST,
+    }
+}
+
+fn doubt_code(doubt: Option<Doubt>) -> u32 {
+    match doubt {
+        None => doubt::NONE,
+        Some(Doubt::FewInliers) => doubt::FEW_INLIERS,
+        Some(Doubt::LowInlierRatio) => doubt::LOW_INLIER_RATIO,
+        Some(Doubt::IllConditioned) => doubt::ILL_CONDITIONED,
+        Some(Doubt::AppearanceDisagrees) => doubt::APPEARANCE_DISAGREES,
+    }
+}
+
+fn method_code(method: PoseMethod) -> u32 {
+    match method {
+        PoseMethod::None => pose_method::NONE,
+        PoseMethod::Initialisation => pose_method::INITIALISATION,
+        PoseMethod::MotionModel => pose_method::MOTION_MODEL,
+        PoseMethod::Appearance => pose_method::APPEARANCE,
+        PoseMethod::ReferenceProjection => pose_method::REFERENCE_PROJECTION,
+        PoseMethod::Relocalisation => pose_method::RELOCALISATION,
     }
 }
 
@@ -142,6 +164,12 @@ struct Counts {
     frames: u64,
     keyframes: u64,
     lost: u64,
+    uncertain: u64,
+    doubts: std::collections::BTreeMap<String, u64>,
+    appearance_frames: u64,
+    priors_rejected: u64,
+    /// CPU of the frames posed by appearance, ms.
+    appearance_ms: Vec<f64>,
     relocalised: u64,
     /// Per-frame CPU (frames without a new keyframe) and per-keyframe CPU (tracking plus local mapping), ms.
     frame_ms: Vec<f64>,
@@ -184,6 +212,7 @@ pub fn run(config: Config) -> Result<()> {
     let mut stream: StreamGuard = StreamGuard::resuming_after(earlier.last_frame_seq());
     let mut counts =
         Counts { frame_ms: Vec::with_capacity(4096), keyframe_ms: Vec::with_capacity(1024), ..Default::default() };
+    let mut quality_log = crate::quality_log::QualityLog::open(&out_dir)?;
     telemetry.ready();
     bdis_ipc::notify(&credits, event_id::JOINED)?;
     tracing::info!("tracking ready ({width}×{height}, {n_features} features)");
@@ -270,6 +299,13 @@ pub fn run(config: Config) -> Result<()> {
                 inliers: result.inliers as u32,
                 new_keyframe: result.new_keyframe.map_or(u64::MAX, |k| out.world.kf_id(k)),
                 cpu_ns,
+                matched: result.quality.matched,
+                doubt: doubt_code(result.quality.doubt),
+                method: method_code(result.quality.method),
+                prior_rejected: u32::from(result.quality.prior_rejected),
+                reprojection_rms_px: result.quality.reprojection_rms_px,
+                position_sigma_rel: result.quality.position_sigma_rel,
+                appearance_agreement: result.quality.appearance_agreement,
             };
             out.poses.send_copy(record).with_context(|| format!("send pose {}", header.frame_seq))?;
             bdis_ipc::notify(&out.pose_events, event_id::NEW_SAMPLE)?;
@@ -278,6 +314,23 @@ pub fn run(config: Config) -> Result<()> {
             });
             counts.frames += 1;
             counts.lost += u64::from(result.state == TrackingState::Lost);
+            if result.state == TrackingState::Uncertain {
+                counts.uncertain += 1;
+                if let Some(d) = result.quality.doubt {
+                    *counts.doubts.entry(d.name().to_string()).or_default() += 1;
+                }
+            }
+            if result.quality.method == PoseMethod::Appearance {
+                counts.appearance_frames += 1;
+                counts.appearance_ms.push(cpu_ns as f64 / 1e6);
+            }
+            counts.priors_rejected += u64::from(result.quality.prior_rejected);
+            quality_log.frame(
+                header.frame_seq,
+                &result,
+                cpu_ns,
+                result.new_keyframe.map(|k| out.world.kf_id(k)),
+            )?;
             counts.relocalised += u64::from(result.relocalised);
             if result.new_keyframe.is_some() {
                 counts.keyframe_ms.push(cpu_ns as f64 / 1e6);
@@ -287,10 +340,12 @@ pub fn run(config: Config) -> Result<()> {
             stream.taken(header.frame_seq, header.frame_seq, origin);
             if result.state != TrackingState::Ok || result.new_keyframe.is_some() || header.frame_seq % 50 == 0 {
                 tracing::info!(
-                    "frame {}: {:?}, {} inliers{}, {:.1} ms CPU",
+                    "frame {}: {:?}{}, {} inliers, posed by {}{}, {:.1} ms CPU",
                     header.frame_seq,
                     result.state,
+                    result.quality.doubt.map(|d| format!(" ({})", d.name())).unwrap_or_default(),
                     result.inliers,
+                    result.quality.method.name(),
                     result.new_keyframe.map(|k| format!(", keyframe {k}")).unwrap_or_default(),
                     cpu_ns as f64 / 1e6
                 );
@@ -318,6 +373,7 @@ pub fn run(config: Config) -> Result<()> {
         let last = tracker.finish();
         out.corrections(&tracker, &last)?;
     }
+    quality_log.finish()?;
     write_trajectories(&tracker, &earlier, &out.world, &out_dir)?;
     write_summary(&tracker, &earlier, &out.world, &mut counts, &out_dir)?;
     tracing::info!(
@@ -345,6 +401,12 @@ fn write_summary(
         frames: earlier.frames.len() as u64 + counts.frames,
         frames_of_earlier_instances: earlier.frames.len() as u64,
         lost: counts.lost,
+        uncertain: counts.uncertain,
+        doubts: counts.doubts.clone(),
+        appearance_frames: counts.appearance_frames,
+        priors_rejected: counts.priors_rejected,
+        appearance_frame_cpu_ms_p50: percentile(&mut counts.appearance_ms, 0.5),
+        appearance_frame_cpu_ms_p99: percentile(&mut counts.appearance_ms, 0.99),
         relocalisations: counts.relocalised,
         keyframes_created: world.kf_offset + counts.keyframes,
         keyframes_in_map: tracker.map().n_good_keyframes() as u64,

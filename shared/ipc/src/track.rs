@@ -11,12 +11,35 @@ pub mod tracking_state {
     pub const LOST: u32 = 2;
     /// The last record of a stream: no more poses will come.
     pub const END_OF_STREAM: u32 = 3;
+    /// Tracked, but the images do not support the pose well enough to trust it (`PoseRecord::doubt` says
+    /// why): the pose is there, and no keyframe is made from it.
+    pub const UNCERTAIN: u32 = 4;
 }
 
-/// One frame's pose (`bdis.v1.PoseRecord`), fixed size.
+/// Why a pose is `UNCERTAIN` or `LOST` ([`PoseRecord::doubt`]).
+pub mod doubt {
+    pub const NONE: u32 = 0;
+    pub const FEW_INLIERS: u32 = 1;
+    pub const LOW_INLIER_RATIO: u32 = 2;
+    pub const ILL_CONDITIONED: u32 = 3;
+    pub const APPEARANCE_DISAGREES: u32 = 4;
+}
+
+/// How a pose was first found ([`PoseRecord::method`]).
+pub mod pose_method {
+    pub const NONE: u32 = 0;
+    pub const INITIALISATION: u32 = 1;
+    pub const MOTION_MODEL: u32 = 2;
+    pub const APPEARANCE: u32 = 3;
+    pub const REFERENCE_PROJECTION: u32 = 4;
+    pub const RELOCALISATION: u32 = 5;
+}
+
+/// One frame's pose and how well the images support it (`bdis.v2.PoseRecord`; v2 added the quality fields
+/// from `matched` on and the `UNCERTAIN` state), fixed size.
 #[repr(C)]
 #[derive(Debug, Default, Clone, Copy, PartialEq, ZeroCopySend)]
-#[type_name("bdis.v1.PoseRecord")]
+#[type_name("bdis.v2.PoseRecord")]
 pub struct PoseRecord {
     pub frame_seq: u64,
     /// CLOCK_MONOTONIC at capture (from the frame).
@@ -26,7 +49,7 @@ pub struct PoseRecord {
     /// When the tracker published this record.
     pub t_publish_ns: u64,
     /// `world_from_camera` of the left camera: translation (x, y, z), quaternion (x, y, z, w); all zero when
-    /// the state is not OK.
+    /// the state is neither OK nor UNCERTAIN.
     pub world_from_camera: [f64; 7],
     /// [`tracking_state`].
     pub state: u32,
@@ -36,6 +59,21 @@ pub struct PoseRecord {
     pub new_keyframe: u64,
     /// CPU time the tracking thread spent on this frame, ns.
     pub cpu_ns: u64,
+    /// Links to map points in the final pose optimisation (`inliers` of them held).
+    pub matched: u32,
+    /// [`doubt`]: why the state is not OK.
+    pub doubt: u32,
+    /// [`pose_method`].
+    pub method: u32,
+    /// 1 when the motion model's pose was replaced by the one from appearance (the prior was wrong).
+    pub prior_rejected: u32,
+    /// RMS of the inliers' left-image reprojection error, px (NaN without a pose).
+    pub reprojection_rms_px: f64,
+    /// The camera centre's standard deviation along its worst axis over the inliers' median depth (units-free).
+    pub position_sigma_rel: f64,
+    /// Of the matches by appearance (no prior) that agree with each other, the fraction the pose explains (NaN
+    /// when not measured).
+    pub appearance_agreement: f64,
 }
 
 /// The intrinsics of a rectified stereo keyframe as they travel in shared memory (`bdis.v1.StereoIntrinsics`):

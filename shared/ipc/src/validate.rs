@@ -267,11 +267,19 @@ pub fn correction(c: &KeyframePose) -> Result<Isometry3<f64>, Rejection> {
     pose(&c.world_from_camera, c.kf_id, "correction of keyframe")
 }
 
-/// A pose record: a defined state, and a rigid pose when the state is OK. Returns the pose, if any.
+/// A pose record: a defined state, doubt and method, and a rigid pose when the state is OK or UNCERTAIN.
+/// Returns the pose, if any.
 pub fn pose_record(r: &PoseRecord) -> Result<Option<Isometry3<f64>>, Rejection> {
     let id = r.frame_seq;
+    if r.doubt > crate::track::doubt::APPEARANCE_DISAGREES
+        || r.method > crate::track::pose_method::RELOCALISATION
+        || r.prior_rejected > 1
+    {
+        let detail = format!("pose of frame {id}: doubt {}, method {}, prior_rejected {}", r.doubt, r.method, r.prior_rejected);
+        return Err(Rejection::new(Reason::UnknownValue, id, detail));
+    }
     match r.state {
-        tracking_state::OK => pose(&r.world_from_camera, id, "pose of frame").map(Some),
+        tracking_state::OK | tracking_state::UNCERTAIN => pose(&r.world_from_camera, id, "pose of frame").map(Some),
         tracking_state::NOT_INITIALIZED | tracking_state::LOST | tracking_state::END_OF_STREAM => Ok(None),
         s => Err(Rejection::new(Reason::UnknownValue, id, format!("pose of frame {id}: unknown state {s}"))),
     }

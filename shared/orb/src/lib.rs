@@ -3,6 +3,7 @@
 
 pub mod extract;
 pub mod matching;
+pub mod nearest;
 pub mod pattern;
 mod simd;
 pub mod stereo;
@@ -11,4 +12,5 @@ pub use extract::{
     Features, KeyPoint, Level, OrbError, OrbExtractor, OrbParams, hamming, image_to_level, level_to_image,
 };
 pub use matching::{FeatureGrid, RotationBins, RotationHistogram};
+pub use nearest::{hamming_distances, nearest_two};
 pub use stereo::{StereoFeatures, StereoMatcher, close_depth};

@@ -70,10 +70,21 @@ fn main() {
             cpu.push(ms);
         }
         if verbose || i % 20 == 0 || res.state != bdis_track::TrackingState::Ok {
+            let q = &res.quality;
             eprintln!(
-                "frame {i}: {:?} inliers {} kf {:?} {:.1} ms, map {} kfs {} points",
+                "frame {i}: {:?} {} {} inliers {}/{} rms {:.2} px σ_c/z {:.5} σ_r {:.3}° app {}/{} agree {:.2}{} kf {:?} {:.1} ms, map {} kfs {} points",
                 res.state,
-                res.inliers,
+                q.method.name(),
+                q.doubt.map_or("", |d| d.name()),
+                q.inliers,
+                q.matched,
+                q.reprojection_rms_px,
+                q.position_sigma_rel,
+                q.rotation_sigma_deg,
+                q.appearance_consensus,
+                q.appearance_matches,
+                q.appearance_agreement,
+                if q.prior_rejected { " prior-rejected" } else { "" },
                 res.new_keyframe,
                 ms,
                 tracker.map().n_good_keyframes(),

@@ -13,4 +13,6 @@ pub mod search;
 pub mod tracker;
 
 pub use geometry::{CameraFromWorld, RectifiedCamera};
-pub use tracker::{FrameResult, TrackError, Tracker, TrackerSettings, TrackingState};
+pub use tracker::{
+    Doubt, FrameResult, PoseMethod, TrackError, Tracker, TrackerSettings, TrackingQuality, TrackingState,
+};

@@ -160,9 +160,18 @@ pub fn point_jacobian(
 #[derive(Debug, Default)]
 pub struct PoseOptimizer {
     chi2: Vec<f64>,
+    /// Σ JᵀΩJ over the inliers at the final pose of the last optimisation (twist order ω, υ).
+    information: Matrix6<f64>,
 }
 
 impl PoseOptimizer {
+    /// The Gauss–Newton information of the last optimised pose over its inliers (twist ω, υ; υ is the camera
+    /// centre's displacement in the camera frame, to first order). Its inverse is the pose's covariance in units
+    /// of the measurements' σ: how well the images pin the pose down.
+    pub fn information(&self) -> &Matrix6<f64> {
+        &self.information
+    }
+
     /// χ² of every edge of the last optimisation at its final pose (outliers included).
     pub fn chi2(&self) -> &[f64] {
         &self.chi2
@@ -181,6 +190,7 @@ impl PoseOptimizer {
         outlier: &mut [bool],
     ) -> usize {
         let n = points.len();
+        self.information = Matrix6::zeros();
         if n < 3 {
             return 0;
         }
@@ -248,6 +258,18 @@ impl PoseOptimizer {
             best = current;
         }
         *pose = best;
+        for i in 0..n {
+            if outlier[i] {
+                continue;
+            }
+            let pc = best * points[i];
+            if pc.z <= 0.0 {
+                continue;
+            }
+            let (_, jp) = residual_and_jacobian(cam, &pc, &observations[i]);
+            let j = jp * point_jacobian_pose(&pc);
+            self.information += j.transpose() * j * observations[i].inv_sigma2;
+        }
         outlier.iter().filter(|o| !**o).count()
     }
 }

@@ -9,9 +9,11 @@ mod keyframe;
 mod local_map;
 mod measurements;
 mod motion;
+mod quality;
 mod relocalise;
 
 pub use appearance::AppearanceFix;
+pub use quality::{Doubt, PoseMethod, TrackingQuality};
 pub use relocalise::rigid_fit;
 
 use crate::frame::{Frame, FrameBuilder, Scales};
@@ -47,7 +49,17 @@ pub struct TrackerSettings {
 pub enum TrackingState {
     NotInitialized,
     Ok,
+    /// Tracked, but the images do not support the pose well enough to trust it ([`TrackingQuality::doubt`]
+    /// says why): the pose is published and recorded, no keyframe is made from it.
+    Uncertain,
     Lost,
+}
+
+impl TrackingState {
+    /// Whether the frame has a pose (`Ok` or `Uncertain`).
+    pub fn is_tracked(self) -> bool {
+        matches!(self, Self::Ok | Self::Uncertain)
+    }
 }
 
 /// What one frame gave.
@@ -62,6 +74,7 @@ pub struct FrameResult {
     pub mapper: Option<MapperReport>,
     /// The frame relocalised.
     pub relocalised: bool,
+    pub quality: TrackingQuality,
 }
 
 /// Per frame, for the trajectory: the pose relative to the reference keyframe (rebuilt with the keyframe's
@@ -210,37 +223,42 @@ impl Tracker {
             new_keyframe: None,
             mapper: None,
             relocalised: false,
+            quality: TrackingQuality::default(),
         };
         if self.state == TrackingState::NotInitialized {
             if self.current.len() > 500 {
                 self.initialise(&mut result);
+                result.quality.method = PoseMethod::Initialisation;
             }
             self.finish_frame(&mut result);
             return Ok(result);
         }
-        let mut ok = if self.state == TrackingState::Ok {
-            self.replace_last_frame_points();
-            let recently_relocalised = self.last_reloc_frame.is_some_and(|r| self.current.id < r + 2);
-            if self.velocity.is_none() || recently_relocalised {
-                self.track_reference_keyframe()
-            } else {
-                self.track_motion_model() || self.track_reference_keyframe()
-            }
+        let mut ok = if self.state.is_tracked() {
+            self.track_from_last_frame(&mut result.quality)
         } else {
             let r = self.relocalise();
             result.relocalised = r;
+            result.quality.method = PoseMethod::Relocalisation;
             r
         };
         if ok {
             ok = self.track_local_map(&mut result);
         }
-        self.state = if ok { TrackingState::Ok } else { TrackingState::Lost };
+        result.quality.inliers = result.inliers as u32;
+        let doubt = if ok { self.assess(&mut result.quality) } else { Some(Doubt::FewInliers) };
+        result.quality.doubt = doubt;
+        self.state = match (ok, doubt) {
+            (false, _) => TrackingState::Lost,
+            (true, None) => TrackingState::Ok,
+            (true, Some(_)) => TrackingState::Uncertain,
+        };
         if ok {
             let pose = self.current.camera_from_world.unwrap_or_else(Isometry3::identity);
             if let Some(last_pose) = self.last.camera_from_world {
                 self.velocity = Some(pose * last_pose.inverse());
             }
-            if self.need_keyframe(result.inliers) {
+            // A keyframe fixes map points and the dense map at its pose: only from a pose the images support.
+            if self.state == TrackingState::Ok && self.need_keyframe(result.inliers) {
                 self.create_keyframe(&mut result);
             }
             // Outlier links go after the keyframe decision (§5.1 step 5).
@@ -260,9 +278,43 @@ impl Tracker {
         Ok(result)
     }
 
+    /// The first pose of a frame while tracking (§5.1 step 2): the motion model, checked against matching by
+    /// appearance; appearance alone when there is no velocity (the start, after relocalisation) or the motion
+    /// model fails or disagrees with it.
+    fn track_from_last_frame(&mut self, quality: &mut TrackingQuality) -> bool {
+        self.replace_last_frame_points();
+        self.update_last_frame();
+        let recently_relocalised = self.last_reloc_frame.is_some_and(|r| self.current.id < r + 2);
+        // The estimate with no prior, computed first so it can check the prior's.
+        let fix = self.reference_kf.and_then(|r| self.appearance_consensus(r));
+        if let Some(f) = fix {
+            quality.appearance_matches = f.matches as u32;
+            quality.appearance_consensus = f.consensus as u32;
+        }
+        if self.velocity.is_some() && !recently_relocalised && self.track_motion_model() {
+            let agrees = match (fix, self.current.camera_from_world) {
+                (Some(_), Some(pose)) => !(self.appearance_agreement(&pose) < quality::MIN_APPEARANCE_AGREEMENT),
+                _ => true,
+            };
+            if agrees {
+                quality.method = PoseMethod::MotionModel;
+                return true;
+            }
+            quality.prior_rejected = true;
+        }
+        if let Some(f) = fix
+            && self.adopt_appearance(f).is_some()
+        {
+            quality.method = PoseMethod::Appearance;
+            return true;
+        }
+        quality.method = PoseMethod::ReferenceProjection;
+        self.track_reference_keyframe()
+    }
+
     fn finish_frame(&mut self, result: &mut FrameResult) {
         result.state = self.state;
-        let tracked = self.state == TrackingState::Ok;
+        let tracked = self.state.is_tracked();
         if tracked {
             result.camera_from_world = self.current.camera_from_world;
         }

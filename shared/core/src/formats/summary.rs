@@ -16,6 +16,22 @@ pub struct TrackingSummary {
     /// Of those, the frames of instances that crashed (from the journal).
     pub frames_of_earlier_instances: u64,
     pub lost: u64,
+    /// Frames tracked whose pose the tracker did not trust (`Uncertain`), and why, by reason.
+    #[serde(default)]
+    pub uncertain: u64,
+    #[serde(default)]
+    pub doubts: std::collections::BTreeMap<String, u64>,
+    /// Frames posed by matching the reference keyframe by appearance (no prior): the start, after a
+    /// relocalisation, when the motion model failed, and when it disagreed with appearance (`priors_rejected`).
+    #[serde(default)]
+    pub appearance_frames: u64,
+    #[serde(default)]
+    pub priors_rejected: u64,
+    /// Tracking-thread CPU of those frames, ms (keyframe frames included).
+    #[serde(default)]
+    pub appearance_frame_cpu_ms_p50: Option<f64>,
+    #[serde(default)]
+    pub appearance_frame_cpu_ms_p99: Option<f64>,
     pub relocalisations: u64,
     /// Keyframe ids handed out (the next id is this number).
     pub keyframes_created: u64,

@@ -30,6 +30,8 @@ pub(super) struct AppearanceScratch {
     descriptors: Vec<[u8; 32]>,
     /// Per keyframe point: the best claim (distance, frame keypoint), so each point goes to one keypoint.
     claims: Vec<(u32, u32)>,
+    /// Distances from one keypoint's descriptor to every point's.
+    distances: Vec<u32>,
     /// (frame keypoint, point, stereo point in the camera, the point in the world, the observation).
     matches: Vec<Match>,
     rejected: Vec<u32>,
@@ -47,24 +49,25 @@ struct Match {
 }
 
 /// What appearance tracking found: the pose and its support, before and after the pose optimisation.
-#[derive(Debug, Clone, Copy, Default, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq)]
 pub struct AppearanceFix {
     /// Matches by descriptor that passed the ratio and rotation tests.
     pub matches: usize,
     /// Of them, consistent with the best RANSAC hypothesis.
     pub consensus: usize,
+    /// The hypothesis (three matches' absolute orientation).
+    pub pose: CameraFromWorld,
 }
 
 impl Tracker {
-    /// Matches the current frame to keyframe `kf` by appearance and poses it from those matches alone. On
-    /// success the frame has the pose and its inlier links (outliers dropped) and the fix is returned.
-    pub(super) fn track_by_appearance(&mut self, kf: KfId) -> Option<AppearanceFix> {
+    /// Poses the current frame from the last [`Self::appearance_consensus`]: its hypothesis, its matches as links
+    /// (the RANSAC outliers marked so the optimisation starts without them; they may come back if the refined
+    /// pose explains them), then the pose-only optimisation.
+    pub(super) fn adopt_appearance(&mut self, fix: AppearanceFix) -> Option<AppearanceFix> {
         self.current.points.fill(None);
         self.current.outlier.fill(false);
-        let fix = self.appearance_consensus(kf)?;
+        self.current.camera_from_world = Some(fix.pose);
         let s = &self.appearance;
-        // The links: every match, the RANSAC outliers marked so the optimisation starts without them (they may
-        // come back if the refined pose explains them).
         for (m, &inlier) in s.matches.iter().zip(&s.best_inlier) {
             self.current.points[m.keypoint] = Some(m.point);
             self.current.outlier[m.keypoint] = !inlier;
@@ -73,19 +76,33 @@ impl Tracker {
         (self.drop_outliers() >= 10).then_some(fix)
     }
 
-    /// The descriptor matches of the current frame's stereo keypoints to `kf`'s points and the pose of the best
-    /// 3-point hypothesis (in `current.camera_from_world`; `appearance.best_inlier` marks its consensus).
+    /// Of the last appearance consensus, the fraction that `pose` explains too (χ² of a stereo observation at
+    /// 95 %): near 1 when `pose` is where the images say the camera is, low when it is somewhere else.
+    pub(super) fn appearance_agreement(&self, pose: &CameraFromWorld) -> f64 {
+        let s = &self.appearance;
+        let (mut consensus, mut explained) = (0usize, 0usize);
+        for (m, &inlier) in s.matches.iter().zip(&s.best_inlier) {
+            if inlier {
+                consensus += 1;
+                explained += usize::from(chi2(&self.cam, pose, &m.world, &m.obs) < CHI2_STEREO);
+            }
+        }
+        if consensus == 0 { f64::NAN } else { explained as f64 / consensus as f64 }
+    }
+
+    /// The descriptor matches of the current frame's stereo keypoints to `kf`'s points and the best 3-point
+    /// hypothesis (`appearance.best_inlier` marks its consensus). The frame is left as it was.
     pub(super) fn appearance_consensus(&mut self, kf: KfId) -> Option<AppearanceFix> {
         self.match_by_appearance(kf);
         let n = self.appearance.matches.len();
-        if n < MIN_MATCHES {
-            return None;
-        }
         let s = &mut self.appearance;
         s.inlier.clear();
         s.inlier.resize(n, false);
         s.best_inlier.clear();
         s.best_inlier.resize(n, false);
+        if n < MIN_MATCHES {
+            return None;
+        }
         let mut best: (usize, Option<CameraFromWorld>) = (0, None);
         let mut needed = RANSAC_MAX_ITERATIONS;
         let mut iteration = 0;
@@ -124,10 +141,10 @@ impl Tracker {
         }
         let (consensus, Some(pose)) = best else { return None };
         if consensus < 10 {
+            s.best_inlier.fill(false);
             return None;
         }
-        self.current.camera_from_world = Some(pose);
-        Some(AppearanceFix { matches: n, consensus })
+        Some(AppearanceFix { matches: n, consensus, pose })
     }
 
     /// Fills `appearance.matches`: each stereo keypoint of the frame to its nearest point of `kf` by descriptor
@@ -148,23 +165,18 @@ impl Tracker {
         }
         s.claims.clear();
         s.claims.resize(s.points.len(), (u32::MAX, u32::MAX));
+        if s.distances.len() < s.descriptors.len() {
+            s.distances.resize(s.descriptors.len(), 0);
+        }
         for i in 0..self.current.len() {
             if self.current.depth[i] <= 0.0 {
                 continue;
             }
-            let d = &self.current.descriptors[i];
-            let (mut best, mut second) = ((u32::MAX, usize::MAX), u32::MAX);
-            for (k, kd) in s.descriptors.iter().enumerate() {
-                let h = hamming(d, kd);
-                if h < best.0 {
-                    second = best.0;
-                    best = (h, k);
-                } else if h < second {
-                    second = h;
-                }
-            }
-            if best.0 <= TH_LOW && f64::from(best.0) < RATIO * f64::from(second) && best.0 < s.claims[best.1].0 {
-                s.claims[best.1] = (best.0, i as u32);
+            let distances = &mut s.distances[..s.descriptors.len()];
+            bdis_orb::hamming_distances(&self.current.descriptors[i], &s.descriptors, distances);
+            let (best, k, second) = bdis_orb::nearest_two(distances);
+            if best <= TH_LOW && f64::from(best) < RATIO * f64::from(second) && best < s.claims[k].0 {
+                s.claims[k] = (best, i as u32);
             }
         }
         self.searcher.rotation.clear();

@@ -90,14 +90,11 @@ impl Tracker {
         self.drop_outliers() >= 10
     }
 
-    /// §5.4: by appearance ([`Self::track_by_appearance`]), which needs no pose prior; failing that (too few
-    /// distinctive matches), by guided projection from the last pose.
+    /// §5.4 by guided projection from the last pose into the reference keyframe's points: the fallback when
+    /// matching by appearance ([`Self::appearance_consensus`]) found too few distinctive matches.
     pub(super) fn track_reference_keyframe(&mut self) -> bool {
         self.update_last_frame();
         let Some(r) = self.reference_kf else { return false };
-        if self.track_by_appearance(r).is_some() {
-            return true;
-        }
         let Some(last_pose) = self.last.camera_from_world else { return false };
         self.current.camera_from_world = Some(last_pose);
         self.current.points.fill(None);

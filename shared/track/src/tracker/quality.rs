@@ -1,0 +1,182 @@
+//! How well the images support a frame's pose, and the honest status that follows from it: a pose is `Ok` only
+//! when enough of its matches are inliers, the optimisation pins it down, and the estimate by appearance (no
+//! prior) agrees with it. Every measure here is a ratio or is relative to the scene, so footage in metres and in
+//! millimetres, at any image size, is judged alike.
+
+use super::*;
+
+/// How the frame's pose was first found, before the local map refined it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum PoseMethod {
+    #[default]
+    None,
+    /// The first frame: the map starts at it.
+    Initialisation,
+    /// The constant-velocity prediction and a projection search from the last frame (§5.3).
+    MotionModel,
+    /// Descriptor matching against the reference keyframe with no prior ([`Tracker::appearance_consensus`]).
+    Appearance,
+    /// Projection from the last pose into the reference keyframe's points (when appearance found too little).
+    ReferenceProjection,
+    /// Relocalisation (§5.7).
+    Relocalisation,
+}
+
+impl PoseMethod {
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::None => "none",
+            Self::Initialisation => "initialisation",
+            Self::MotionModel => "motion-model",
+            Self::Appearance => "appearance",
+            Self::ReferenceProjection => "reference-projection",
+            Self::Relocalisation => "relocalisation",
+        }
+    }
+}
+
+/// Why a tracked frame's pose is not trusted (its state is `Uncertain`), or why the frame was lost.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Doubt {
+    /// Fewer inliers than tracking needs (the frame is `Lost`).
+    FewInliers,
+    /// Most of the matches the pose was optimised on disagree with it.
+    LowInlierRatio,
+    /// The inliers leave the camera's position poorly determined (far or clustered points).
+    IllConditioned,
+    /// Matching by appearance, with no prior, puts the camera somewhere the pose does not explain.
+    AppearanceDisagrees,
+}
+
+impl Doubt {
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::FewInliers => "few-inliers",
+            Self::LowInlierRatio => "low-inlier-ratio",
+            Self::IllConditioned => "ill-conditioned",
+            Self::AppearanceDisagrees => "appearance-disagrees",
+        }
+    }
+}
+
+/// Per frame: how its pose was found and how well the images support it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TrackingQuality {
+    pub method: PoseMethod,
+    /// The motion model was tried and its pose replaced by the one from appearance (the prior was wrong).
+    pub prior_rejected: bool,
+    /// Links to map points in the final pose optimisation, and of them the inliers.
+    pub matched: u32,
+    pub inliers: u32,
+    /// RMS of the inliers' left-image reprojection error, level-0 px.
+    pub reprojection_rms_px: f64,
+    /// The camera centre's standard deviation along its worst axis (from the optimisation's information and
+    /// the measured σ), over the median depth of the inliers: units-free; 0.001 is 1 mm at 1 m.
+    pub position_sigma_rel: f64,
+    /// The rotation's standard deviation along its worst axis, degrees.
+    pub rotation_sigma_deg: f64,
+    /// Matches by appearance to the reference keyframe (ratio and rotation tests passed), and of them the RANSAC
+    /// consensus; 0 when appearance matching did not run or found too little.
+    pub appearance_matches: u32,
+    pub appearance_consensus: u32,
+    /// Of that consensus, the fraction the final pose explains; NaN without a consensus.
+    pub appearance_agreement: f64,
+    pub doubt: Option<Doubt>,
+}
+
+impl Default for TrackingQuality {
+    fn default() -> Self {
+        Self {
+            method: PoseMethod::None,
+            prior_rejected: false,
+            matched: 0,
+            inliers: 0,
+            reprojection_rms_px: f64::NAN,
+            position_sigma_rel: f64::NAN,
+            rotation_sigma_deg: f64::NAN,
+            appearance_matches: 0,
+            appearance_consensus: 0,
+            appearance_agreement: f64::NAN,
+            doubt: None,
+        }
+    }
+}
+
+/// The appearance consensus must be explained by at least this fraction at the final pose. A right pose explains
+/// nearly all of it (the consensus was gated at a coarser 3-point pose); a pose off by more than the matches' noise
+/// explains a minority.
+pub const MIN_APPEARANCE_AGREEMENT: f64 = 0.5;
+/// At least this fraction of the links in the final optimisation must be inliers.
+pub const MIN_INLIER_RATIO: f64 = 0.25;
+/// The camera centre's σ may be at most this fraction of the inliers' median depth.
+pub const MAX_POSITION_SIGMA_REL: f64 = 0.01;
+
+impl Tracker {
+    /// Fills the measures of `quality` from the last pose optimisation (the local map's) and the appearance
+    /// consensus, and returns the doubt about the pose, if any.
+    pub(super) fn assess(&mut self, quality: &mut TrackingQuality) -> Option<Doubt> {
+        let Some(pose) = self.current.camera_from_world else { return Some(Doubt::FewInliers) };
+        let mut depths = std::mem::take(&mut self.residual_scratch);
+        depths.clear();
+        let (mut sum_e2, mut n) = (0.0, 0usize);
+        for (k, &i) in self.opt_index.iter().enumerate() {
+            if self.opt_outlier[k] {
+                continue;
+            }
+            let pc = pose * self.opt_points[k];
+            if pc.z <= 0.0 {
+                continue;
+            }
+            let (u, v) = self.cam.project(&pc);
+            let kp = &self.current.keypoints[i];
+            sum_e2 += (u - f64::from(kp.x)).powi(2) + (v - f64::from(kp.y)).powi(2);
+            n += 1;
+            depths.push(pc.z);
+        }
+        quality.matched = self.opt_index.len() as u32;
+        quality.reprojection_rms_px = if n > 0 { (sum_e2 / n as f64).sqrt() } else { f64::NAN };
+        let median_depth = if depths.is_empty() {
+            f64::NAN
+        } else {
+            let mid = depths.len() / 2;
+            *depths.select_nth_unstable_by(mid, f64::total_cmp).1
+        };
+        self.residual_scratch = depths;
+        // The information is in units of each measurement's assumed σ; scale the covariance by the measured
+        // spread of the residuals (χ² per degree of freedom), so noisy footage is judged by its real noise.
+        let chi2 = self.optimizer.chi2();
+        let (mut chi2_sum, mut dof) = (0.0, 0.0);
+        for (k, &i) in self.opt_index.iter().enumerate() {
+            if !self.opt_outlier[k] && chi2[k].is_finite() {
+                chi2_sum += chi2[k];
+                dof += if self.current.u_right[i] >= 0.0 { 3.0 } else { 2.0 };
+            }
+        }
+        let noise = if dof > 6.0 { (chi2_sum / (dof - 6.0)).max(1e-12) } else { f64::NAN };
+        let (position_sigma, rotation_sigma) = match self.optimizer.information().try_inverse() {
+            Some(cov) => {
+                let worst = |block: nalgebra::Matrix3<f64>| block.symmetric_eigenvalues().max().max(0.0).sqrt();
+                (
+                    worst(cov.fixed_view::<3, 3>(3, 3).into_owned()) * noise.sqrt(),
+                    worst(cov.fixed_view::<3, 3>(0, 0).into_owned()) * noise.sqrt(),
+                )
+            }
+            None => (f64::INFINITY, f64::INFINITY),
+        };
+        quality.position_sigma_rel = position_sigma / median_depth;
+        quality.rotation_sigma_deg = rotation_sigma.to_degrees();
+        if quality.appearance_consensus > 0 {
+            quality.appearance_agreement = self.appearance_agreement(&pose);
+        }
+        let ratio = f64::from(quality.inliers) / f64::from(quality.matched.max(1));
+        if quality.appearance_agreement < MIN_APPEARANCE_AGREEMENT {
+            Some(Doubt::AppearanceDisagrees)
+        } else if ratio < MIN_INLIER_RATIO {
+            Some(Doubt::LowInlierRatio)
+        } else if !(quality.position_sigma_rel <= MAX_POSITION_SIGMA_REL) {
+            Some(Doubt::IllConditioned)
+        } else {
+            None
+        }
+    }
+}
