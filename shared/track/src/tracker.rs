@@ -293,7 +293,11 @@ impl Tracker {
         }
         if self.velocity.is_some() && !recently_relocalised && self.track_motion_model() {
             let agrees = match (fix, self.current.camera_from_world) {
-                (Some(_), Some(pose)) => !(self.appearance_agreement(&pose) < quality::MIN_APPEARANCE_AGREEMENT),
+                // No consensus to compare with (NaN) is no disagreement.
+                (Some(_), Some(pose)) => {
+                    self.appearance_agreement(&pose).is_nan()
+                        || self.appearance_agreement(&pose) >= quality::MIN_APPEARANCE_AGREEMENT
+                }
                 _ => true,
             };
             if agrees {

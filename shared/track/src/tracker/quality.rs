@@ -173,7 +173,7 @@ impl Tracker {
             Some(Doubt::AppearanceDisagrees)
         } else if ratio < MIN_INLIER_RATIO {
             Some(Doubt::LowInlierRatio)
-        } else if !(quality.position_sigma_rel <= MAX_POSITION_SIGMA_REL) {
+        } else if quality.position_sigma_rel.is_nan() || quality.position_sigma_rel > MAX_POSITION_SIGMA_REL {
             Some(Doubt::IllConditioned)
         } else {
             None
