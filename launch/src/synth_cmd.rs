@@ -12,9 +12,14 @@ pub struct SynthArgs {
     #[arg(long, default_value = "colon")]
     scene: String,
     /// Camera path. Colon: `forward` (through the tube, wobble and roll) or `revisit` (in, then back out over the
-    /// same wall). Abdomen: `hover`, `sweep` (sideways), `revisit` (out and back). Default: forward / sweep.
+    /// same wall). Abdomen: `hover`, `sweep` (sideways), `revisit` (out and back), `pan` (swinging ±17° at up to
+    /// 120°/s while drifting sideways). Default: forward / sweep.
     #[arg(long)]
     trajectory: Option<String>,
+    /// How the speed varies: `steady`, `jerk` (a third of the way in, three frames at 10× the speed) or `stop` (a
+    /// third of the way in, a dead stop for a second, then full speed at once).
+    #[arg(long, default_value = "steady")]
+    motion: String,
     #[arg(long, default_value_t = 60)]
     frames: usize,
     #[arg(long, default_value_t = 30.0)]
@@ -50,6 +55,9 @@ pub fn synth(args: SynthArgs) -> Result<()> {
     {
         bail!("give frames ≥ 1, an image of at least 32×32, and positive focal, baseline and fps");
     }
+    let Some(motion) = bdis_synth::Motion::parse(&args.motion) else {
+        bail!("--motion: `{}` is not a motion ({})", args.motion, bdis_synth::Motion::NAMES);
+    };
     let rig = RectifiedCamera {
         width: args.width,
         height: args.height,
@@ -65,6 +73,7 @@ pub fn synth(args: SynthArgs) -> Result<()> {
         frames: args.frames,
         fps: args.fps,
         speed_mm_s: args.speed,
+        motion,
         seed: args.seed,
     };
     let written = render_with_progress(&args.out, &rig, &request)?;

@@ -32,7 +32,8 @@ pub enum InputError {
     Settings(#[from] bdis_core::SettingsError),
 }
 
-/// A `synthetic:<scene>[:<trajectory>][:<frames>]` source, e.g. `synthetic:colon`, `synthetic:abdomen:hover:90`.
+/// A `synthetic:<scene>[:<trajectory>][:<motion>][:<frames>]` source, e.g. `synthetic:colon`,
+/// `synthetic:abdomen:hover:90`, `synthetic:colon:forward:jerk:120`.
 pub fn parse_synthetic(source: &str) -> Option<Result<bdis_synth::SceneRequest, String>> {
     let spec = source.strip_prefix("synthetic:")?;
     let mut request = bdis_synth::SceneRequest::default();
@@ -41,7 +42,10 @@ pub fn parse_synthetic(source: &str) -> Option<Result<bdis_synth::SceneRequest, 
     for part in parts {
         match part.parse::<usize>() {
             Ok(frames) => request.frames = frames,
-            Err(_) => request.trajectory = Some(part.to_string()),
+            Err(_) => match bdis_synth::Motion::parse(part) {
+                Some(motion) => request.motion = motion,
+                None => request.trajectory = Some(part.to_string()),
+            },
         }
     }
     Some(request.validate().map(|()| request).map_err(|e| e.to_string()))

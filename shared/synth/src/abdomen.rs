@@ -85,6 +85,13 @@ impl Abdomen {
         self.looking_down(-40.0 + speed_mm_s * t_s, 5.0 * (t_s * 0.8).sin(), 55.0, 0.03 * (t_s * 1.1).sin(), 0.05)
     }
 
+    /// Panning: the scope swings from side to side (±17° about its vertical axis, 1.1 Hz: up to 120°/s, 4° a
+    /// frame at 30 fps) while it drifts sideways at `speed_mm_s`: fast rotations, the hard case of a motion prior.
+    pub fn pan_pose(&self, t_s: f64, speed_mm_s: f64) -> Isometry3<f64> {
+        let (amplitude, omega) = (0.3, 7.0);
+        self.looking_down(-20.0 + speed_mm_s * t_s, 3.0 * (t_s * 0.8).sin(), 55.0, 0.03, amplitude * (omega * t_s).sin())
+    }
+
     /// Sweeping out and back over the same tissue.
     pub fn revisit_pose(&self, t_s: f64, total_s: f64, speed_mm_s: f64) -> Isometry3<f64> {
         let along = if t_s <= 0.5 * total_s { t_s } else { total_s - t_s };

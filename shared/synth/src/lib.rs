@@ -197,6 +197,33 @@ Camera.fx: {}\nCamera.fy: {}\nCamera.cx: {}\nCamera.cy: {}\nCamera.width: {}\nCa
 
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn motion_profiles_are_continuous_with_the_speeds_they_promise() {
+        let (total, fps) = (3.0, 30.0);
+        let dt = 1.0 / fps;
+        for motion in [Motion::Steady, Motion::Jerk, Motion::Stop] {
+            let mut last = motion.path_time(0.0, total, fps);
+            assert_eq!(last, 0.0);
+            for i in 1..=90 {
+                let t = motion.path_time(f64::from(i) * dt, total, fps);
+                let step = (t - last) / dt;
+                assert!(step >= -1e-9 && step <= 10.0 + 1e-9, "{motion:?} frame {i}: ×{step}");
+                last = t;
+            }
+        }
+        let steps = |m: Motion| -> Vec<f64> {
+            (1..=90)
+                .map(|i| (m.path_time(f64::from(i) * dt, total, fps) - m.path_time(f64::from(i - 1) * dt, total, fps)) / dt)
+                .collect()
+        };
+        let jerk = steps(Motion::Jerk);
+        assert_eq!(jerk.iter().filter(|s| (**s - 10.0).abs() < 1e-6).count(), 3, "three frames at 10×");
+        let stop = steps(Motion::Stop);
+        assert_eq!(stop.iter().filter(|s| s.abs() < 1e-9).count(), 30, "a second stopped");
+        assert_eq!(Motion::parse("jerk"), Some(Motion::Jerk));
+        assert_eq!(Motion::parse("wobble"), None);
+    }
+
     use super::*;
 
     #[test]
@@ -229,6 +256,59 @@ mod tests {
     }
 }
 
+/// How the camera moves along its path over time: the hard cases of a tracker's motion prior.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Motion {
+    /// At the requested speed throughout (the camera is already moving at the first frame).
+    #[default]
+    Steady,
+    /// A third of the way in, three frames at ten times the speed (a jerk of the scope), then steady again.
+    Jerk,
+    /// A third of the way in, a dead stop for a second, then on at full speed at once.
+    Stop,
+}
+
+impl Motion {
+    pub const NAMES: &'static str = "steady, jerk, stop";
+
+    pub fn parse(name: &str) -> Option<Self> {
+        match name {
+            "steady" => Some(Self::Steady),
+            "jerk" => Some(Self::Jerk),
+            "stop" => Some(Self::Stop),
+            _ => None,
+        }
+    }
+
+    /// The time along the path (as if at the steady speed) at time `t_s` of a sequence `total_s` long at `fps`.
+    pub fn path_time(self, t_s: f64, total_s: f64, fps: f64) -> f64 {
+        let start = total_s / 3.0;
+        match self {
+            Self::Steady => t_s,
+            Self::Jerk => {
+                let burst = 3.0 / fps;
+                if t_s < start {
+                    t_s
+                } else if t_s < start + burst {
+                    start + 10.0 * (t_s - start)
+                } else {
+                    t_s + 9.0 * burst
+                }
+            }
+            Self::Stop => {
+                let pause = 1.0_f64.min(total_s / 3.0);
+                if t_s < start {
+                    t_s
+                } else if t_s < start + pause {
+                    start
+                } else {
+                    t_s - pause
+                }
+            }
+        }
+    }
+}
+
 /// A scene and camera path chosen by name, as `bdis-slam synth` and the `synthetic:` acquisition source do.
 #[derive(Debug, Clone)]
 pub struct SceneRequest {
@@ -240,12 +320,22 @@ pub struct SceneRequest {
     pub fps: f64,
     /// Speed along the path, mm/s.
     pub speed_mm_s: f64,
+    /// How the speed varies in time.
+    pub motion: Motion,
     pub seed: u64,
 }
 
 impl Default for SceneRequest {
     fn default() -> Self {
-        Self { scene: "colon".into(), trajectory: None, frames: 60, fps: 30.0, speed_mm_s: 20.0, seed: 2026 }
+        Self {
+            scene: "colon".into(),
+            trajectory: None,
+            frames: 60,
+            fps: 30.0,
+            speed_mm_s: 20.0,
+            motion: Motion::Steady,
+            seed: 2026,
+        }
     }
 }
 
@@ -258,7 +348,7 @@ impl SceneRequest {
         }
         let paths: &[&str] = match self.scene.as_str() {
             "colon" => &["forward", "revisit"],
-            "abdomen" => &["hover", "sweep", "revisit"],
+            "abdomen" => &["hover", "sweep", "revisit", "pan"],
             other => return invalid(format!("`{other}` is not a scene (colon, abdomen)")),
         };
         match &self.trajectory {
@@ -279,16 +369,21 @@ pub fn write_scene(
 ) -> Result<render::WrittenSequence, SynthError> {
     request.validate()?;
     let total_s = (request.frames - 1) as f64 / request.fps;
-    let (speed, seed) = (request.speed_mm_s, request.seed);
+    let (speed, seed, fps, motion) = (request.speed_mm_s, request.seed, request.fps, request.motion);
+    // The path is drawn in path time; with a steady motion it is the sequence's time. The path's extent (for
+    // the mesh) is that of its last frame.
+    let warp = move |t: f64| motion.path_time(t, total_s, fps);
+    let path_total_s = warp(total_s);
     let trajectory = request.trajectory.as_deref();
     match (request.scene.as_str(), trajectory) {
         ("colon", None | Some("forward") | Some("revisit")) => {
             let colon = colon::Colon { seed, texture: TissueTexture { seed }, ..colon::Colon::default() };
             let revisit = trajectory == Some("revisit");
             let path = move |t: f64| {
-                if revisit { colon.revisit_pose(t, total_s, speed) } else { colon.forward_pose(t, speed) }
+                let t = warp(t);
+                if revisit { colon.revisit_pose(t, path_total_s, speed) } else { colon.forward_pose(t, speed) }
             };
-            let far = speed.abs() * if revisit { 0.5 * total_s } else { total_s };
+            let far = speed.abs() * if revisit { 0.5 * path_total_s } else { path_total_s };
             let mesh = colon.mesh(-20.0, far + 150.0, 0.5, 180);
             render::write_sequence(
                 dir,
@@ -302,15 +397,19 @@ pub fn write_scene(
                 progress,
             )
         }
-        ("abdomen", None | Some("hover") | Some("sweep") | Some("revisit")) => {
+        ("abdomen", None | Some("hover") | Some("sweep") | Some("revisit") | Some("pan")) => {
             let abdomen = abdomen::Abdomen { seed, texture: TissueTexture { seed }, ..abdomen::Abdomen::default() };
             let a = abdomen.clone();
-            let path = move |t: f64| match trajectory {
-                Some("hover") => a.hover_pose(t),
-                Some("revisit") => a.revisit_pose(t, total_s, speed),
-                _ => a.sweep_pose(t, speed),
+            let path = move |t: f64| {
+                let t = warp(t);
+                match trajectory {
+                    Some("hover") => a.hover_pose(t),
+                    Some("revisit") => a.revisit_pose(t, path_total_s, speed),
+                    Some("pan") => a.pan_pose(t, speed),
+                    _ => a.sweep_pose(t, speed),
+                }
             };
-            let mesh = abdomen.mesh(60.0 + speed.abs() * total_s, 0.5);
+            let mesh = abdomen.mesh(60.0 + speed.abs() * path_total_s, 0.5);
             // A laparoscope's light is stronger and the wall farther away than in a colon.
             let shading = render::Shading { exposure_distance_mm: 65.0, ..render::Shading::default() };
             render::write_sequence(dir, rig, &abdomen, &path, mesh, &shading, request.frames, request.fps, progress)

@@ -190,6 +190,17 @@ impl Tracker {
         })
     }
 
+    /// Replaces the constant-velocity prediction for the next frame with `next_from_last`, the camera's motion
+    /// from the last frame to the next (an external sensor, such as a robot arm's kinematics, can give one).
+    /// The prediction only seeds the search: the frame is still checked by appearance, so a wrong prior is
+    /// rejected rather than followed (`TrackingQuality::prior_rejected`). No effect before tracking has a
+    /// velocity (the first frames, after a loss).
+    pub fn set_motion_prior(&mut self, next_from_last: Isometry3<f64>) {
+        if self.velocity.is_some() {
+            self.velocity = Some(next_from_last);
+        }
+    }
+
     pub fn state(&self) -> TrackingState {
         self.state
     }

@@ -29,7 +29,15 @@ impl Tracker {
             }
         }
         if to_match > 0 {
-            let th = if self.last_reloc_frame.is_some_and(|r| frame_id < r + 2) { 5.0 } else { 1.0 };
+            // After relocalisation, and when the pose came from appearance (the motion model could not predict
+            // the frame), the pose is coarser and the scale may have changed: search wider.
+            let th = if self.last_reloc_frame.is_some_and(|r| frame_id < r + 2) {
+                5.0
+            } else if result.quality.method == PoseMethod::Appearance {
+                3.0
+            } else {
+                1.0
+            };
             self.searcher.local_points(&self.scales, &self.map, &mut self.current, &self.local_points, th);
         }
         self.refine_measurements(&pose);

@@ -1,0 +1,86 @@
+#![allow(clippy::unwrap_used, clippy::expect_used)] // test code: a panic is the failure report
+//! A wrong motion prior is not followed: the tracker recovers the pose by appearance (matching the reference
+//! keyframe with no prior), and a frame is never reported `Ok` with a pose the images do not support.
+
+mod common;
+
+use bdis_track::{PoseMethod, TrackingState};
+use nalgebra::{Isometry3, Vector3};
+
+const STEP_NS: u64 = 33_333_333;
+
+/// The renderer's camera at frame `i` relative to frame 0 (the tracker's world), as `world_from_camera`.
+fn truth(i: usize) -> Isometry3<f64> {
+    let colon = bdis_synth::colon::Colon::default();
+    let at = |k: usize| colon.forward_pose(k as f64 / 30.0, 20.0);
+    at(0).inverse() * at(i)
+}
+
+fn position_error_mm(camera_from_world: &Isometry3<f64>, i: usize) -> f64 {
+    (camera_from_world.inverse().translation.vector - truth(i).translation.vector).norm()
+}
+
+#[test]
+fn a_wrong_motion_prior_is_rejected_and_the_pose_recovered_by_appearance() {
+    let frames = common::colon_flight(30);
+    let mut tracker = common::colon_tracker();
+    for (i, (l, r)) in frames.iter().enumerate().take(16) {
+        let result = tracker.track(i as u64 * STEP_NS, l, r).unwrap();
+        assert_eq!(result.state, TrackingState::Ok, "frame {i}");
+    }
+    // The true step is ~0.7 mm and a fraction of a degree; the prior says 8 mm sideways and 6° of yaw.
+    let wrong = Isometry3::new(Vector3::new(8.0, -3.0, 2.0), Vector3::new(0.0, 0.1, 0.02));
+    tracker.set_motion_prior(wrong);
+    let (l, r) = &frames[16];
+    let result = tracker.track(16 * STEP_NS, l, r).unwrap();
+    assert_eq!(result.state, TrackingState::Ok, "{:?}", result.quality);
+    assert_eq!(result.quality.method, PoseMethod::Appearance, "{:?}", result.quality);
+    let error = position_error_mm(&result.camera_from_world.unwrap(), 16);
+    assert!(error < 0.1, "recovered {error:.3} mm from the truth");
+
+    // A jump the motion model cannot predict: frames 17–23 skipped (ten times the usual step, as in a jerk),
+    // then a prior that is merely stale. Either the pose is right, or the frame does not claim to be.
+    // The bar: an `Ok` pose is within 1 % of the distance travelled since the last keyframe, relative to
+    // that keyframe (so the keyframe's own error does not count).
+    let (kf_t_ns, world_from_kf) = *tracker.keyframe_trajectory().last().unwrap();
+    let kf_frame = (kf_t_ns / STEP_NS) as usize;
+    let (l, r) = &frames[24];
+    let result = tracker.track(17 * STEP_NS, l, r).unwrap();
+    let kf_from_camera = world_from_kf.inverse() * result.camera_from_world.unwrap().inverse();
+    let true_kf_from_camera = truth(kf_frame).inverse() * truth(24);
+    let travelled = true_kf_from_camera.translation.vector.norm();
+    let error = (kf_from_camera.translation.vector - true_kf_from_camera.translation.vector).norm();
+    eprintln!(
+        "after the jump: {:?}, {error:.3} mm off over {travelled:.2} mm since keyframe at frame {kf_frame}, {:?}",
+        result.state, result.quality
+    );
+    if result.state == TrackingState::Ok {
+        assert!(error < 0.01 * travelled, "Ok with a pose {error:.3} mm off over {travelled:.2} mm");
+    }
+    // Tracking goes on from there (0.14 mm is this 320×240 flight's ATE over 270 mm).
+    for (k, (l, r)) in frames.iter().enumerate().skip(25) {
+        let result = tracker.track((k as u64 - 7) * STEP_NS, l, r).unwrap();
+        assert_eq!(result.state, TrackingState::Ok, "frame {k}");
+        let error = position_error_mm(&result.camera_from_world.unwrap(), k);
+        assert!(error < 0.15, "frame {k}: {error:.3} mm off");
+    }
+    tracker.finish();
+}
+
+#[test]
+fn a_right_pose_is_not_doubted() {
+    // Clean footage: every frame Ok, the motion model's pose agreeing with appearance (no prior rejected).
+    let frames = common::colon_flight(20);
+    let mut tracker = common::colon_tracker();
+    for (i, (l, r)) in frames.iter().enumerate() {
+        let result = tracker.track(i as u64 * STEP_NS, l, r).unwrap();
+        assert_eq!(result.state, TrackingState::Ok, "frame {i}: {:?}", result.quality);
+        assert!(!result.quality.prior_rejected, "frame {i}: {:?}", result.quality);
+        if i >= 2 {
+            let q = &result.quality;
+            assert!(q.appearance_agreement >= 0.8, "frame {i}: {q:?}");
+            assert!(q.reprojection_rms_px < 2.0 && q.position_sigma_rel < 1e-3, "frame {i}: {q:?}");
+        }
+    }
+    tracker.finish();
+}
