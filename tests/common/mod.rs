@@ -31,6 +31,19 @@ pub fn data_set(set: &str) -> Option<PathBuf> {
     }
 }
 
+/// `../shared/data/<name>` beside the checkout (e.g. `kitti-a`), or None outside CI (the test then says it was
+/// skipped).
+pub fn shared_data(name: &str) -> Option<PathBuf> {
+    let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data").join(name);
+    if p.is_dir() {
+        Some(p)
+    } else {
+        assert!(std::env::var_os("CI").is_none(), "CI must have ../shared/data ({})", p.display());
+        eprintln!("skipped: {} is not present", p.display());
+        None
+    }
+}
+
 /// A fresh temporary folder, removed when dropped.
 pub struct TempDir(pub PathBuf);
 

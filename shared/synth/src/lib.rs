@@ -314,7 +314,7 @@ impl Motion {
 pub struct SceneRequest {
     /// `colon` or `abdomen`.
     pub scene: String,
-    /// Colon: `forward`, `revisit`; abdomen: `hover`, `sweep`, `revisit`. `None`: forward / sweep.
+    /// Colon: `forward`, `revisit`; abdomen: `hover`, `sweep`, `revisit`, `pan`, `oblique`. `None`: forward / sweep.
     pub trajectory: Option<String>,
     pub frames: usize,
     pub fps: f64,
@@ -348,7 +348,7 @@ impl SceneRequest {
         }
         let paths: &[&str] = match self.scene.as_str() {
             "colon" => &["forward", "revisit"],
-            "abdomen" => &["hover", "sweep", "revisit", "pan"],
+            "abdomen" => &["hover", "sweep", "revisit", "pan", "oblique"],
             other => return invalid(format!("`{other}` is not a scene (colon, abdomen)")),
         };
         match &self.trajectory {
@@ -397,7 +397,7 @@ pub fn write_scene(
                 progress,
             )
         }
-        ("abdomen", None | Some("hover") | Some("sweep") | Some("revisit") | Some("pan")) => {
+        ("abdomen", None | Some("hover") | Some("sweep") | Some("revisit") | Some("pan") | Some("oblique")) => {
             let abdomen = abdomen::Abdomen { seed, texture: TissueTexture { seed }, ..abdomen::Abdomen::default() };
             let a = abdomen.clone();
             let path = move |t: f64| {
@@ -406,6 +406,7 @@ pub fn write_scene(
                     Some("hover") => a.hover_pose(t),
                     Some("revisit") => a.revisit_pose(t, path_total_s, speed),
                     Some("pan") => a.pan_pose(t, speed),
+                    Some("oblique") => a.oblique_pose(t, speed),
                     _ => a.sweep_pose(t, speed),
                 }
             };

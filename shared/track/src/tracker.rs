@@ -237,7 +237,8 @@ impl Tracker {
             quality: TrackingQuality::default(),
         };
         if self.state == TrackingState::NotInitialized {
-            if self.current.len() > 500 {
+            // ORB-SLAM2 waits for 500 features; with fewer requested, for half of them.
+            if self.current.len() > 500.min(self.settings.orb.n_features as usize / 2) {
                 self.initialise(&mut result);
                 result.quality.method = PoseMethod::Initialisation;
             }
@@ -307,7 +308,7 @@ impl Tracker {
                 // No consensus to compare with (NaN) is no disagreement.
                 (Some(_), Some(pose)) => {
                     self.appearance_agreement(&pose).is_nan()
-                        || self.appearance_agreement(&pose) >= quality::MIN_APPEARANCE_AGREEMENT
+                        || self.appearance_agreement(&pose) >= quality::PRIOR_AGREEMENT
                 }
                 _ => true,
             };

@@ -15,7 +15,7 @@ use crate::optim::{CHI2_STEREO, Observation, chi2};
 
 /// The Lowe ratio of the brute-force matching (best < ratio · second best): ORB-SLAM2's value for tracking the
 /// reference keyframe.
-const RATIO: f64 = 0.7;
+const RATIO: f64 = 0.8;
 /// Fewest matches worth a RANSAC: three per hypothesis, and enough beyond them that a consensus means something.
 const MIN_MATCHES: usize = 15;
 /// RANSAC stops when a better hypothesis would be found with less than this probability.
@@ -148,7 +148,7 @@ impl Tracker {
     }
 
     /// Fills `appearance.matches`: each stereo keypoint of the frame to its nearest point of `kf` by descriptor
-    /// (≤ TH_LOW, < RATIO of the second nearest), one keypoint per point (the nearest), then the rotation test.
+    /// (≤ TH_HIGH, < RATIO of the second nearest), one keypoint per point (the nearest), then the rotation test.
     fn match_by_appearance(&mut self, kf: KfId) {
         let s = &mut self.appearance;
         s.points.clear();
@@ -175,7 +175,7 @@ impl Tracker {
             let distances = &mut s.distances[..s.descriptors.len()];
             bdis_orb::hamming_distances(&self.current.descriptors[i], &s.descriptors, distances);
             let (best, k, second) = bdis_orb::nearest_two(distances);
-            if best <= TH_LOW && f64::from(best) < RATIO * f64::from(second) && best < s.claims[k].0 {
+            if best <= TH_HIGH && f64::from(best) < RATIO * f64::from(second) && best < s.claims[k].0 {
                 s.claims[k] = (best, i as u32);
             }
         }

@@ -1,0 +1,267 @@
+#![allow(clippy::unwrap_used, clippy::expect_used)] // test code: a panic is the failure report
+//! Tracking on footage it was not tuned on, through the real processes: real car-mounted stereo
+//! (`../shared/data/kitti-a`, metres, 1226×370, 1.2 m between frames, moving at the first frame) and the hard
+//! cases of a motion prior rendered by our generator (a jerk at ten times the speed, a dead stop, a fast pan, a
+//! low frame rate, a far background). Each is judged on its trajectory against the ground truth and on honesty:
+//! a frame is `Ok` only when its pose is right.
+//!
+//! The synthetic cases are rendered once for the binary at 320×240 (f = 260), the smallest size that still holds
+//! the property (the 640×480 figures are in BENCHMARKS.md); their pipelines run one at a time.
+
+mod common;
+
+use common::*;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::sync::{Mutex, OnceLock};
+use std::time::Duration;
+
+use bdis_core::formats::trajectory::read_tum;
+use bdis_core::geometry::StampedPose;
+
+/// Pipelines one at a time: each pins its services to the machine's cores.
+static PIPELINE: Mutex<()> = Mutex::new(());
+
+/// Runs `run --track` on `seq` with `settings` into `tmp/tag`; returns the run folder.
+fn track(tmp: &Path, seq: &Path, settings: &Path, tag: &str) -> PathBuf {
+    let _one_at_a_time = PIPELINE.lock().unwrap_or_else(|e| e.into_inner());
+    let run_dir = tmp.join(tag);
+    let prefix = prefix(tag);
+    let out = run_with_timeout(
+        Command::new(bdis_slam())
+            .args(["run", "--track", "--ipc-prefix", &prefix, "--sequence"])
+            .arg(seq)
+            .arg("--settings")
+            .arg(settings)
+            .arg("--out")
+            .arg(&run_dir),
+        Duration::from_secs(600),
+    );
+    assert!(out.status.success(), "{tag}: {}\n{}", text(&out.stdout), text(&out.stderr));
+    assert_no_leftovers(&prefix);
+    run_dir
+}
+
+/// One line of `tracking-quality.csv`.
+struct QualityRow {
+    t_s: f64,
+    state: String,
+    doubt: String,
+    keyframe: bool,
+}
+
+fn quality(run_dir: &Path) -> Vec<QualityRow> {
+    let csv = std::fs::read_to_string(run_dir.join("tracking-quality.csv")).unwrap();
+    let mut lines = csv.lines();
+    let header: Vec<&str> = lines.next().unwrap().split(',').collect();
+    let col = |name: &str| header.iter().position(|h| *h == name).unwrap_or_else(|| panic!("no column {name}"));
+    let (t, state, doubt, keyframe) = (col("t_source_s"), col("state"), col("doubt"), col("keyframe"));
+    lines
+        .map(|l| {
+            let f: Vec<&str> = l.split(',').collect();
+            assert_eq!(f.len(), header.len(), "{l}");
+            QualityRow {
+                t_s: f[t].parse().unwrap(),
+                state: f[state].to_string(),
+                doubt: f[doubt].to_string(),
+                keyframe: !f[keyframe].is_empty(),
+            }
+        })
+        .collect()
+}
+
+fn path_length(gt: &[StampedPose]) -> f64 {
+    gt.windows(2)
+        .map(|w| (w[1].world_from_camera.translation.vector - w[0].world_from_camera.translation.vector).norm())
+        .sum()
+}
+
+fn pose_at(poses: &[StampedPose], t_s: f64) -> &StampedPose {
+    poses.iter().find(|p| (p.t_s - t_s).abs() < 1e-4).unwrap_or_else(|| panic!("no pose at {t_s}"))
+}
+
+/// The honesty bar of the issue: an `Ok` frame's position, relative to the last keyframe, is within 1 % of the
+/// distance travelled since that keyframe — checked where that distance is at least `min_travel` (below it the
+/// 1 % is under the measurement noise of any tracker). Returns (frames checked, worst error / distance).
+fn ok_frames_are_right(gt: &[StampedPose], est: &[StampedPose], rows: &[QualityRow], min_travel: f64) -> (usize, f64) {
+    let (mut checked, mut worst, mut keyframe) = (0, 0.0f64, None);
+    for row in rows {
+        if row.keyframe {
+            keyframe = Some(row.t_s);
+            continue;
+        }
+        let Some(k) = keyframe else { continue };
+        if row.state != "ok" {
+            continue;
+        }
+        let relative = |poses: &[StampedPose]| {
+            let (a, b) = (pose_at(poses, k).world_from_camera, pose_at(poses, row.t_s).world_from_camera);
+            (a.inverse() * b).translation.vector
+        };
+        let (truth, estimate) = (relative(gt), relative(est));
+        let travelled = truth.norm();
+        if travelled < min_travel {
+            continue;
+        }
+        let error = (estimate - truth).norm() / travelled;
+        assert!(
+            error <= 0.01,
+            "frame at {:.3} s: Ok with {:.2} % of the {travelled:.3} travelled since the keyframe at {k:.3} s",
+            row.t_s,
+            100.0 * error
+        );
+        checked += 1;
+        worst = worst.max(error);
+    }
+    (checked, worst)
+}
+
+#[test]
+fn real_car_footage_in_metres_is_tracked_to_one_percent_with_every_step_right() {
+    let Some(seq) = shared_data("kitti-a") else { return };
+    let tmp = TempDir::new("kitti");
+    let settings = seq.join("calib.yaml");
+    let first = track(tmp.path(), &seq, &settings, "kitti1");
+    let gt = read_tum(&seq.join("groundtruth.txt")).unwrap();
+    let est = read_tum(&first.join("trajectory.tum")).unwrap();
+    assert_eq!(est.len(), gt.len(), "a pose for every frame");
+    let ate = bdis_eval::traj::ate(&gt, &est, 0.01).unwrap().translation.rmse;
+    let length = path_length(&gt);
+    eprintln!("kitti-a: ATE {ate:.3} m over {length:.1} m = {:.3} %", 100.0 * ate / length);
+    assert!(ate <= 0.01 * length, "ATE {ate:.3} m is more than 1 % of the {length:.1} m path");
+    // Every frame-to-frame step within 5 % of the true one from frame 1 on (the old tracker: 0.15–0.3 m of
+    // 1.2 m over the first ten frames).
+    for k in 1..gt.len() {
+        let step = |p: &[StampedPose]| {
+            (p[k].world_from_camera.translation.vector - p[k - 1].world_from_camera.translation.vector).norm()
+        };
+        let (truth, estimate) = (step(&gt), step(&est));
+        assert!(
+            (estimate - truth).abs() <= 0.05 * truth,
+            "frame {k}: step {estimate:.3} m, the truth {truth:.3} m"
+        );
+    }
+    let rows = quality(&first);
+    assert_eq!(rows.len(), gt.len(), "a quality line per frame");
+    // Footage a tracker can hold: the frames are Ok (their steps were checked above).
+    let ok = rows.iter().filter(|r| r.state == "ok").count();
+    eprintln!("kitti-a: {ok} of {} frames Ok", rows.len());
+    assert!(ok >= rows.len() - 2, "only {ok} of {} frames Ok on footage that can be tracked", rows.len());
+    // Deterministic: the same run again gives the same trajectory, byte for byte.
+    let second = track(tmp.path(), &seq, &settings, "kitti2");
+    assert_eq!(
+        std::fs::read(first.join("trajectory.tum")).unwrap(),
+        std::fs::read(second.join("trajectory.tum")).unwrap(),
+        "two runs differ"
+    );
+}
+
+/// A hard case: its name, the `synth` arguments, and the ATE bar (fraction of the path) at 320×240.
+struct Case {
+    name: &'static str,
+    args: &'static [&'static str],
+    ate_of_path: f64,
+}
+
+const CASES: &[Case] = &[
+    // A third of the way in, three frames at ten times the speed.
+    Case { name: "jerk", args: &["--scene", "colon", "--motion", "jerk", "--frames", "60"], ate_of_path: 0.0015 },
+    // A third of the way in, a second stopped dead, then full speed at once.
+    Case { name: "stop", args: &["--scene", "colon", "--motion", "stop", "--frames", "75"], ate_of_path: 0.0015 },
+    // The colon flight at 7.5 fps: four times the motion per frame.
+    Case { name: "low-fps", args: &["--scene", "colon", "--fps", "7.5", "--frames", "30"], ate_of_path: 0.0015 },
+    // Swinging ±17° at up to 4° a frame over the abdominal wall (55 mm away: at 320×240 the 5 mm baseline holds
+    // the pose weakly, the hover there is 0.8 % of its path).
+    Case { name: "pan", args: &["--scene", "abdomen", "--trajectory", "pan", "--frames", "60"], ate_of_path: 0.006 },
+    // Looking across the wall: a far background at a third of the near wall's disparity.
+    Case {
+        name: "oblique",
+        args: &["--scene", "abdomen", "--trajectory", "oblique", "--frames", "60"],
+        ate_of_path: 0.006,
+    },
+];
+
+/// The rendered cases, once per test binary.
+fn rendered() -> &'static (TempDir, Vec<PathBuf>) {
+    static SEQUENCES: OnceLock<(TempDir, Vec<PathBuf>)> = OnceLock::new();
+    SEQUENCES.get_or_init(|| {
+        let tmp = TempDir::new("hard");
+        let dirs = CASES
+            .iter()
+            .map(|case| {
+                let dir = tmp.path().join(case.name);
+                let out = run_with_timeout(
+                    Command::new(bdis_slam())
+                        .arg("synth")
+                        .args(case.args)
+                        .args(["--width", "320", "--height", "240", "--focal", "260", "--out"])
+                        .arg(&dir),
+                    Duration::from_secs(900),
+                );
+                assert!(out.status.success(), "{}: {}", case.name, text(&out.stderr));
+                dir
+            })
+            .collect();
+        (tmp, dirs)
+    })
+}
+
+fn hard_case(name: &str) {
+    let (tmp, dirs) = rendered();
+    let index = CASES.iter().position(|c| c.name == name).unwrap();
+    let (case, seq) = (&CASES[index], &dirs[index]);
+    let run_dir = track(tmp.path(), seq, &seq.join("settings.yaml"), &format!("run-{name}"));
+    let gt = read_tum(&seq.join("gt/poses.tum")).unwrap();
+    let est = read_tum(&run_dir.join("trajectory.tum")).unwrap();
+    assert_eq!(est.len(), gt.len(), "{name}: a pose for every frame");
+    let rows = quality(&run_dir);
+    let not_ok: Vec<String> =
+        rows.iter().filter(|r| r.state != "ok").map(|r| format!("{:.3} s {} {}", r.t_s, r.state, r.doubt)).collect();
+    let ate = bdis_eval::traj::ate(&gt, &est, 0.01).unwrap().translation.rmse;
+    let length = path_length(&gt);
+    // Honesty where it can be judged: ten median steps of travel since the keyframe.
+    let mut steps: Vec<f64> = gt
+        .windows(2)
+        .map(|w| (w[1].world_from_camera.translation.vector - w[0].world_from_camera.translation.vector).norm())
+        .collect();
+    steps.sort_by(f64::total_cmp);
+    let (checked, worst) = ok_frames_are_right(&gt, &est, &rows, 10.0 * steps[steps.len() / 2]);
+    eprintln!(
+        "{name}: ATE {ate:.4} mm over {length:.1} mm = {:.3} %; not Ok: {not_ok:?}; {checked} Ok frames far from \
+         their keyframe, worst {:.2} % of the travel",
+        100.0 * ate / length,
+        100.0 * worst
+    );
+    assert!(
+        ate <= case.ate_of_path * length,
+        "{name}: ATE {ate:.4} mm is {:.3} % of the path (bar {:.2} %)",
+        100.0 * ate / length,
+        100.0 * case.ate_of_path
+    );
+    assert!(rows.iter().all(|r| r.state != "lost"), "{name}: lost frames: {not_ok:?}");
+}
+
+#[test]
+fn a_jerk_at_ten_times_the_speed() {
+    hard_case("jerk");
+}
+
+#[test]
+fn a_dead_stop_and_a_restart_at_full_speed() {
+    hard_case("stop");
+}
+
+#[test]
+fn a_low_frame_rate() {
+    hard_case("low-fps");
+}
+
+#[test]
+fn a_fast_pan() {
+    hard_case("pan");
+}
+
+#[test]
+fn a_far_background() {
+    hard_case("oblique");
+}
