@@ -185,6 +185,11 @@ impl RotationHistogram {
         Self { bins, members: vec![Vec::new(); bins.count()] }
     }
 
+    /// Room for `matches` votes in every bin (they usually all fall in one), so that voting allocates nothing.
+    pub fn with_capacity(bins: RotationBins, matches: usize) -> Self {
+        Self { bins, members: vec![Vec::with_capacity(matches); bins.count()] }
+    }
+
     pub fn clear(&mut self) {
         for m in &mut self.members {
             m.clear();

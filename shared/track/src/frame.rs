@@ -76,6 +76,20 @@ impl Frame {
         }
     }
 
+    /// An empty frame with room for `keypoints` keypoints in every per-keypoint list, so that building a frame
+    /// with more keypoints than any before it (their number varies with the image) allocates nothing.
+    pub fn with_capacity(cam: &RectifiedCamera, keypoints: usize) -> Self {
+        let mut frame = Self::empty(cam);
+        frame.keypoints.reserve(keypoints);
+        frame.descriptors.reserve(keypoints);
+        frame.u_right.reserve(keypoints);
+        frame.depth.reserve(keypoints);
+        frame.points.reserve(keypoints);
+        frame.outlier.reserve(keypoints);
+        frame.refined.reserve(keypoints);
+        frame
+    }
+
     pub fn len(&self) -> usize {
         self.keypoints.len()
     }

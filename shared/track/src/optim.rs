@@ -165,6 +165,11 @@ pub struct PoseOptimizer {
 }
 
 impl PoseOptimizer {
+    /// Room for `edges` edges, so that optimising a frame with more links than any before allocates nothing.
+    pub fn with_capacity(edges: usize) -> Self {
+        Self { chi2: Vec::with_capacity(edges), information: Matrix6::zeros() }
+    }
+
     /// The Gauss–Newton information of the last optimised pose over its inliers (twist ω, υ; υ is the camera
     /// centre's displacement in the camera frame, to first order). Its inverse is the pose's covariance in units
     /// of the measurements' σ: how well the images pin the pose down.

@@ -22,11 +22,18 @@ pub struct Searcher {
 
 impl Default for Searcher {
     fn default() -> Self {
+        Self::with_capacity(2048)
+    }
+}
+
+impl Searcher {
+    /// Buffers for searches of up to `matches` matches (a frame's keypoints), grown by nothing after.
+    pub fn with_capacity(matches: usize) -> Self {
         Self {
-            rotation: RotationHistogram::new(RotationBins::FAITHFUL),
+            rotation: RotationHistogram::with_capacity(RotationBins::FAITHFUL, matches),
             found: Vec::with_capacity(256),
-            rejected: Vec::with_capacity(256),
-            matches: Vec::with_capacity(2048),
+            rejected: Vec::with_capacity(matches),
+            matches: Vec::with_capacity(matches),
         }
     }
 }

@@ -157,8 +157,8 @@ impl Tracker {
             map: Map::default(),
             mapper: LocalMapper::default(),
             state: TrackingState::NotInitialized,
-            current: Frame::empty(&cam),
-            last: Frame::empty(&cam),
+            current: Frame::with_capacity(&cam, 2 * settings.orb.n_features as usize),
+            last: Frame::with_capacity(&cam, 2 * settings.orb.n_features as usize),
             velocity: None,
             lost_velocity: None,
             reference_kf: None,
@@ -171,8 +171,8 @@ impl Tracker {
             kf_votes: Vec::with_capacity(1 << 12),
             kf_stamp: Vec::with_capacity(1 << 12),
             voters: Vec::with_capacity(1 << 10),
-            searcher: Searcher::default(),
-            optimizer: PoseOptimizer::default(),
+            searcher: Searcher::with_capacity(2 * settings.orb.n_features as usize),
+            optimizer: PoseOptimizer::with_capacity(1 << 12),
             opt_points: Vec::with_capacity(1 << 12),
             opt_obs: Vec::with_capacity(1 << 12),
             opt_index: Vec::with_capacity(1 << 12),
@@ -186,7 +186,7 @@ impl Tracker {
             to_anchor: Vec::with_capacity(1 << 12),
             new_point_anchors: Vec::with_capacity(1 << 12),
             residual_scratch: Vec::with_capacity(1 << 12),
-            appearance: appearance::AppearanceScratch::default(),
+            appearance: appearance::AppearanceScratch::with_capacity(settings.orb.n_features as usize),
         })
     }
 

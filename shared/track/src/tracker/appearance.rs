@@ -23,7 +23,7 @@ const RANSAC_CONFIDENCE: f64 = 0.999;
 const RANSAC_MAX_ITERATIONS: usize = 300;
 
 /// Reusable buffers of appearance matching (owned by the tracker, so a warmed-up frame allocates nothing).
-#[derive(Debug, Default)]
+#[derive(Debug)]
 pub(super) struct AppearanceScratch {
     /// The keyframe's usable points and, beside them, their descriptors and the keypoint they were matched at.
     points: Vec<(PointId, usize)>,
@@ -37,6 +37,24 @@ pub(super) struct AppearanceScratch {
     rejected: Vec<u32>,
     inlier: Vec<bool>,
     best_inlier: Vec<bool>,
+}
+
+impl AppearanceScratch {
+    /// Room for a keyframe of `features` keypoints (twice, as the extractor may return a few more than asked):
+    /// a keyframe with more points than the last one then grows nothing.
+    pub(super) fn with_capacity(features: usize) -> Self {
+        let n = 2 * features.max(1);
+        Self {
+            points: Vec::with_capacity(n),
+            descriptors: Vec::with_capacity(n),
+            claims: Vec::with_capacity(n),
+            distances: Vec::with_capacity(n),
+            matches: Vec::with_capacity(n),
+            rejected: Vec::with_capacity(n),
+            inlier: Vec::with_capacity(n),
+            best_inlier: Vec::with_capacity(n),
+        }
+    }
 }
 
 #[derive(Debug, Clone, Copy)]
