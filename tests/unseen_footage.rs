@@ -156,7 +156,10 @@ fn real_car_footage_in_metres_is_tracked_to_one_percent_with_every_step_right() 
     );
 }
 
-/// A hard case: its name, the `synth` arguments, and the ATE bar (fraction of the path) at 320×240.
+/// A hard case: its name, the `synth` arguments, and the ATE bar (fraction of the path) at 320×240. The paths
+/// are short (30–60 mm) and 320×240 tracking has a floor of ~0.05–0.1 mm, so the bars sit at about twice what is
+/// measured here; the failure they guard against is an order of magnitude above (the tracker before appearance
+/// matching: 5.7 mm = 10 % on the jerk, every frame `Ok`). At 640×480 each case is ≤ 0.1 % (BENCHMARKS.md).
 struct Case {
     name: &'static str,
     args: &'static [&'static str],
@@ -165,11 +168,11 @@ struct Case {
 
 const CASES: &[Case] = &[
     // A third of the way in, three frames at ten times the speed.
-    Case { name: "jerk", args: &["--scene", "colon", "--motion", "jerk", "--frames", "60"], ate_of_path: 0.0015 },
+    Case { name: "jerk", args: &["--scene", "colon", "--motion", "jerk", "--frames", "60"], ate_of_path: 0.003 },
     // A third of the way in, a second stopped dead, then full speed at once.
-    Case { name: "stop", args: &["--scene", "colon", "--motion", "stop", "--frames", "75"], ate_of_path: 0.0015 },
+    Case { name: "stop", args: &["--scene", "colon", "--motion", "stop", "--frames", "75"], ate_of_path: 0.003 },
     // The colon flight at 7.5 fps: four times the motion per frame.
-    Case { name: "low-fps", args: &["--scene", "colon", "--fps", "7.5", "--frames", "30"], ate_of_path: 0.0015 },
+    Case { name: "low-fps", args: &["--scene", "colon", "--fps", "7.5", "--frames", "30"], ate_of_path: 0.003 },
     // Swinging ±17° at up to 4° a frame over the abdominal wall (55 mm away: at 320×240 the 5 mm baseline holds
     // the pose weakly, the hover there is 0.8 % of its path).
     Case { name: "pan", args: &["--scene", "abdomen", "--trajectory", "pan", "--frames", "60"], ate_of_path: 0.006 },
