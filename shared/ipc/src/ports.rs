@@ -17,6 +17,11 @@ impl Ipc {
             .create::<ipc::Service>()
             .map_err(iox(format!("create iceoryx2 node `{node_name}` (prefix `{prefix}`)")))?;
         restrict_global_management(prefix);
+        // iceoryx2 installs its SIGINT/SIGTERM handler lazily, at the first check for a termination request. Check
+        // once now: a stop that arrived between a service saying it is ready and its first wait would otherwise
+        // take the default action and kill it, skipping the ordered shutdown (the map written, the telemetry
+        // closed). No signal can have been captured yet, so nothing is lost by the check.
+        let _ = node.wait(Duration::ZERO);
         Ok(Self { node, prefix: prefix.to_string() })
     }
 
