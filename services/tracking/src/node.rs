@@ -325,12 +325,7 @@ pub fn run(config: Config) -> Result<()> {
                 counts.appearance_ms.push(cpu_ns as f64 / 1e6);
             }
             counts.priors_rejected += u64::from(result.quality.prior_rejected);
-            quality_log.frame(
-                header.frame_seq,
-                &result,
-                cpu_ns,
-                result.new_keyframe.map(|k| out.world.kf_id(k)),
-            )?;
+            quality_log.frame(header.frame_seq, &result, cpu_ns, result.new_keyframe.map(|k| out.world.kf_id(k)))?;
             counts.relocalised += u64::from(result.relocalised);
             if result.new_keyframe.is_some() {
                 counts.keyframe_ms.push(cpu_ns as f64 / 1e6);

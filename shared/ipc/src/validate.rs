@@ -275,7 +275,8 @@ pub fn pose_record(r: &PoseRecord) -> Result<Option<Isometry3<f64>>, Rejection> 
         || r.method > crate::track::pose_method::RELOCALISATION
         || r.prior_rejected > 1
     {
-        let detail = format!("pose of frame {id}: doubt {}, method {}, prior_rejected {}", r.doubt, r.method, r.prior_rejected);
+        let detail =
+            format!("pose of frame {id}: doubt {}, method {}, prior_rejected {}", r.doubt, r.method, r.prior_rejected);
         return Err(Rejection::new(Reason::UnknownValue, id, detail));
     }
     match r.state {

@@ -22,7 +22,9 @@ fn distances_portable(query: &[u8; 32], candidates: &[[u8; 32]], out: &mut [u32]
     let q = words(query);
     for (c, o) in candidates.iter().zip(out.iter_mut()) {
         let w = words(c);
-        *o = (q[0] ^ w[0]).count_ones() + (q[1] ^ w[1]).count_ones() + (q[2] ^ w[2]).count_ones()
+        *o = (q[0] ^ w[0]).count_ones()
+            + (q[1] ^ w[1]).count_ones()
+            + (q[2] ^ w[2]).count_ones()
             + (q[3] ^ w[3]).count_ones();
     }
 }

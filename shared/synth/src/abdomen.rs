@@ -89,14 +89,26 @@ impl Abdomen {
     /// frame at 30 fps) while it drifts sideways at `speed_mm_s`: fast rotations, the hard case of a motion prior.
     pub fn pan_pose(&self, t_s: f64, speed_mm_s: f64) -> Isometry3<f64> {
         let (amplitude, omega) = (0.3, 7.0);
-        self.looking_down(-20.0 + speed_mm_s * t_s, 3.0 * (t_s * 0.8).sin(), 55.0, 0.03, amplitude * (omega * t_s).sin())
+        self.looking_down(
+            -20.0 + speed_mm_s * t_s,
+            3.0 * (t_s * 0.8).sin(),
+            55.0,
+            0.03,
+            amplitude * (omega * t_s).sin(),
+        )
     }
 
     /// Looking across the wall rather than down on it (tilted 50°), sweeping sideways at `speed_mm_s`: the near
     /// wall fills the bottom of the image and the wall recedes to the renderer's range (150 mm, disparity a third
     /// of the near wall's) at the top — a far background, where points barely move as the scope translates.
     pub fn oblique_pose(&self, t_s: f64, speed_mm_s: f64) -> Isometry3<f64> {
-        self.looking_down(-40.0 + speed_mm_s * t_s, 40.0 + 2.0 * (t_s * 0.9).sin(), 45.0, 0.75, 0.04 * (t_s * 0.7).sin())
+        self.looking_down(
+            -40.0 + speed_mm_s * t_s,
+            40.0 + 2.0 * (t_s * 0.9).sin(),
+            45.0,
+            0.75,
+            0.04 * (t_s * 0.7).sin(),
+        )
     }
 
     /// Sweeping out and back over the same tissue.

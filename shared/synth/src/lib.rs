@@ -207,13 +207,15 @@ mod tests {
             for i in 1..=90 {
                 let t = motion.path_time(f64::from(i) * dt, total, fps);
                 let step = (t - last) / dt;
-                assert!(step >= -1e-9 && step <= 10.0 + 1e-9, "{motion:?} frame {i}: ×{step}");
+                assert!((-1e-9..=10.0 + 1e-9).contains(&step), "{motion:?} frame {i}: ×{step}");
                 last = t;
             }
         }
         let steps = |m: Motion| -> Vec<f64> {
             (1..=90)
-                .map(|i| (m.path_time(f64::from(i) * dt, total, fps) - m.path_time(f64::from(i - 1) * dt, total, fps)) / dt)
+                .map(|i| {
+                    (m.path_time(f64::from(i) * dt, total, fps) - m.path_time(f64::from(i - 1) * dt, total, fps)) / dt
+                })
                 .collect()
         };
         let jerk = steps(Motion::Jerk);
