@@ -21,14 +21,7 @@ pub fn service_binary(name: &str) -> PathBuf {
 
 /// `../shared/data/bdis/<set>` beside the checkout, or None (the test then says it was skipped).
 pub fn data_set(set: &str) -> Option<PathBuf> {
-    let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/bdis").join(set);
-    if p.is_dir() {
-        Some(p)
-    } else {
-        assert!(std::env::var_os("CI").is_none(), "CI must have ../shared/data ({})", p.display());
-        eprintln!("skipped: {} is not present", p.display());
-        None
-    }
+    shared_data(&format!("bdis/{set}"))
 }
 
 /// `../shared/data/<name>` beside the checkout (e.g. `kitti-a`), or None outside CI (the test then says it was

@@ -165,7 +165,7 @@ struct Counts {
     keyframes: u64,
     lost: u64,
     uncertain: u64,
-    doubts: std::collections::BTreeMap<String, u64>,
+    doubts: std::collections::BTreeMap<&'static str, u64>,
     appearance_frames: u64,
     priors_rejected: u64,
     /// CPU of the frames posed by appearance, ms.
@@ -317,7 +317,7 @@ pub fn run(config: Config) -> Result<()> {
             if result.state == TrackingState::Uncertain {
                 counts.uncertain += 1;
                 if let Some(d) = result.quality.doubt {
-                    *counts.doubts.entry(d.name().to_string()).or_default() += 1;
+                    *counts.doubts.entry(d.name()).or_default() += 1;
                 }
             }
             if result.quality.method == PoseMethod::Appearance {
@@ -397,7 +397,7 @@ fn write_summary(
         frames_of_earlier_instances: earlier.frames.len() as u64,
         lost: counts.lost,
         uncertain: counts.uncertain,
-        doubts: counts.doubts.clone(),
+        doubts: counts.doubts.iter().map(|(k, v)| ((*k).to_string(), *v)).collect(),
         appearance_frames: counts.appearance_frames,
         priors_rejected: counts.priors_rejected,
         appearance_frame_cpu_ms_p50: percentile(&mut counts.appearance_ms, 0.5),

@@ -48,9 +48,9 @@ impl QualityLog {
     pub fn frame(&mut self, frame_seq: u64, result: &FrameResult, cpu_ns: u64, keyframe: Option<u64>) -> Result<()> {
         let q = &result.quality;
         let ratio = if q.matched > 0 { f64::from(q.inliers) / f64::from(q.matched) } else { f64::NAN };
-        writeln!(
+        write!(
             self.out,
-            "{frame_seq},{:.6},{},{},{},{},{},{},{:.4},{:.4},{:.3e},{:.4},{},{},{:.4},{:.3},{}",
+            "{frame_seq},{:.6},{},{},{},{},{},{},{:.4},{:.4},{:.3e},{:.4},{},{},{:.4},{:.3},",
             result.t_ns as f64 * 1e-9,
             state_name(result.state),
             q.doubt.map_or("", |d| d.name()),
@@ -66,8 +66,11 @@ impl QualityLog {
             q.appearance_consensus,
             q.appearance_agreement,
             cpu_ns as f64 / 1e6,
-            keyframe.map(|k| k.to_string()).unwrap_or_default(),
         )
+        .and_then(|()| match keyframe {
+            Some(k) => writeln!(self.out, "{k}"),
+            None => writeln!(self.out),
+        })
         .with_context(|| format!("{}: cannot write", self.path.display()))
     }
 

@@ -295,7 +295,6 @@ impl Tracker {
     /// model fails or disagrees with it.
     fn track_from_last_frame(&mut self, quality: &mut TrackingQuality) -> bool {
         self.replace_last_frame_points();
-        self.update_last_frame();
         let recently_relocalised = self.last_reloc_frame.is_some_and(|r| self.current.id < r + 2);
         // The estimate with no prior, computed first so it can check the prior's.
         let fix = self.reference_kf.and_then(|r| self.appearance_consensus(r));
@@ -307,8 +306,8 @@ impl Tracker {
             let agrees = match (fix, self.current.camera_from_world) {
                 // No consensus to compare with (NaN) is no disagreement.
                 (Some(_), Some(pose)) => {
-                    self.appearance_agreement(&pose).is_nan()
-                        || self.appearance_agreement(&pose) >= quality::PRIOR_AGREEMENT
+                    let agreement = self.appearance_agreement(&pose);
+                    agreement.is_nan() || agreement >= quality::PRIOR_AGREEMENT
                 }
                 _ => true,
             };

@@ -126,15 +126,7 @@ impl Tracker {
         let mut iteration = 0;
         while iteration < needed {
             iteration += 1;
-            let mut pick = [0usize; 3];
-            for slot in pick.iter_mut() {
-                self.ransac_state =
-                    self.ransac_state.wrapping_mul(6_364_136_223_846_793_005).wrapping_add(1_442_695_040_888_963_407);
-                *slot = (self.ransac_state >> 33) as usize % n;
-            }
-            if pick[0] == pick[1] || pick[1] == pick[2] || pick[0] == pick[2] {
-                continue;
-            }
+            let Some(pick) = super::relocalise::draw_three(&mut self.ransac_state, n) else { continue };
             let src = pick.map(|k| s.matches[k].world);
             let dst = pick.map(|k| s.matches[k].camera);
             let Some(t) = rigid_fit(&src, &dst) else { continue };

@@ -109,15 +109,7 @@ impl Tracker {
         // RANSAC: 3 correspondences → camera_from_world by absolute orientation; inliers by reprojection.
         let mut best: (usize, Option<CameraFromWorld>) = (0, None);
         for _ in 0..300 {
-            let mut pick = [0usize; 3];
-            for slot in pick.iter_mut() {
-                self.ransac_state =
-                    self.ransac_state.wrapping_mul(6_364_136_223_846_793_005).wrapping_add(1_442_695_040_888_963_407);
-                *slot = (self.ransac_state >> 33) as usize % stereo.len();
-            }
-            if pick[0] == pick[1] || pick[1] == pick[2] || pick[0] == pick[2] {
-                continue;
-            }
+            let Some(pick) = draw_three(&mut self.ransac_state, stereo.len()) else { continue };
             let src: Vec<Point3<f64>> = pick.iter().map(|&k| self.map.points[stereo[k].1].position).collect();
             let dst: Vec<Point3<f64>> = pick.iter().map(|&k| stereo[k].2).collect();
             let Some(t) = rigid_fit(&src, &dst) else { continue };
@@ -173,6 +165,17 @@ impl Tracker {
         }
         good >= 50
     }
+}
+
+/// Three indices below `n` from the tracker's deterministic generator (a 64-bit LCG); `None` when two coincide
+/// (the draw is spent, as RANSAC counts it).
+pub(super) fn draw_three(state: &mut u64, n: usize) -> Option<[usize; 3]> {
+    let mut pick = [0usize; 3];
+    for slot in pick.iter_mut() {
+        *state = state.wrapping_mul(6_364_136_223_846_793_005).wrapping_add(1_442_695_040_888_963_407);
+        *slot = (*state >> 33) as usize % n;
+    }
+    (pick[0] != pick[1] && pick[1] != pick[2] && pick[0] != pick[2]).then_some(pick)
 }
 
 /// The rigid motion `dst_from_src` that best maps `src` onto `dst` (Horn/Umeyama without scale); `None` for
