@@ -16,6 +16,8 @@ fn spawn(bin: std::path::PathBuf, args: &[&str], prefix: &str, log: &std::path::
     Command::new(bin)
         .args(args)
         .env(bdis_ipc::PREFIX_ENV, prefix)
+        // The credit events and every frame received are in the logs a failure prints.
+        .env("RUST_LOG", "info,bdis_acquisition=debug,bdis_stereo=debug")
         .stdin(Stdio::null())
         .stdout(log.try_clone().unwrap())
         .stderr(log)

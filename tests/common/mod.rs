@@ -37,7 +37,8 @@ pub fn shared_data(name: &str) -> Option<PathBuf> {
     }
 }
 
-/// A fresh temporary folder, removed when dropped.
+/// A fresh temporary folder, removed when dropped (kept when `BDIS_KEEP_TEST_DIRS` is set, to read a
+/// passing run's logs).
 pub struct TempDir(pub PathBuf);
 
 impl TempDir {
@@ -54,6 +55,10 @@ impl TempDir {
 
 impl Drop for TempDir {
     fn drop(&mut self) {
+        if std::env::var_os("BDIS_KEEP_TEST_DIRS").is_some() {
+            eprintln!("kept {}", self.0.display());
+            return;
+        }
         let _ = std::fs::remove_dir_all(&self.0);
     }
 }

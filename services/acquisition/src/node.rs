@@ -66,6 +66,9 @@ pub fn run(config: Config) -> Result<()> {
     let mut published: u64 = 0;
     let mut end = End::Completed;
     let mut index = 0usize;
+    // The next frame answers consumers that announced themselves (FrameHeader::ANSWERS_JOIN). The first frame
+    // answers every consumer that subscribed before acquisition existed (its JOINED reached no listener).
+    let mut answer_join = true;
 
     'frames: while index < frame_count {
         let entry = &sequence.frames[index];
@@ -96,6 +99,10 @@ pub fn run(config: Config) -> Result<()> {
                     timeout,
                 )
                 .map_err(bdis_node::NodeError::Wait)?;
+            if events != ConsumerEvents::default() {
+                tracing::debug!("frame {index}: consumer events {events:?}");
+            }
+            answer_join |= events.joined > 0;
             let replay_from = credits.on_events(events);
             telemetry.keepalive();
             if matches!(result, WaitSetRunResult::TerminationRequest | WaitSetRunResult::Interrupt) {
@@ -142,6 +149,7 @@ pub fn run(config: Config) -> Result<()> {
             t_capture_ns,
             t_source_ns: entry.t_source_s.map_or(0, |t| (t * 1e9) as u64),
             source_index: entry.source_index,
+            flags: if answer_join { FrameHeader::ANSWERS_JOIN } else { 0 },
             ..Default::default()
         };
         layout.write_into(header);
@@ -155,6 +163,7 @@ pub fn run(config: Config) -> Result<()> {
             tracing::warn!("frame {index}: {:#}", anyhow::Error::from(e));
         }
         published += 1;
+        answer_join = false;
         telemetry.message(
             MessageTiming { frame_seq: index as u64, t_capture_ns, t_done_ns: t_publish_ns, ..Default::default() },
             0,
@@ -196,15 +205,11 @@ pub fn run(config: Config) -> Result<()> {
 mod tests {
     use super::*;
 
-    /// The node as a whole, in process, over real shared memory, paced by its consumer: every frame once, in
-    /// order, only when asked for, decoded in place (the left grey plane is the PNG's BT.601 grey), then the end
-    /// of the stream numbered after the last frame.
-    #[test]
-    #[allow(clippy::unwrap_used, clippy::expect_used)]
-    fn every_frame_once_in_order_when_the_consumer_asks() {
-        let prefix = format!("banode{}_", std::process::id());
-        let dir = std::env::temp_dir().join(format!("bdis-acquisition-node-{}", std::process::id()));
-        let (w, h, n) = (48u32, 32u32, 5usize);
+    /// `n` PNG pairs of `w`×`h` whose pixels encode their number, and an on-demand acquisition over them.
+    #[allow(clippy::unwrap_used)]
+    fn fixture(tag: &str, w: u32, h: u32, n: usize) -> (String, std::path::PathBuf, Config) {
+        let prefix = format!("ba{tag}{}_", std::process::id());
+        let dir = std::env::temp_dir().join(format!("bdis-acquisition-{tag}-{}", std::process::id()));
         for side in ["left", "right"] {
             std::fs::create_dir_all(dir.join(side)).unwrap();
             for i in 1..=n as u32 {
@@ -222,6 +227,17 @@ mod tests {
             name: "acquisition".into(),
             ipc_prefix: prefix.clone(),
         };
+        (prefix, dir, config)
+    }
+
+    /// The node as a whole, in process, over real shared memory, paced by its consumer: every frame once, in
+    /// order, only when asked for, decoded in place (the left grey plane is the PNG's BT.601 grey), then the end
+    /// of the stream numbered after the last frame.
+    #[test]
+    #[allow(clippy::unwrap_used, clippy::expect_used)]
+    fn every_frame_once_in_order_when_the_consumer_asks() {
+        let (w, h, n) = (48u32, 32u32, 5usize);
+        let (prefix, dir, config) = fixture("order", w, h, n);
         // The consumer exists before acquisition: it counts as one credit.
         let ipc = Ipc::open("node-test", &prefix).unwrap();
         let frames = ipc.frames().unwrap();
@@ -265,6 +281,71 @@ mod tests {
         assert_eq!(seen, (0..n as u64).collect::<Vec<_>>());
 
         drop((subscriber, frames, credits, ipc));
+        let _ = std::fs::remove_dir_all(&dir);
+        bdis_ipc::remove_run_files(&prefix);
+    }
+
+    /// A consumer replacing one that died, with the race a swap under load hits: the dead consumer's last
+    /// acknowledgement arrives after the newcomer subscribed, so acquisition sends the newcomer a frame (2) before
+    /// it has read the newcomer's JOINED, and only then sends again what the dead one held (1, 2). Taking frame 2
+    /// first made 1 look old and lost it. Through the join gate the newcomer takes 1, 2, 3, … once each, in order.
+    #[test]
+    #[allow(clippy::unwrap_used, clippy::expect_used)]
+    fn a_replacement_takes_every_frame_its_predecessor_held_even_behind_a_stray_one() {
+        let (w, h, n) = (16u32, 8u32, 6usize);
+        let (prefix, dir, config) = fixture("replace", w, h, n);
+        let ipc = Ipc::open("node-test", &prefix).unwrap();
+        let frames = ipc.frames().unwrap();
+        let frame_events = ipc.events(Topic::Frames).unwrap();
+        let consumed = ipc.frames_consumed().unwrap();
+        let credits = ipc.notifier(&consumed).unwrap();
+        let deadline = || std::time::Instant::now() + std::time::Duration::from_secs(20);
+        let next = |subscriber: &iceoryx2::port::subscriber::Subscriber<ipc::Service, [u8], FrameHeader>,
+                    listener: &iceoryx2::port::listener::Listener<ipc::Service>| {
+            bdis_ipc::wait_for(listener, deadline(), || {
+                Ok(subscriber.receive().map_err(bdis_ipc::iox("frames"))?.map(|s| *s.user_header()))
+            })
+            .unwrap()
+            .expect("a frame within the deadline")
+        };
+
+        // The first consumer subscribed before acquisition (one credit), then announced itself (a second).
+        let first = ipc.frame_subscriber(&frames).unwrap();
+        let first_events = ipc.listener(&frame_events).unwrap();
+        let node = std::thread::spawn(move || run(config));
+        let f0 = next(&first, &first_events);
+        assert_eq!(f0.frame_seq, 0);
+        assert!(f0.answers_join(), "the first frame answers consumers that subscribed before acquisition");
+        bdis_ipc::notify(&credits, event_id::JOINED).unwrap();
+        assert_eq!(next(&first, &first_events).frame_seq, 1);
+        // It dies holding frames 0 and 1, its acknowledgement of frame 0 still on the way.
+        drop((first, first_events));
+        bdis_ipc::notify(&credits, event_id::NOTIFIER_DEAD).unwrap();
+        let newcomer = ipc.frame_subscriber(&frames).unwrap();
+        let newcomer_events = ipc.listener(&frame_events).unwrap();
+        bdis_ipc::notify(&credits, event_id::CONSUMED).unwrap();
+        let mut gate = bdis_ipc::JoinGate::default();
+        let stray = next(&newcomer, &newcomer_events);
+        assert_eq!(stray.frame_seq, 2, "the race: frame 2 reaches the newcomer first");
+        assert!(!gate.admit(&stray), "a frame sent before acquisition read the newcomer's JOINED is not its own");
+        bdis_ipc::notify(&credits, event_id::JOINED).unwrap();
+
+        let mut taken = Vec::new();
+        loop {
+            let header = next(&newcomer, &newcomer_events);
+            if !gate.admit(&header) {
+                continue;
+            }
+            if header.is_end_of_stream() {
+                break;
+            }
+            taken.push(header.frame_seq);
+            bdis_ipc::notify(&credits, event_id::CONSUMED).unwrap();
+        }
+        node.join().unwrap().unwrap();
+        assert_eq!(taken, (1..n as u64).collect::<Vec<_>>(), "every frame from the first one the dead consumer held");
+
+        drop((newcomer, newcomer_events, credits, consumed, frame_events, frames, ipc));
         let _ = std::fs::remove_dir_all(&dir);
         bdis_ipc::remove_run_files(&prefix);
     }

@@ -211,10 +211,11 @@ fn from_frames(
     let frame_events = ipc.listener(&ipc.events(Topic::Frames)?)?;
     let credits = ipc.notifier(&ipc.frames_consumed()?)?;
     let mut stream: StreamGuard = StreamGuard::default();
+    let mut join = bdis_ipc::JoinGate::default();
     let mut published = 0u64;
     telemetry.ready();
     // Ready for a frame. An on-demand acquisition that is already running sends again what it sent but nobody
-    // released: the frame a killed predecessor was working on.
+    // released: the frame a killed predecessor was working on. Nothing is taken before that answer (JoinGate).
     bdis_ipc::notify(&credits, event_id::JOINED)?;
     let ended = bdis_node::serve(&[&frame_events], telemetry, |telemetry| -> Result<Flow> {
         while let Some(sample) = subscriber.receive().context("receive a frame")? {
@@ -229,6 +230,14 @@ fn from_frames(
                 output.end_of_stream(header.frame_seq)?;
                 tracing::info!("end of stream: {published} keyframes");
                 return Ok(Flow::Finished);
+            }
+            tracing::debug!("frame {} received (flags {:#x})", header.frame_seq, header.flags);
+            // Until acquisition answers this instance's JOINED, frames are not ours: passed over unacknowledged.
+            if !join.admit(&header) {
+                if join.passed_over() == 1 {
+                    tracing::info!("frame {}: passed over until acquisition answers this instance", header.frame_seq);
+                }
+                continue;
             }
             let checked = stream.admit(header.frame_seq, origin, "frame").and_then(|admit| {
                 Ok((admit, validate::packed_frame(&header, sample.payload(), Some((base.width, base.height)))?))

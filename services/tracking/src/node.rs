@@ -106,7 +106,8 @@ impl Outputs {
         // SAFETY: all frame_bytes bytes of the loan were written (counted just above).
         let mut sample = unsafe { loan.assume_init() };
         *sample.user_header_mut() = KeyframeHeader {
-            frame: FrameHeader { t_publish_ns: monotonic_ns(), ..*header },
+            // ANSWERS_JOIN is acquisition's word to its own consumers; it does not travel on.
+            frame: FrameHeader { t_publish_ns: monotonic_ns(), flags: header.flags & !FrameHeader::ANSWERS_JOIN, ..*header },
             meta: KeyframeMeta {
                 kf_id,
                 world_from_camera: pose_to_array(&pose),

@@ -37,9 +37,45 @@ pub struct FrameHeader {
 impl FrameHeader {
     /// The last sample of a stream carries this flag and no pixels.
     pub const END_OF_STREAM: u32 = 1;
+    /// The first frame acquisition sent after a consumer announced itself (`event_id::JOINED`), and the first
+    /// frame of a stream. Frames that reach a consumer before it are not its own: see [`JoinGate`].
+    pub const ANSWERS_JOIN: u32 = 2;
 
     pub fn is_end_of_stream(&self) -> bool {
         self.flags & Self::END_OF_STREAM != 0
+    }
+
+    pub fn answers_join(&self) -> bool {
+        self.flags & Self::ANSWERS_JOIN != 0
+    }
+}
+
+/// A consumer's side of joining a running stream. Between the moment a consumer subscribes and the moment
+/// acquisition reads its `JOINED`, acquisition may still send frames on the credits of others — also of a
+/// consumer that has just died. Such a frame can reach the newcomer ahead of the frames acquisition sends again
+/// for the dead one; taken, it would make those look like old ids and be skipped (a lost keyframe, seen in a
+/// swap under load). So a consumer takes nothing before acquisition's answer, the first frame flagged
+/// [`FrameHeader::ANSWERS_JOIN`], and does not acknowledge what it passed over: those frames were not sent on
+/// its credit, and any a dead consumer held come again after the answer.
+#[derive(Debug, Default, Clone, Copy, PartialEq, Eq)]
+pub struct JoinGate {
+    answered: bool,
+    passed_over: u64,
+}
+
+impl JoinGate {
+    /// Whether the consumer takes this frame. An end of stream always passes: the stream is over either way.
+    pub fn admit(&mut self, header: &FrameHeader) -> bool {
+        self.answered |= header.answers_join() || header.is_end_of_stream();
+        if !self.answered {
+            self.passed_over += 1;
+        }
+        self.answered
+    }
+
+    /// Frames passed over while waiting for acquisition's answer.
+    pub fn passed_over(&self) -> u64 {
+        self.passed_over
     }
 }
 
@@ -182,5 +218,21 @@ mod tests {
         assert!(matches!(FrameView::new(&header, &payload), Err(FrameLayoutError::BadLayout { .. })));
         assert!(FrameLayout::packed(0, 5).is_none());
         assert!(FrameLayout::packed(70_000, 70_000).is_none());
+    }
+
+    #[test]
+    fn a_joining_consumer_takes_nothing_before_acquisitions_answer() {
+        let frame = |seq, flags| FrameHeader { frame_seq: seq, flags, ..Default::default() };
+        let mut gate = JoinGate::default();
+        // Frame 7, sent on a dead consumer's last credit, arrives first; the answer replays 6.
+        assert!(!gate.admit(&frame(7, 0)));
+        assert!(gate.admit(&frame(6, FrameHeader::ANSWERS_JOIN)));
+        assert!(gate.admit(&frame(7, 0)));
+        // Another consumer's answer later changes nothing.
+        assert!(gate.admit(&frame(8, FrameHeader::ANSWERS_JOIN)));
+        assert_eq!(gate.passed_over(), 1);
+        // The end of the stream passes unanswered: there is nothing left to wait for.
+        let mut gate = JoinGate::default();
+        assert!(gate.admit(&frame(60, FrameHeader::END_OF_STREAM)));
     }
 }

@@ -38,7 +38,7 @@ pub mod validate;
 
 pub use clock::monotonic_ns;
 pub use depth::{DepthHeader, DepthView};
-pub use frame::{FrameHeader, FrameLayout, FrameView};
+pub use frame::{FrameHeader, FrameLayout, FrameView, JoinGate};
 pub use map::{MapPoint, MapQuery, MapSnapshotHeader};
 pub use telemetry::{ReadyWatch, TelemetryKind, TelemetryPublisher, TelemetryRecord};
 pub use track::{KeyframeHeader, KeyframeMeta, KeyframePose, PoseRecord, StereoIntrinsics};
