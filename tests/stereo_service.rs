@@ -55,6 +55,7 @@ fn a_killed_stereo_instance_is_replaced_without_losing_a_keyframe() {
     let scene = bdis_synth::PlaneScene { depth_mm: 60.0, texture: bdis_synth::TissueTexture { seed: 5 } };
     let settings = bdis_synth::write_plane_sweep(&seq, &rig, &scene, 60, 30.0, 6.0, |_| {}).unwrap();
     let prefix = prefix("stkill");
+    let _files = RunFiles(&prefix);
     let settings_arg = settings.to_str().unwrap();
     let probe_json = tmp.path().join("probe.json");
 

@@ -113,6 +113,18 @@ pub fn text(bytes: &[u8]) -> String {
     String::from_utf8_lossy(bytes).into_owned()
 }
 
+/// Removes the shared-memory files of the run with `prefix` when dropped, also when the test fails: a failed
+/// test reports its own failure, not a second one about files it left behind.
+pub struct RunFiles<'a>(pub &'a str);
+
+impl Drop for RunFiles<'_> {
+    fn drop(&mut self) {
+        if std::thread::panicking() {
+            bdis_slam::run_dir::remove_leftovers(self.0);
+        }
+    }
+}
+
 /// Asserts that nothing of the run with `prefix` is left in /dev/shm or /tmp/iceoryx2.
 pub fn assert_no_leftovers(prefix: &str) {
     let left = bdis_slam::run_dir::leftovers(prefix);
