@@ -107,7 +107,11 @@ impl Outputs {
         let mut sample = unsafe { loan.assume_init() };
         *sample.user_header_mut() = KeyframeHeader {
             // ANSWERS_JOIN is acquisition's word to its own consumers; it does not travel on.
-            frame: FrameHeader { t_publish_ns: monotonic_ns(), flags: header.flags & !FrameHeader::ANSWERS_JOIN, ..*header },
+            frame: FrameHeader {
+                t_publish_ns: monotonic_ns(),
+                flags: header.flags & !FrameHeader::ANSWERS_JOIN,
+                ..*header
+            },
             meta: KeyframeMeta {
                 kf_id,
                 world_from_camera: pose_to_array(&pose),

@@ -173,9 +173,15 @@ fn bundle_adjustment_is_the_same_in_metres_and_millimetres() {
                 p
             })
             .collect();
-        let points = truth_points.iter().map(|p| (p + Vector3::from_fn(|_, _| 2.0 * noise(&mut s))) * to_unit).collect();
-        let mut problem =
-            BaProblem { fixed: (0..5).map(|i| i == 0).collect(), poses, points, excluded: vec![false; edges.len()], edges };
+        let points =
+            truth_points.iter().map(|p| (p + Vector3::from_fn(|_, _| 2.0 * noise(&mut s))) * to_unit).collect();
+        let mut problem = BaProblem {
+            fixed: (0..5).map(|i| i == 0).collect(),
+            poses,
+            points,
+            excluded: vec![false; edges.len()],
+            edges,
+        };
         // Few iterations, so the damping shapes the result: converged, any damping would agree.
         problem.solve(&cam, 3, true, &|| false);
         let in_mm = |x: f64| x / to_unit;
