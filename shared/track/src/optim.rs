@@ -75,17 +75,16 @@ pub fn chi2(cam: &RectifiedCamera, pose: &CameraFromWorld, x_w: &Point3<f64>, ob
     e.norm_squared() * obs.inv_sigma2
 }
 
-/// The cost of an edge with squared error `chi2`: Huber with width `delta` when `robust`, else χ² itself.
 /// Levenberg–Marquardt damping, one schedule for pose-only optimisation and bundle adjustment. Marquardt's
 /// form: each diagonal entry grows by λ times itself (H + λ·diag H), so the damping is the same whatever the
 /// units of the parameters. (λ·I mixes them: rotations are unit-free, translations are not. The same real clip
 /// calibrated in millimetres had its translation steps damped 10⁶ times harder than in metres: a pose that had to
 /// move 1.2 m from its start stopped 13 % short, and bundle adjustment hardly moved keyframes or points — ATE
 /// 0.089 against 0.069 m. With this form both give 0.057 m. On our renders, in millimetres, that near-frozen
-/// bundle adjustment had scored better on some sequences; BENCHMARKS.md, issue #16.) λ starts at 1e-5, grows ×10 on a
-/// rejected (or unsolvable) step and shrinks ÷3 (not below 1e-12) on an accepted one; an iteration tries at most
-/// 10 λs. A diagonal entry below 1e-12 of the largest (a parameter the data does not constrain) is damped as if it
-/// were that.
+/// bundle adjustment had scored better on some sequences — the 640×480 colon revisit most; BENCHMARKS.md, issue
+/// #16.) λ starts at 1e-5, grows ×10 on a rejected (or unsolvable) step and shrinks ÷3 (not below 1e-12) on an
+/// accepted one; an iteration tries at most 10 λs. A diagonal entry below 1e-12 of the largest (a parameter the
+/// data does not constrain) is damped as if it were that.
 #[derive(Debug)]
 struct Damping {
     lambda: f64,
@@ -129,6 +128,7 @@ impl Damping {
     }
 }
 
+/// The cost of an edge with squared error `chi2`: Huber with width `delta` when `robust`, else χ² itself.
 fn robust_cost(chi2: f64, delta: f64, robust: bool) -> f64 {
     if !robust || chi2.sqrt() <= delta { chi2 } else { 2.0 * delta * chi2.sqrt() - delta * delta }
 }
