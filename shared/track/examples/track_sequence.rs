@@ -3,7 +3,9 @@
 //! a development tool (the product runs the `bdis-tracking` service).
 //!
 //! cargo run --release -p bdis-track --example track_sequence -- <dir> <out.tum> [max frames] [--whole-pixel]
-//!     [--settings F] [--verbose]
+//!     [--settings F] [--verbose] [--dump-map F]
+//!
+//! `--dump-map F` writes the finished map's keyframes and observations for `observation_truth.py` (beside this).
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 use bdis_track::{Tracker, TrackerSettings};
 use std::io::Write;
@@ -111,10 +113,64 @@ fn main() {
         steps[3] / n,
         steps[4] / n
     );
+    if let Some(i) = a.iter().position(|x| x == "--dump-map") {
+        dump_map(tracker.map(), std::path::Path::new(&a[i + 1]));
+    }
     let mut out = std::fs::File::create(&a[2]).unwrap();
     for (t_ns, pose, _lost) in tracker.trajectory() {
         let q = pose.rotation.quaternion();
         let p = pose.translation.vector;
         writeln!(out, "{:.6} {} {} {} {} {} {} {}", t_ns as f64 * 1e-9, p.x, p.y, p.z, q.i, q.j, q.k, q.w).unwrap();
+    }
+}
+
+/// Every good point's observations in good keyframes, one line each:
+/// `point kf t_s u v octave u_right refined first_kf x y z`, and every good keyframe's estimated pose.
+fn dump_map(map: &bdis_track::map::Map, path: &std::path::Path) {
+    let mut out = std::io::BufWriter::new(std::fs::File::create(path).unwrap());
+    for kf in map.good_keyframes() {
+        let w = kf.camera_from_world.inverse();
+        let q = w.rotation.quaternion();
+        let p = w.translation.vector;
+        writeln!(
+            out,
+            "K {} {:.6} {} {} {} {} {} {} {}",
+            kf.id,
+            kf.t_ns as f64 * 1e-9,
+            p.x,
+            p.y,
+            p.z,
+            q.i,
+            q.j,
+            q.k,
+            q.w
+        )
+        .unwrap();
+    }
+    for pt in map.points.iter().filter(|p| !p.bad) {
+        for (kf_id, &idx) in &pt.observations {
+            let kf = &map.keyframes[*kf_id];
+            if kf.bad {
+                continue;
+            }
+            let kp = &kf.keypoints[idx];
+            writeln!(
+                out,
+                "O {} {} {:.6} {} {} {} {} {} {} {} {} {}",
+                pt.id,
+                kf_id,
+                kf.t_ns as f64 * 1e-9,
+                kp.x,
+                kp.y,
+                kp.octave,
+                kf.u_right[idx],
+                u8::from(kf.refined[idx]),
+                pt.first_kf,
+                pt.position.x,
+                pt.position.y,
+                pt.position.z
+            )
+            .unwrap();
+        }
     }
 }
