@@ -6,6 +6,7 @@ use std::process::ExitCode;
 use clap::{Parser, Subcommand};
 
 mod bench_cmd;
+mod calib_cmd;
 mod demo_cmd;
 mod eval_cmd;
 mod map_cmd;
@@ -56,6 +57,12 @@ enum Command {
     Snapshot(snapshot_cmd::SnapshotArgs),
     /// Write a synthetic stereo endoscopy sequence with exact ground truth (poses, depth, disparity, mesh).
     Synth(synth_cmd::SynthArgs),
+    /// Stereo calibration files: `calib show FILE` prints what a file says and the rectification it gives.
+    #[command(subcommand)]
+    Calib(calib_cmd::CalibCommand),
+    /// Rectify a raw stereo sequence with its calibration (distortion removed, rows aligned): rectified pairs,
+    /// `times.txt` and the rectified `settings.yaml`, ready for `run`.
+    Rectify(calib_cmd::RectifyArgs),
     /// Score results against ground truth: trajectories, maps, disparity.
     #[command(subcommand)]
     Eval(eval_cmd::EvalCommand),
@@ -87,6 +94,8 @@ fn main() -> ExitCode {
             quiet_on_closed_pipe();
             eval_cmd::eval(command).map(|()| ExitCode::SUCCESS)
         }
+        Command::Calib(command) => calib_cmd::calib(command).map(|()| ExitCode::SUCCESS),
+        Command::Rectify(args) => calib_cmd::rectify(args).map(|()| ExitCode::SUCCESS),
         Command::Synth(args) => synth_cmd::synth(args).map(|()| ExitCode::SUCCESS),
     };
     match result {

@@ -10,7 +10,7 @@
 
 pub mod raw;
 
-pub use raw::{RawEntry, RawSettings, RawValue};
+pub use raw::{MatrixEntry, RawEntry, RawSettings, RawValue};
 
 use std::collections::BTreeMap;
 use std::fmt;
@@ -51,7 +51,8 @@ pub enum SettingsError {
 }
 
 impl SettingsError {
-    fn value(path: &Path, line: Option<usize>, key: &str, message: impl Into<String>) -> Self {
+    /// A value error at `path`:`line` for `key`.
+    pub fn value(path: &Path, line: Option<usize>, key: &str, message: impl Into<String>) -> Self {
         Self::Value { at: Location { path: path.to_path_buf(), line }, key: key.to_string(), message: message.into() }
     }
 }

@@ -15,6 +15,15 @@ pub enum RawValue {
     Matrix { rows: usize, cols: usize, data: Vec<f64> },
 }
 
+/// An `!!opencv-matrix` as written: its shape, row-major values and line.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MatrixEntry<'a> {
+    pub rows: usize,
+    pub cols: usize,
+    pub data: &'a [f64],
+    pub line: Option<usize>,
+}
+
 #[derive(Debug, Clone, PartialEq)]
 pub struct RawEntry {
     pub value: RawValue,
@@ -163,7 +172,19 @@ impl RawSettings {
         Ok(Self { path: path.to_path_buf(), entries })
     }
 
-    pub(crate) fn number(&self, key: &str) -> Result<Option<(f64, Option<usize>)>, SettingsError> {
+    /// The `!!opencv-matrix` at `key`; `None` when the key is absent.
+    pub fn matrix(&self, key: &str) -> Result<Option<MatrixEntry<'_>>, SettingsError> {
+        let Some(entry) = self.entries.get(key) else { return Ok(None) };
+        match &entry.value {
+            RawValue::Matrix { rows, cols, data } => {
+                Ok(Some(MatrixEntry { rows: *rows, cols: *cols, data: data.as_slice(), line: entry.line }))
+            }
+            _ => Err(SettingsError::value(&self.path, entry.line, key, "expected an `!!opencv-matrix`")),
+        }
+    }
+
+    /// The number at `key` with its line; `None` when the key is absent.
+    pub fn number(&self, key: &str) -> Result<Option<(f64, Option<usize>)>, SettingsError> {
         let Some(entry) = self.entries.get(key) else { return Ok(None) };
         let text = match &entry.value {
             RawValue::Scalar(s) => s.as_str(),

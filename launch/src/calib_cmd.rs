@@ -1,0 +1,331 @@
+//! `bdis-slam calib show` (what a stereo calibration file says, and the rectification it gives) and
+//! `bdis-slam rectify` (a raw stereo sequence written out rectified, with the rectified settings).
+
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result, bail};
+use bdis_rectify::{Rectification, RectifyMap, StereoCalibration, stereo_rectify};
+
+#[derive(Debug, clap::Subcommand)]
+pub enum CalibCommand {
+    /// Print what a stereo calibration file says (focal lengths, distortion, baseline, relative pose) and the
+    /// rectified camera it gives, so it can be checked before a run. Reads OpenCV `stereoCalibrate` files
+    /// (`M1 D1 M2 D2 R T`, e.g. SCARED) and ORB-SLAM2 settings with `LEFT.*`/`RIGHT.*` blocks.
+    Show(ShowArgs),
+}
+
+#[derive(Debug, clap::Args)]
+pub struct ShowArgs {
+    /// The calibration file (OpenCV FileStorage YAML).
+    file: PathBuf,
+    /// Image size `WxH`, when the file does not give it.
+    #[arg(long, value_parser = parse_size)]
+    size: Option<(u32, u32)>,
+    /// Bouguet's free scaling: 0 keeps only valid pixels, 1 keeps every source pixel; unset leaves the scale
+    /// at the cameras' mean focal length (OpenCV's −1).
+    #[arg(long)]
+    alpha: Option<f64>,
+    /// Print the rectification as JSON (R1 R2 P1 P2 Q, row-major, and the rectified camera) instead of text.
+    #[arg(long)]
+    json: bool,
+    /// Also write each camera's exact undistort–rectify map (`left_map_x.pfm`, `left_map_y.pfm`, `right_…`:
+    /// the raw pixel each rectified pixel samples) into this folder.
+    #[arg(long)]
+    maps: Option<PathBuf>,
+}
+
+#[derive(Debug, clap::Args)]
+pub struct RectifyArgs {
+    /// The stereo calibration (as for `calib show`).
+    #[arg(long)]
+    settings: PathBuf,
+    /// The raw sequence: `left/` and `right/` images (and `times.txt`), in any layout `run` reads.
+    #[arg(long)]
+    sequence: PathBuf,
+    /// Output folder: `left/`, `right/` rectified PNGs with the input's names, `times.txt`, `settings.yaml`.
+    #[arg(long)]
+    out: PathBuf,
+    /// As for `calib show`.
+    #[arg(long)]
+    alpha: Option<f64>,
+}
+
+fn parse_size(text: &str) -> Result<(u32, u32), String> {
+    let (w, h) = text.split_once(['x', 'X', '×']).ok_or_else(|| format!("`{text}`: expected WxH, e.g. 640x480"))?;
+    let dim = |s: &str| s.trim().parse::<u32>().ok().filter(|v| *v >= 2);
+    match (dim(w), dim(h)) {
+        (Some(w), Some(h)) => Ok((w, h)),
+        _ => Err(format!("`{text}`: expected WxH with whole numbers ≥ 2")),
+    }
+}
+
+fn check_alpha(alpha: Option<f64>) -> Result<()> {
+    if let Some(a) = alpha
+        && !(0.0..=1.0).contains(&a)
+    {
+        bail!("--alpha must be within 0..1, found {a}");
+    }
+    Ok(())
+}
+
+/// The calibration's rectification at `size`: the one the file gives, else Bouguet's.
+fn rectification_of(calib: &StereoCalibration, size: (u32, u32), alpha: Option<f64>) -> Rectification {
+    match &calib.given {
+        Some(given) => Rectification::given(given, size),
+        None => stereo_rectify(calib, size, alpha),
+    }
+}
+
+fn maps_of(calib: &StereoCalibration, rect: &Rectification, raw: (u32, u32)) -> [RectifyMap; 2] {
+    let out = (rect.size.0 as usize, rect.size.1 as usize);
+    let raw = (raw.0 as usize, raw.1 as usize);
+    [
+        RectifyMap::new(&calib.left, &rect.r_left, &rect.p_left, out, raw),
+        RectifyMap::new(&calib.right, &rect.r_right, &rect.p_right, out, raw),
+    ]
+}
+
+fn load(path: &Path) -> Result<StereoCalibration> {
+    // The reader's errors name the file, line and field already.
+    StereoCalibration::load(path).map_err(anyhow::Error::from)
+}
+
+fn size_of(calib: &StereoCalibration, given: Option<(u32, u32)>, what: &str) -> Result<(u32, u32)> {
+    match (calib.size, given) {
+        (Some(file), Some(other)) if file != other => bail!(
+            "{}: the calibration is for {}×{} images, but {what} is {}×{}",
+            calib.source.display(),
+            file.0,
+            file.1,
+            other.0,
+            other.1
+        ),
+        (Some(s), _) | (None, Some(s)) => Ok(s),
+        (None, None) => {
+            bail!("{}: the file gives no image size: pass --size WxH", calib.source.display())
+        }
+    }
+}
+
+pub fn calib(command: CalibCommand) -> Result<()> {
+    let CalibCommand::Show(args) = command;
+    check_alpha(args.alpha)?;
+    let calib = load(&args.file)?;
+    let size = size_of(&calib, args.size, "--size")?;
+    let rect = rectification_of(&calib, size, args.alpha);
+    if let Some(dir) = &args.maps {
+        write_exact_maps(&calib, &rect, size, dir)?;
+    }
+    if args.json {
+        println!("{}", json(&rect));
+    } else {
+        print!("{}", describe(&calib, &rect, args.alpha));
+    }
+    Ok(())
+}
+
+fn write_exact_maps(calib: &StereoCalibration, rect: &Rectification, size: (u32, u32), dir: &Path) -> Result<()> {
+    std::fs::create_dir_all(dir).with_context(|| format!("{}: cannot create the folder", dir.display()))?;
+    let (w, h) = (size.0 as usize, size.1 as usize);
+    for (side, camera, r, p) in
+        [("left", &calib.left, &rect.r_left, &rect.p_left), ("right", &calib.right, &rect.r_right, &rect.p_right)]
+    {
+        let (mut xs, mut ys) = (Vec::with_capacity(w * h), Vec::with_capacity(w * h));
+        for y in 0..h {
+            for x in 0..w {
+                let (sx, sy) = RectifyMap::exact(camera, r, p, x as f64, y as f64);
+                xs.push(sx as f32);
+                ys.push(sy as f32);
+            }
+        }
+        for (axis, data) in [("x", &xs), ("y", &ys)] {
+            let path = dir.join(format!("{side}_map_{axis}.pfm"));
+            bdis_core::formats::pfm::write(&path, w, h, 1, data).with_context(|| format!("{}", path.display()))?;
+        }
+    }
+    Ok(())
+}
+
+fn json(rect: &Rectification) -> String {
+    let rows = |m: &[f64], cols: usize| -> serde_json::Value {
+        serde_json::Value::Array(m.chunks(cols).map(|r| serde_json::json!(r)).collect())
+    };
+    let row_major = |m: &dyn Fn(usize, usize) -> f64, r: usize, c: usize| -> Vec<f64> {
+        (0..r).flat_map(|i| (0..c).map(move |j| (i, j))).map(|(i, j)| m(i, j)).collect()
+    };
+    let value = serde_json::json!({
+        "R1": rows(&row_major(&|i, j| rect.r_left[(i, j)], 3, 3), 3),
+        "R2": rows(&row_major(&|i, j| rect.r_right[(i, j)], 3, 3), 3),
+        "P1": rows(&row_major(&|i, j| rect.p_left[(i, j)], 3, 4), 4),
+        "P2": rows(&row_major(&|i, j| rect.p_right[(i, j)], 3, 4), 4),
+        "Q": rows(&row_major(&|i, j| rect.q[(i, j)], 4, 4), 4),
+        "vertical": rect.vertical,
+        "size": [rect.size.0, rect.size.1],
+        "camera": rect.camera(),
+    });
+    value.to_string()
+}
+
+fn describe(calib: &StereoCalibration, rect: &Rectification, alpha: Option<f64>) -> String {
+    let mut s = String::new();
+    let layout = if calib.given.is_some() {
+        "ORB-SLAM2 settings with LEFT/RIGHT rectification blocks (the rectification is used as given)"
+    } else {
+        "OpenCV stereoCalibrate layout (M1 D1 M2 D2 R T): rectified here by Bouguet's method"
+    };
+    let _ = writeln!(s, "{}: {layout}", calib.source.display());
+    for (name, cam) in [("left ", &calib.left), ("right", &calib.right)] {
+        let k = &cam.k;
+        let d = &cam.distortion;
+        let model = if d[5..].iter().any(|v| *v != 0.0) { "rational, 8 coefficients" } else { "radial–tangential" };
+        let _ = writeln!(
+            s,
+            "  {name} camera: fx {:.3} fy {:.3} cx {:.3} cy {:.3} skew {:.3}; distortion ({model}) k1 {:.6} k2 {:.6} p1 {:.6} p2 {:.6} k3 {:.6} k4 {:.6} k5 {:.6} k6 {:.6}",
+            k[(0, 0)],
+            k[(1, 1)],
+            k[(0, 2)],
+            k[(1, 2)],
+            k[(0, 1)],
+            d[0],
+            d[1],
+            d[2],
+            d[3],
+            d[4],
+            d[5],
+            d[6],
+            d[7]
+        );
+    }
+    let angle = nalgebra::Rotation3::from_matrix_unchecked(calib.rotation).angle().to_degrees();
+    let t = &calib.translation;
+    let _ = writeln!(
+        s,
+        "  right camera from left: rotation {angle:.4}°, translation ({:.6}, {:.6}, {:.6}); baseline {:.6} in the unit of T (millimetres for endoscopes, metres for KITTI-like rigs)",
+        t.x,
+        t.y,
+        t.z,
+        calib.baseline()
+    );
+    let alpha_text = alpha.map_or("unset (mean focal length)".to_string(), |a| format!("{a}"));
+    let _ = writeln!(s, "  image size {}×{}; alpha {alpha_text}", rect.size.0, rect.size.1);
+    match rect.camera() {
+        Some(c) => {
+            let _ = writeln!(
+                s,
+                "  rectified camera: fx {:.3} fy {:.3} cx {:.3} cy {:.3}; bf {:.6} (focal × baseline, rows aligned, zero disparity at infinity)",
+                c.fx, c.fy, c.cx, c.cy, c.bf
+            );
+        }
+        None => {
+            let _ = writeln!(
+                s,
+                "  rectified camera: none the tracker can use — the baseline is vertical; rotate both images by 90° (or mount the rig level) first"
+            );
+        }
+    }
+    s
+}
+
+/// `bdis-slam rectify`: every pair of a raw sequence, rectified; `times.txt` and the rectified `settings.yaml`.
+pub fn rectify(args: RectifyArgs) -> Result<()> {
+    check_alpha(args.alpha)?;
+    let calib = load(&args.settings)?;
+    let sequence = bdis_source::Sequence::open(&args.sequence).map_err(anyhow::Error::from)?;
+    let raw_size = (sequence.width, sequence.height);
+    let size = size_of(&calib, Some(raw_size), &format!("{} (its images)", args.sequence.display()))?;
+    let rect = rectification_of(&calib, size, args.alpha);
+    let Some(camera) = rect.camera() else {
+        bail!("{}: the baseline is vertical: the tracker needs a horizontal rig", args.settings.display());
+    };
+    let maps = maps_of(&calib, &rect, raw_size);
+    for side in ["left", "right"] {
+        let dir = args.out.join(side);
+        std::fs::create_dir_all(&dir).with_context(|| format!("{}: cannot create the folder", dir.display()))?;
+    }
+    write_settings(&args.out.join("settings.yaml"), &calib, &camera)?;
+    let bar =
+        bdis_slam::progress::bar(sequence.frames.len() as u64, "rectifying {bar:40} {pos}/{len} pairs ({eta} left)");
+    let (w, h) = (rect.size.0 as usize, rect.size.1 as usize);
+    let mut out = vec![0u8; w * h * 3];
+    let mut times = String::new();
+    let mut result = Ok(());
+    for frame in &sequence.frames {
+        let mut step = || -> Result<()> {
+            for (raw_path, map, side) in [(&frame.left, &maps[0], "left"), (&frame.right, &maps[1], "right")] {
+                let raw = image::open(raw_path)
+                    .with_context(|| format!("{}: cannot decode the image", raw_path.display()))?
+                    .to_rgb8();
+                if (raw.width(), raw.height()) != raw_size {
+                    bail!(
+                        "{}: {}×{} image in a sequence of {}×{}",
+                        raw_path.display(),
+                        raw.width(),
+                        raw.height(),
+                        raw_size.0,
+                        raw_size.1
+                    );
+                }
+                map.remap(raw.as_raw(), 3, &mut out);
+                let name = raw_path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+                let path = args.out.join(side).join(format!("{name}.png"));
+                image::save_buffer(&path, &out, w as u32, h as u32, image::ExtendedColorType::Rgb8)
+                    .with_context(|| format!("{}: cannot write", path.display()))?;
+            }
+            Ok(())
+        };
+        if let Err(e) = step() {
+            result = Err(e);
+            break;
+        }
+        if let Some(t) = frame.t_source_s {
+            let _ = writeln!(times, "{t:.9}");
+        }
+        bar.inc(1);
+    }
+    bar.finish_and_clear();
+    // The pairs written so far stay usable, with their times, even when a later one failed.
+    if !times.is_empty() {
+        let path = args.out.join("times.txt");
+        std::fs::write(&path, &times).with_context(|| format!("{}: cannot write", path.display()))?;
+    }
+    result?;
+    println!(
+        "{}: {} rectified pairs of {}×{} (fx {:.2}, cx {:.2}, cy {:.2}, bf {:.4}) and settings.yaml",
+        args.out.display(),
+        sequence.frames.len(),
+        w,
+        h,
+        camera.fx,
+        camera.cx,
+        camera.cy,
+        camera.bf
+    );
+    Ok(())
+}
+
+fn write_settings(path: &Path, calib: &StereoCalibration, camera: &bdis_core::calib::RectifiedCamera) -> Result<()> {
+    let raw = bdis_core::settings::RawSettings::load(&calib.source).map_err(anyhow::Error::from)?;
+    let number = |key: &str, default: f64| raw.number(key).ok().flatten().map_or(default, |(v, _)| v);
+    let text = format!(
+        "%YAML:1.0\n# Rectified by `bdis-slam rectify` from {}.\n\
+Camera.fx: {}\nCamera.fy: {}\nCamera.cx: {}\nCamera.cy: {}\nCamera.width: {}\nCamera.height: {}\nCamera.fps: {}\nCamera.bf: {}\nCamera.RGB: 1\nThDepth: {}\n\
+ORBextractor.nFeatures: {}\nORBextractor.scaleFactor: {}\nORBextractor.nLevels: {}\nORBextractor.iniThFAST: {}\nORBextractor.minThFAST: {}\n",
+        calib.source.display(),
+        camera.fx,
+        camera.fy,
+        camera.cx,
+        camera.cy,
+        camera.width,
+        camera.height,
+        number("Camera.fps", 30.0),
+        camera.bf,
+        number("ThDepth", 20.0),
+        number("ORBextractor.nFeatures", 1000.0),
+        number("ORBextractor.scaleFactor", 1.2),
+        number("ORBextractor.nLevels", 8.0),
+        number("ORBextractor.iniThFAST", 20.0),
+        number("ORBextractor.minThFAST", 7.0),
+    );
+    std::fs::write(path, text).with_context(|| format!("{}: cannot write", path.display()))
+}
