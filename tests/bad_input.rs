@@ -162,3 +162,77 @@ fn bad_launch_file_names_the_key() {
     let stderr = text(&out.stderr);
     assert!(stderr.contains(&format!("bdis-slam: error: {}:4: unknown field `cpu`", launch.display())), "{stderr}");
 }
+
+/// Runs `bdis-slam ARGS` and returns (exit code, its one error line).
+fn one_error(args: &[&std::ffi::OsStr]) -> (Option<i32>, String) {
+    let out = run_with_timeout(Command::new(bdis_slam()).args(args), Duration::from_secs(60));
+    let stderr = text(&out.stderr);
+    assert!(!stderr.contains("panicked"), "{stderr}");
+    let errors: Vec<&str> = stderr.lines().filter(|l| l.starts_with("bdis-slam: error:")).collect();
+    assert_eq!(errors.len(), 1, "exactly one error line expected:\n{stderr}");
+    (out.status.code(), errors[0].to_string())
+}
+
+fn calibration(r_row0: &str) -> String {
+    let m = |key: &str, rows: usize, cols: usize, data: &str| {
+        format!("{key}: !!opencv-matrix\n   rows: {rows}\n   cols: {cols}\n   dt: d\n   data: [ {data} ]\n")
+    };
+    format!(
+        "%YAML:1.0\nwidth: 48\nheight: 32\n{}{}{}{}{}{}",
+        m("M1", 3, 3, "40., 0., 24., 0., 40., 16., 0., 0., 1."),
+        m("D1", 1, 5, "-0.1, 0.01, 0., 0., 0."),
+        m("M2", 3, 3, "40., 0., 24., 0., 40., 16., 0., 0., 1."),
+        m("D2", 1, 5, "-0.1, 0.01, 0., 0., 0."),
+        m("R", 3, 3, &format!("{r_row0}, 0., 1., 0., 0., 0., 1.")),
+        m("T", 3, 1, "-5., 0., 0."),
+    )
+}
+
+#[test]
+fn bad_calibrations_and_a_rectification_that_breaks_mid_sequence() {
+    let tmp = TempDir::new("badcalib");
+    let (seq, _) = good_sequence(&tmp, 4);
+    let calib = tmp.path().join("calib.yaml");
+    let os = |p: &Path| p.as_os_str().to_owned();
+    // R is not a rotation: the file, the line of `R` and why.
+    std::fs::write(&calib, calibration("1., 0.3, 0.")).unwrap();
+    let (code, line) = one_error(&["calib".as_ref(), "show".as_ref(), &os(&calib)]);
+    assert_eq!(code, Some(1));
+    assert!(
+        line.contains(&format!("{}:", calib.display())) && line.contains("`R`") && line.contains("not a rotation"),
+        "{line}"
+    );
+    // The calibration is for another image size than the sequence's.
+    std::fs::write(&calib, calibration("1., 0., 0.").replace("width: 48", "width: 64")).unwrap();
+    let out_dir = tmp.path().join("rectified");
+    let args = |c: &Path| {
+        vec![
+            os(Path::new("rectify")),
+            os(Path::new("--settings")),
+            os(c),
+            os(Path::new("--sequence")),
+            os(&seq),
+            os(Path::new("--out")),
+            os(&out_dir),
+        ]
+    };
+    let (code, line) = one_error(&args(&calib).iter().map(|s| s.as_os_str()).collect::<Vec<_>>());
+    assert_eq!(code, Some(1));
+    assert!(line.contains("the calibration is for 64×32 images") && line.contains("is 48×32"), "{line}");
+    // An image that breaks mid-sequence: the pairs before it are kept, with their times.
+    std::fs::write(&calib, calibration("1., 0., 0.")).unwrap();
+    std::fs::write(seq.join("times.txt"), "0.0\n0.1\n0.2\n0.3\n").unwrap();
+    // Its header is whole (the sequence check passes it), its pixel data cut short.
+    let png = std::fs::read(seq.join("left/3.png")).unwrap();
+    std::fs::write(seq.join("left/3.png"), &png[..png.len() / 2]).unwrap();
+    let out = run_with_timeout(Command::new(bdis_slam()).args(args(&calib)), Duration::from_secs(60));
+    assert_eq!(out.status.code(), Some(1), "{}", text(&out.stderr));
+    let errors: Vec<String> =
+        text(&out.stderr).lines().filter(|l| l.starts_with("bdis-slam: error:")).map(String::from).collect();
+    assert_eq!(errors.len(), 1, "{errors:?}");
+    assert!(errors[0].contains("left/3.png"), "{}", errors[0]);
+    assert!(out_dir.join("left/1.png").is_file() && out_dir.join("right/2.png").is_file());
+    assert!(out_dir.join("settings.yaml").is_file());
+    let times = std::fs::read_to_string(out_dir.join("times.txt")).unwrap();
+    assert_eq!(times.lines().count(), 2, "the two pairs written keep their times:\n{times}");
+}

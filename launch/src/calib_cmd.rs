@@ -70,11 +70,18 @@ fn check_alpha(alpha: Option<f64>) -> Result<()> {
 }
 
 /// The calibration's rectification at `size`: the one the file gives, else Bouguet's.
-fn rectification_of(calib: &StereoCalibration, size: (u32, u32), alpha: Option<f64>) -> Rectification {
-    match &calib.given {
+fn rectification_of(calib: &StereoCalibration, size: (u32, u32), alpha: Option<f64>) -> Result<Rectification> {
+    let rect = match &calib.given {
         Some(given) => Rectification::given(given, size),
         None => stereo_rectify(calib, size, alpha),
+    };
+    if !bdis_rectify::rectification_is_usable(&rect) {
+        bail!(
+            "{}: this calibration gives no usable rectification (non-finite or zero focal length or baseline): check M1/M2, D1/D2 and T",
+            calib.source.display()
+        );
     }
+    Ok(rect)
 }
 
 fn maps_of(calib: &StereoCalibration, rect: &Rectification, raw: (u32, u32)) -> [RectifyMap; 2] {
@@ -113,7 +120,7 @@ pub fn calib(command: CalibCommand) -> Result<()> {
     check_alpha(args.alpha)?;
     let calib = load(&args.file)?;
     let size = size_of(&calib, args.size, "--size")?;
-    let rect = rectification_of(&calib, size, args.alpha);
+    let rect = rectification_of(&calib, size, args.alpha)?;
     if let Some(dir) = &args.maps {
         write_exact_maps(&calib, &rect, size, dir)?;
     }
@@ -234,7 +241,7 @@ pub fn rectify(args: RectifyArgs) -> Result<()> {
     let sequence = bdis_source::Sequence::open(&args.sequence).map_err(anyhow::Error::from)?;
     let raw_size = (sequence.width, sequence.height);
     let size = size_of(&calib, Some(raw_size), &format!("{} (its images)", args.sequence.display()))?;
-    let rect = rectification_of(&calib, size, args.alpha);
+    let rect = rectification_of(&calib, size, args.alpha)?;
     let Some(camera) = rect.camera() else {
         bail!("{}: the baseline is vertical: the tracker needs a horizontal rig", args.settings.display());
     };

@@ -37,6 +37,11 @@ pub struct SynthArgs {
     focal: f64,
     #[arg(long, default_value_t = 5.0)]
     baseline_mm: f64,
+    /// Render through a raw stereo rig instead of a rectified one: `mild` (barrel distortion, cameras turned by
+    /// up to 0.5°) or `strong` (a wide lens's 8-coefficient rational distortion, turned by up to 1.5°). Writes
+    /// `calib.yaml` (OpenCV layout) instead of `settings.yaml`: rectify with `bdis-slam rectify`.
+    #[arg(long)]
+    raw: Option<String>,
     /// Texture and shape seed: the same seed gives byte-identical files.
     #[arg(long, default_value_t = 2026)]
     seed: u64,
@@ -76,8 +81,22 @@ pub fn synth(args: SynthArgs) -> Result<()> {
         speed_mm_s: args.speed,
         motion,
         seed: args.seed,
+        raw: args.raw.clone(),
     };
     let written = render_with_progress(&args.out, &rig, &request)?;
+    if args.raw.is_some() {
+        println!(
+            "{}: {} raw stereo frames of {}×{} through the `{}` rig, its calibration in calib.yaml; rectify with: bdis-slam rectify --settings {} --sequence {} --out <dir>",
+            args.out.display(),
+            written.frames,
+            args.width,
+            args.height,
+            args.raw.as_deref().unwrap_or_default(),
+            written.settings.display(),
+            args.out.display()
+        );
+        return Ok(());
+    }
     println!(
         "{}: {} stereo frames of {}×{} with ground truth (gt/poses.tum, gt/depth, gt/disparity, gt/mesh.ply), mean depth {:.1} mm",
         args.out.display(),

@@ -36,8 +36,10 @@ impl fmt::Display for Location {
 
 #[derive(Debug, thiserror::Error)]
 pub enum SettingsError {
-    #[error("{path}: cannot read settings: {source}")]
-    Io { path: PathBuf, source: std::io::Error },
+    /// The I/O error is in the message and deliberately not the error's source, so that a report that walks
+    /// the chain (`{:#}`) prints it once.
+    #[error("{path}: cannot read settings: {detail}")]
+    Io { path: PathBuf, detail: std::io::Error },
     #[error("{at}: {message}")]
     Syntax { at: Location, message: String },
     #[error("{path}: missing required key `{key}`")]

@@ -179,3 +179,16 @@ pub fn stereo_rectify(calib: &StereoCalibration, size: (u32, u32), alpha: Option
     let q = disparity_to_depth(f, c.0, c.1, c.0, t_rect[along]);
     Rectification { r_left, r_right, p_left, p_right, q, vertical: along == 1, size }
 }
+
+/// A rectification the pipeline can use: every matrix finite, a positive focal length and a baseline. A
+/// calibration whose distortion folds the image over itself can give neither.
+pub fn rectification_is_usable(rect: &Rectification) -> bool {
+    let finite = |m: &[f64]| m.iter().all(|v| v.is_finite());
+    finite(rect.r_left.as_slice())
+        && finite(rect.r_right.as_slice())
+        && finite(rect.p_left.as_slice())
+        && finite(rect.p_right.as_slice())
+        && rect.p_left[(0, 0)] > 0.0
+        && rect.p_left[(1, 1)] > 0.0
+        && rect.p_right[(0, 3)].abs() + rect.p_right[(1, 3)].abs() > 0.0
+}

@@ -41,6 +41,34 @@ impl CameraModel {
         (k[(0, 0)] * xd + k[(0, 1)] * yd + k[(0, 2)], k[(1, 1)] * yd + k[(1, 2)])
     }
 
+    /// The normalised undistorted point of pixel (u, v), solved to convergence (Newton's method on the
+    /// distortion, from the undistorted guess); `None` where it does not converge (beyond the lens's field).
+    pub fn undistort(&self, u: f64, v: f64) -> Option<(f64, f64)> {
+        let k = &self.k;
+        let yd = (v - k[(1, 2)]) / k[(1, 1)];
+        let xd = (u - k[(0, 2)] - k[(0, 1)] * yd) / k[(0, 0)];
+        let (mut x, mut y) = (xd, yd);
+        const STEP: f64 = 1e-7;
+        for _ in 0..50 {
+            let (fx, fy) = self.distort(x, y);
+            let (ex, ey) = (fx - xd, fy - yd);
+            if ex.abs().max(ey.abs()) < 1e-13 {
+                return Some((x, y));
+            }
+            let (ax, ay) = self.distort(x + STEP, y);
+            let (bx, by) = self.distort(x, y + STEP);
+            let (j00, j10, j01, j11) = ((ax - fx) / STEP, (ay - fy) / STEP, (bx - fx) / STEP, (by - fy) / STEP);
+            let det = j00 * j11 - j01 * j10;
+            if !det.is_finite() || det.abs() < 1e-12 {
+                return None;
+            }
+            x -= (j11 * ex - j01 * ey) / det;
+            y -= (-j10 * ex + j00 * ey) / det;
+        }
+        let (fx, fy) = self.distort(x, y);
+        ((fx - xd).abs().max((fy - yd).abs()) < 1e-9).then_some((x, y))
+    }
+
     /// The normalised undistorted point of pixel (u, v), by OpenCV's fixed-point iteration with its default
     /// of five steps. Five steps do not converge where the distortion is strong (at the corners of a wide
     /// lens the iteration even diverges if continued), but `stereoRectify` places the rectified principal

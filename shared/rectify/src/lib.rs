@@ -12,6 +12,6 @@ pub mod bouguet;
 pub mod calib;
 pub mod remap;
 
-pub use bouguet::{Rectification, stereo_rectify};
+pub use bouguet::{Rectification, rectification_is_usable, stereo_rectify};
 pub use calib::{CalibrationError, CameraModel, StereoCalibration};
 pub use remap::RectifyMap;

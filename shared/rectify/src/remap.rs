@@ -84,31 +84,42 @@ impl RectifyMap {
         ((y0 * self.source_width + x0) as u32, [fx, fy])
     }
 
-    /// Rectifies a raw image of `channels` interleaved channels into `out` (rectified size × channels).
-    /// Panics if the buffers' lengths do not match the map (a programming error, not bad input).
+    /// Rectifies a raw image of `channels` (1 or 3) interleaved channels into `out` (rectified size ×
+    /// channels). Panics if the buffers' lengths do not match the map or `channels` is neither 1 nor 3 (a
+    /// programming error, not bad input).
     pub fn remap(&self, raw: &[u8], channels: usize, out: &mut [u8]) {
         assert_eq!(raw.len(), self.source_width * self.source_height * channels, "raw image size");
         assert_eq!(out.len(), self.width * self.height * channels, "rectified image size");
-        let row = self.source_width * channels;
+        match channels {
+            1 => self.remap_channels::<1>(raw, out),
+            3 => self.remap_channels::<3>(raw, out),
+            _ => panic!("remap: {channels} channels (1 or 3 are supported)"),
+        }
+    }
+
+    // The channel count is a constant so that the per-pixel work unrolls and the slices' bounds are known.
+    fn remap_channels<const C: usize>(&self, raw: &[u8], out: &mut [u8]) {
+        let row = self.source_width * C;
         let round = 1u32 << (WEIGHT_SHIFT - 1);
-        for ((px, &ul), fr) in out.chunks_exact_mut(channels).zip(&self.upper_left).zip(&self.fraction) {
+        for ((px, &ul), fr) in out.chunks_exact_mut(C).zip(&self.upper_left).zip(&self.fraction) {
             if ul == OUTSIDE {
                 px.fill(0);
                 continue;
             }
             let (fx, fy) = (u32::from(fr[0]), u32::from(fr[1]));
-            let w00 = (FRACTION_STEPS - fx) * (FRACTION_STEPS - fy);
             let w01 = fx * (FRACTION_STEPS - fy);
-            let w10 = (FRACTION_STEPS - fx) * fy;
             let w11 = fx * fy;
-            let base = ul as usize * channels;
-            for (c, out_value) in px.iter_mut().enumerate() {
-                let i = base + c;
-                let sum = w00 * u32::from(raw[i])
-                    + w01 * u32::from(raw[i + channels])
-                    + w10 * u32::from(raw[i + row])
-                    + w11 * u32::from(raw[i + row + channels]);
-                *out_value = ((sum + round) >> WEIGHT_SHIFT) as u8;
+            let w00 = (FRACTION_STEPS - fy) * FRACTION_STEPS - w01;
+            let w10 = fy * FRACTION_STEPS - w11;
+            let base = ul as usize * C;
+            let top = &raw[base..base + 2 * C];
+            let bottom = &raw[base + row..base + row + 2 * C];
+            for c in 0..C {
+                let sum = w00 * u32::from(top[c])
+                    + w01 * u32::from(top[C + c])
+                    + w10 * u32::from(bottom[c])
+                    + w11 * u32::from(bottom[C + c]);
+                px[c] = ((sum + round) >> WEIGHT_SHIFT) as u8;
             }
         }
     }

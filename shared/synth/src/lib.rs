@@ -325,6 +325,9 @@ pub struct SceneRequest {
     /// How the speed varies in time.
     pub motion: Motion,
     pub seed: u64,
+    /// A raw rig ([`render::RawLens::preset`]: `mild`, `strong`): distorted, turned cameras and `calib.yaml`
+    /// instead of rectified pairs and `settings.yaml`. `None`: rectified.
+    pub raw: Option<String>,
 }
 
 impl Default for SceneRequest {
@@ -337,6 +340,7 @@ impl Default for SceneRequest {
             speed_mm_s: 20.0,
             motion: Motion::Steady,
             seed: 2026,
+            raw: None,
         }
     }
 }
@@ -353,6 +357,11 @@ impl SceneRequest {
             "abdomen" => &["hover", "sweep", "revisit", "pan", "oblique"],
             other => return invalid(format!("`{other}` is not a scene (colon, abdomen)")),
         };
+        if let Some(raw) = &self.raw
+            && !RAW_LENSES.contains(&raw.as_str())
+        {
+            return invalid(format!("`{raw}` is not a raw rig ({})", RAW_LENSES.join(", ")));
+        }
         match &self.trajectory {
             Some(t) if !paths.contains(&t.as_str()) => {
                 invalid(format!("trajectory `{t}` does not fit scene `{}` ({})", self.scene, paths.join(", ")))
@@ -361,6 +370,9 @@ impl SceneRequest {
         }
     }
 }
+
+/// The raw rigs [`render::RawLens::preset`] knows.
+pub const RAW_LENSES: &[&str] = &["mild", "strong"];
 
 /// Renders the requested scene and path into `dir` with its ground truth (see [`render::write_sequence`]).
 pub fn write_scene(
@@ -377,6 +389,7 @@ pub fn write_scene(
     let warp = move |t: f64| motion.path_time(t, total_s, fps);
     let path_total_s = warp(total_s);
     let trajectory = request.trajectory.as_deref();
+    let lens = request.raw.as_deref().and_then(|name| render::RawLens::preset(name, rig));
     match (request.scene.as_str(), trajectory) {
         ("colon", None | Some("forward") | Some("revisit")) => {
             let colon = colon::Colon { seed, texture: TissueTexture { seed }, ..colon::Colon::default() };
@@ -393,7 +406,7 @@ pub fn write_scene(
                 &colon,
                 &path,
                 mesh,
-                &render::Shading::default(),
+                &render::Shading { lens, ..render::Shading::default() },
                 request.frames,
                 request.fps,
                 progress,
@@ -414,7 +427,7 @@ pub fn write_scene(
             };
             let mesh = abdomen.mesh(60.0 + speed.abs() * path_total_s, 0.5);
             // A laparoscope's light is stronger and the wall farther away than in a colon.
-            let shading = render::Shading { exposure_distance_mm: 65.0, ..render::Shading::default() };
+            let shading = render::Shading { exposure_distance_mm: 65.0, lens, ..render::Shading::default() };
             render::write_sequence(dir, rig, &abdomen, &path, mesh, &shading, request.frames, request.fps, progress)
         }
         _ => Err(SynthError::Request {

@@ -42,6 +42,87 @@ pub struct Shading {
     pub vignetting: f64,
     /// Uniform sensor noise amplitude, grey levels.
     pub noise: f64,
+    /// Raw optics: `None` renders a rectified pair; `Some` renders what distorted, slightly turned cameras at
+    /// the same centres see ([`RawLens`]), to be rectified by `bdis-slam rectify`.
+    pub lens: Option<RawLens>,
+}
+
+/// A raw stereo camera for rendering: each side's lens (intrinsics and distortion, pixel centres at integer
+/// coordinates) and its rotation relative to the rectified camera of the rig at the same centre.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RawLens {
+    pub left: bdis_rectify::CameraModel,
+    pub right: bdis_rectify::CameraModel,
+    /// Rectified frame from raw frame: `X_rectified = rectified_from_raw · X_raw`.
+    pub left_rectified_from_raw: nalgebra::Matrix3<f64>,
+    pub right_rectified_from_raw: nalgebra::Matrix3<f64>,
+}
+
+impl RawLens {
+    /// The named raw rigs of `bdis-slam synth --raw` for a rectified `rig`: `mild` (5-coefficient barrel
+    /// distortion, cameras turned by up to 0.5°, focal lengths and principal points a little off) and `strong`
+    /// (the 8-coefficient rational model of a wide endoscope lens, turned by up to 1.5°).
+    pub fn preset(name: &str, rig: &RectifiedCamera) -> Option<Self> {
+        let (distortion_left, distortion_right, turn) = match name {
+            "mild" => (
+                [-0.12, 0.05, 0.0006, -0.0004, 0.0, 0.0, 0.0, 0.0],
+                [-0.11, 0.045, -0.0003, 0.0005, -0.005, 0.0, 0.0, 0.0],
+                1.0,
+            ),
+            "strong" => (
+                [-0.32, 0.11, 0.0008, -0.0006, -0.015, 0.05, 0.01, 0.002],
+                [-0.30, 0.10, -0.0005, 0.0007, -0.01, 0.045, 0.008, 0.001],
+                3.0,
+            ),
+            _ => return None,
+        };
+        let degrees = |x: f64, y: f64, z: f64| {
+            nalgebra::Rotation3::from_scaled_axis(
+                nalgebra::Vector3::new(x, y, z) * (turn * std::f64::consts::PI / 180.0),
+            )
+            .into_inner()
+        };
+        // Pixel centres at integer coordinates, as the written settings have them (see `write_sequence`).
+        let k = |scale_x: f64, scale_y: f64, dx: f64, dy: f64| {
+            nalgebra::Matrix3::new(
+                rig.fx * scale_x,
+                0.0,
+                rig.cx - 0.5 + dx * f64::from(rig.width) / 640.0,
+                0.0,
+                rig.fy * scale_y,
+                rig.cy - 0.5 + dy * f64::from(rig.height) / 480.0,
+                0.0,
+                0.0,
+                1.0,
+            )
+        };
+        Some(Self {
+            left: bdis_rectify::CameraModel { k: k(1.01, 1.012, 3.0, -2.0), distortion: distortion_left },
+            right: bdis_rectify::CameraModel { k: k(0.99, 0.991, -2.5, 1.5), distortion: distortion_right },
+            left_rectified_from_raw: degrees(0.15, -0.1, 0.05),
+            right_rectified_from_raw: degrees(-0.2, 0.25, -0.1),
+        })
+    }
+
+    /// The calibration of this rig with a rectified baseline `baseline` along x: `X_right = R · X_left + T`
+    /// between the raw cameras.
+    pub fn calibration(&self, baseline: f64) -> (nalgebra::Matrix3<f64>, nalgebra::Vector3<f64>) {
+        let rotation = self.right_rectified_from_raw.transpose() * self.left_rectified_from_raw;
+        let translation = -(self.right_rectified_from_raw.transpose() * nalgebra::Vector3::new(baseline, 0.0, 0.0));
+        (rotation, translation)
+    }
+
+    /// The ray (rectified frame, z = 1 not implied) through raw pixel (u, v) of a view (1 left, 2 right),
+    /// with (u, v) in the renderer's pixel-corner convention.
+    fn ray(&self, view: u64, u: f64, v: f64) -> Option<Vector3<f64>> {
+        let (camera, turn) = if view == 1 {
+            (&self.left, &self.left_rectified_from_raw)
+        } else {
+            (&self.right, &self.right_rectified_from_raw)
+        };
+        let (x, y) = camera.undistort(u - 0.5, v - 0.5)?;
+        Some(turn * Vector3::new(x, y, 1.0))
+    }
 }
 
 impl Default for Shading {
@@ -54,6 +135,7 @@ impl Default for Shading {
             shininess: 40.0,
             vignetting: 0.3,
             noise: 2.0,
+            lens: None,
         }
     }
 }
@@ -96,8 +178,11 @@ pub fn render(
     let exposure = 0.8 * shading.exposure_distance_mm.powi(2);
 
     // Radiance (0..255 per channel, before noise) and z-depth of the ray through image point (u, v).
-    let shade = |pose: &Isometry3<f64>, u: f64, v: f64| -> Option<([f64; 3], f64)> {
-        let dir_cam = Vector3::new((u - rig.cx) / rig.fx, (v - rig.cy) / rig.fy, 1.0);
+    let shade = |pose: &Isometry3<f64>, view: u64, u: f64, v: f64| -> Option<([f64; 3], f64)> {
+        let dir_cam = match &shading.lens {
+            None => Vector3::new((u - rig.cx) / rig.fx, (v - rig.cy) / rig.fy, 1.0),
+            Some(lens) => lens.ray(view, u, v)?,
+        };
         let dir = (pose.rotation * dir_cam).normalize();
         let hit = surface.hit(&(pose * Point3::origin()), &dir, max_t)?;
         // One pixel's footprint on the surface (ignoring obliqueness).
@@ -117,8 +202,8 @@ pub fn render(
         } else {
             (1.0, 0.0)
         };
-        // z-depth = t · (camera-z of the unit ray); dir_cam has z = 1 before normalising.
-        Some(([0, 1, 2].map(|c| 255.0 * (albedo[c] * diffuse + spec)), hit.t / dir_cam.norm()))
+        // z-depth (of the rectified camera) = t · (camera-z of the unit ray).
+        Some(([0, 1, 2].map(|c| 255.0 * (albedo[c] * diffuse + spec)), hit.t * dir_cam.z / dir_cam.norm()))
     };
     let write = |px: &mut [u8], radiance: [f64; 3], x: u32, y: u32, view: u64| {
         for c in 0..3 {
@@ -138,7 +223,7 @@ pub fn render(
             let y = y0 + row_i as u32;
             for x in 0..w {
                 let px = &mut row[3 * x as usize..3 * x as usize + 3];
-                match shade(pose, f64::from(x) + 0.5, f64::from(y) + 0.5) {
+                match shade(pose, view, f64::from(x) + 0.5, f64::from(y) + 0.5) {
                     Some((radiance, z)) => {
                         depth_rows[row_i * w as usize + x as usize] = z as f32;
                         write(px, radiance, x, y, view);
@@ -186,7 +271,7 @@ pub fn render(
                 }
                 let mut sum = [0.0; 3];
                 for (dx, dy) in [(0.25, 0.25), (0.75, 0.25), (0.25, 0.75), (0.75, 0.75)] {
-                    if let Some((radiance, _)) = shade(pose, f64::from(x) + dx, f64::from(y) + dy) {
+                    if let Some((radiance, _)) = shade(pose, view, f64::from(x) + dx, f64::from(y) + dy) {
                         for c in 0..3 {
                             sum[c] += radiance[c] / 4.0;
                         }
@@ -247,10 +332,13 @@ pub fn write_sequence(
         let (w, h) = (rig.width as usize, rig.height as usize);
         let depth_path = dir.join(format!("gt/depth/{}.pfm", i + 1));
         pfm::write(&depth_path, w, h, 1, &pair.depth).map_err(|e| fail(&depth_path, &e))?;
-        let disparity: Vec<f32> =
-            pair.depth.iter().map(|&z| if z.is_finite() { (bf / f64::from(z)) as f32 } else { f32::NAN }).collect();
-        let disp_path = dir.join(format!("gt/disparity/{}.pfm", i + 1));
-        pfm::write_disparity(&disp_path, w, h, &disparity).map_err(|e| fail(&disp_path, &e))?;
+        // A raw pair has no disparity: its rows do not line up until it is rectified.
+        if shading.lens.is_none() {
+            let disparity: Vec<f32> =
+                pair.depth.iter().map(|&z| if z.is_finite() { (bf / f64::from(z)) as f32 } else { f32::NAN }).collect();
+            let disp_path = dir.join(format!("gt/disparity/{}.pfm", i + 1));
+            pfm::write_disparity(&disp_path, w, h, &disparity).map_err(|e| fail(&disp_path, &e))?;
+        }
         for &z in pair.depth.iter().filter(|z| z.is_finite()) {
             depth_sum += f64::from(z);
             depth_n += 1;
@@ -267,27 +355,59 @@ pub fn write_sequence(
     let path = dir.join("gt/mesh.ply");
     ply::write(&path, &ply::PointCloud { positions: vertices, faces: triangles, ..Default::default() })
         .map_err(|e| fail(&path, &e))?;
-    let settings = dir.join("settings.yaml");
-    let text = format!(
-        "%YAML:1.0\n# Synthetic sequence written by bdis-slam synth. Units: millimetres.\n\
+    let orb = "# ORB settings for tracking (ORB-SLAM2's defaults; 1000 features at 640×480).\n\
+ORBextractor.nFeatures: 1000\nORBextractor.scaleFactor: 1.2\nORBextractor.nLevels: 8\nORBextractor.iniThFAST: 20\nORBextractor.minThFAST: 7\n";
+    let (settings, text) = match &shading.lens {
+        None => (
+            dir.join("settings.yaml"),
+            format!(
+                "%YAML:1.0\n# Synthetic sequence written by bdis-slam synth. Units: millimetres.\n\
 # Pixel centres are at integer coordinates: the rays went through (x + 0.5, y + 0.5) with the rig's principal\n\
 # point, so the principal point here is half a pixel less.\n\
-Camera.fx: {}\nCamera.fy: {}\nCamera.cx: {}\nCamera.cy: {}\nCamera.width: {}\nCamera.height: {}\nCamera.fps: {}\nCamera.bf: {}\nCamera.RGB: 1\nThDepth: 20\n\
-# ORB settings for tracking (ORB-SLAM2's defaults; 1000 features at 640×480).\n\
-ORBextractor.nFeatures: 1000\nORBextractor.scaleFactor: 1.2\nORBextractor.nLevels: 8\nORBextractor.iniThFAST: 20\nORBextractor.minThFAST: 7\n",
-        rig.fx,
-        rig.fy,
-        rig.cx - 0.5,
-        rig.cy - 0.5,
-        rig.width,
-        rig.height,
-        fps,
-        bf
-    );
+Camera.fx: {}\nCamera.fy: {}\nCamera.cx: {}\nCamera.cy: {}\nCamera.width: {}\nCamera.height: {}\nCamera.fps: {}\nCamera.bf: {}\nCamera.RGB: 1\nThDepth: 20\n{orb}",
+                rig.fx,
+                rig.fy,
+                rig.cx - 0.5,
+                rig.cy - 0.5,
+                rig.width,
+                rig.height,
+                fps,
+                bf
+            ),
+        ),
+        Some(lens) => (dir.join("calib.yaml"), raw_calibration_text(lens, rig, fps, orb)),
+    };
     std::fs::write(&settings, text).map_err(|e| fail(&settings, &e))?;
     Ok(WrittenSequence {
         settings,
         frames,
         mean_depth_mm: if depth_n > 0 { depth_sum / depth_n as f64 } else { f64::NAN },
     })
+}
+
+/// The OpenCV `stereoCalibrate` layout of a raw rig (what `bdis-slam rectify --settings` reads), with the
+/// sequence's frame rate and ORB settings for the rectified settings it writes.
+fn raw_calibration_text(lens: &RawLens, rig: &RectifiedCamera, fps: f64, orb: &str) -> String {
+    let matrix = |key: &str, rows: usize, cols: usize, data: &[f64]| {
+        let values: Vec<String> = data.iter().map(|v| format!("{v:e}")).collect();
+        format!(
+            "{key}: !!opencv-matrix\n   rows: {rows}\n   cols: {cols}\n   dt: d\n   data: [ {} ]\n",
+            values.join(", ")
+        )
+    };
+    let row_major =
+        |m: &nalgebra::Matrix3<f64>| -> Vec<f64> { (0..3).flat_map(|r| (0..3).map(move |c| m[(r, c)])).collect() };
+    let (rotation, translation) = lens.calibration(rig.baseline());
+    format!(
+        "%YAML:1.0\n# Raw synthetic stereo rig written by bdis-slam synth --raw: distorted, turned cameras. Units: millimetres.\n\
+# Rectify with `bdis-slam rectify --settings calib.yaml --sequence . --out <dir>`.\n{}{}{}{}{}{}width: {}\nheight: {}\nCamera.fps: {fps}\nThDepth: 20\n{orb}",
+        matrix("M1", 3, 3, &row_major(&lens.left.k)),
+        matrix("D1", 1, 8, &lens.left.distortion),
+        matrix("M2", 3, 3, &row_major(&lens.right.k)),
+        matrix("D2", 1, 8, &lens.right.distortion),
+        matrix("R", 3, 3, &row_major(&rotation)),
+        matrix("T", 3, 1, translation.as_slice()),
+        rig.width,
+        rig.height,
+    )
 }

@@ -19,6 +19,7 @@ pub type Target = (&'static str, fn(&[u8]));
 pub const TARGETS: &[Target] = &[
     ("settings_yaml", settings_yaml),
     ("settings_toml", settings_toml),
+    ("stereo_calibration", stereo_calibration),
     ("pfm", pfm),
     ("ply", ply),
     ("tum", tum),
@@ -71,6 +72,24 @@ fn settings_checked(raw: &bdis_core::settings::raw::RawSettings) {
         let c = &s.camera;
         assert!(c.fx > 0.0 && c.fy > 0.0 && c.bf > 0.0, "accepted camera {c:?}");
         assert!(c.cx.is_finite() && c.cy.is_finite(), "accepted camera {c:?}");
+    }
+}
+
+/// A stereo calibration that reads has cameras with positive focal lengths, a rotation, a baseline; and
+/// rectifying it either gives finite matrices or is refused by `rectification_is_usable`.
+pub fn stereo_calibration(data: &[u8]) {
+    let Some(t) = text(data) else { return };
+    let Ok(raw) = bdis_core::settings::raw::RawSettings::parse_opencv_yaml(t, path()) else { return };
+    let Ok(calib) = bdis_rectify::StereoCalibration::from_raw(&raw) else { return };
+    for cam in [&calib.left, &calib.right] {
+        assert!(cam.k[(0, 0)] > 0.0 && cam.k[(1, 1)] > 0.0, "accepted camera {cam:?}");
+    }
+    let r = &calib.rotation;
+    assert!((r.transpose() * r - nalgebra::Matrix3::identity()).abs().max() < 1e-5, "accepted rotation {r}");
+    assert!(calib.translation.norm() > 0.0 && calib.translation.iter().all(|v| v.is_finite()));
+    let rect = bdis_rectify::stereo_rectify(&calib, (64, 48), None);
+    if bdis_rectify::rectification_is_usable(&rect) {
+        assert!(rect.p_left.iter().chain(rect.p_right.iter()).all(|v| v.is_finite()));
     }
 }
 

@@ -137,6 +137,11 @@ fn good_seeds_are_accepted_so_the_targets_reach_past_the_first_check() {
     let raw = bdis_core::settings::raw::RawSettings::parse_toml(&text("settings_toml", "small.toml"), p).unwrap();
     bdis_core::settings::Settings::from_raw(&raw).unwrap();
     assert!(bdis_slam::launch_file::LaunchFile::parse(&text("launch_file", "hamlyn6.toml"), p).is_ok());
+    for seed in ["opencv-rational8.yaml", "opencv-mild-with-size.yaml", "orbslam2-left-right.yaml"] {
+        let raw =
+            bdis_core::settings::raw::RawSettings::parse_opencv_yaml(&text("stereo_calibration", seed), p).unwrap();
+        bdis_rectify::StereoCalibration::from_raw(&raw).unwrap();
+    }
     let map = bdis_fuzz::generated_seeds("map_bin");
     assert!(bdis_mosaic::decode(&map[0], p).is_ok());
 }

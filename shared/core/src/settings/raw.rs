@@ -77,7 +77,7 @@ impl RawSettings {
     /// Reads a settings file, choosing the syntax by its extension (`.yaml`/`.yml` or `.toml`).
     pub fn load(path: &Path) -> Result<Self, SettingsError> {
         let text =
-            std::fs::read_to_string(path).map_err(|source| SettingsError::Io { path: path.to_path_buf(), source })?;
+            std::fs::read_to_string(path).map_err(|detail| SettingsError::Io { path: path.to_path_buf(), detail })?;
         match path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase).as_deref() {
             Some("yaml") | Some("yml") => Self::parse_opencv_yaml(&text, path),
             Some("toml") => Self::parse_toml(&text, path),
