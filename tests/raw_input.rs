@@ -2,7 +2,8 @@
 //! Issue #18's first "Done when", through the real processes: the same colon flight rendered rectified, and
 //! rendered through raw rigs — `mild` (barrel distortion, cameras turned by up to 0.5°, focal lengths and
 //! principal points off by a few pixels) and `strong` (a wide lens's 8-coefficient rational distortion, turned
-//! by up to 1.5°) — then rectified by `bdis-slam rectify` from the rig's `calib.yaml`, builds a map within
+//! by up to 1.5°) — then rectified from the rig's `calib.yaml` (by `bdis-slam rectify` for `mild`; by `run`
+//! itself, given the raw calibration as its settings, for `strong`), builds a map within
 //! 10 % of the rectified render's map error (mean distance to the mesh) and tracks within 1.5× its ATE.
 //!
 //! Why 1.5× and not the issue's 10 % for the ATE: one run of this tracker moves by ±20 % with the start frame
@@ -45,15 +46,15 @@ fn synth(out: &Path, raw: Option<&str>) {
     assert!(out.status.success(), "{}", text(&out.stderr));
 }
 
-/// Tracks and maps `seq` through the processes; (ATE RMSE mm, path mm, mean map error mm).
-fn run(seq: &Path, gt: &Path, run_dir: &Path, tag: &str) -> (f64, f64, f64) {
+/// Tracks and maps `seq` with `settings` through the processes; (ATE RMSE mm, path mm, mean map error mm).
+fn run(seq: &Path, settings: &Path, gt: &Path, run_dir: &Path, tag: &str) -> (f64, f64, f64) {
     let prefix = prefix(tag);
     let out = run_with_timeout(
         Command::new(bdis_slam())
             .args(["run", "--track", "--sequence"])
             .arg(seq)
             .arg("--settings")
-            .arg(seq.join("settings.yaml"))
+            .arg(settings)
             .args(["--pacing", "on-demand", "--ipc-prefix", &prefix, "--out"])
             .arg(run_dir),
         Duration::from_secs(600),
@@ -84,25 +85,35 @@ fn raw_distorted_footage_rectified_here_tracks_and_maps_as_well_as_a_rectified_r
     let tmp = TempDir::new("raw-input");
     let rectified = tmp.path().join("rectified");
     synth(&rectified, None);
-    let (ate_ref, length, map_ref) = run(&rectified, &rectified, &tmp.path().join("run-rectified"), "raw-ref");
+    let (ate_ref, length, map_ref) =
+        run(&rectified, &rectified.join("settings.yaml"), &rectified, &tmp.path().join("run-rectified"), "raw-ref");
     eprintln!("rendered rectified: ATE {ate_ref:.4} mm over {length:.1} mm, map error {map_ref:.4} mm");
     for rig in ["mild", "strong"] {
         let raw = tmp.path().join(format!("raw-{rig}"));
         synth(&raw, Some(rig));
         assert!(!raw.join("settings.yaml").exists(), "a raw render has no rectified settings to mistake");
-        let ours = tmp.path().join(format!("rectified-{rig}"));
-        let out = run_with_timeout(
-            Command::new(bdis_slam())
-                .args(["rectify", "--settings"])
-                .arg(raw.join("calib.yaml"))
-                .arg("--sequence")
-                .arg(&raw)
-                .arg("--out")
-                .arg(&ours),
-            Duration::from_secs(300),
-        );
-        assert!(out.status.success(), "{}", text(&out.stderr));
-        let (ate, _, map) = run(&ours, &raw, &tmp.path().join(format!("run-{rig}")), &format!("raw-{rig}"));
+        let run_dir = tmp.path().join(format!("run-{rig}"));
+        let (ate, _, map) = if rig == "mild" {
+            // The offline step: `bdis-slam rectify`, then a run on its output.
+            let ours = tmp.path().join(format!("rectified-{rig}"));
+            let out = run_with_timeout(
+                Command::new(bdis_slam())
+                    .args(["rectify", "--settings"])
+                    .arg(raw.join("calib.yaml"))
+                    .arg("--sequence")
+                    .arg(&raw)
+                    .arg("--out")
+                    .arg(&ours),
+                Duration::from_secs(300),
+            );
+            assert!(out.status.success(), "{}", text(&out.stderr));
+            run(&ours, &ours.join("settings.yaml"), &raw, &run_dir, &format!("raw-{rig}"))
+        } else {
+            // `run` given the raw calibration rectifies into the run folder by itself.
+            let result = run(&raw, &raw.join("calib.yaml"), &raw, &run_dir, &format!("raw-{rig}"));
+            assert!(run_dir.join("sequence/settings.yaml").is_file() && run_dir.join("sequence/left/1.png").is_file());
+            result
+        };
         eprintln!(
             "raw `{rig}`, rectified here: ATE {ate:.4} mm ({:+.0} %), map error {map:.4} mm ({:+.0} %)",
             100.0 * (ate / ate_ref - 1.0),

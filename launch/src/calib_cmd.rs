@@ -236,28 +236,66 @@ fn describe(calib: &StereoCalibration, rect: &Rectification, alpha: Option<f64>)
 
 /// `bdis-slam rectify`: every pair of a raw sequence, rectified; `times.txt` and the rectified `settings.yaml`.
 pub fn rectify(args: RectifyArgs) -> Result<()> {
-    check_alpha(args.alpha)?;
-    let calib = load(&args.settings)?;
-    let sequence = bdis_source::Sequence::open(&args.sequence).map_err(anyhow::Error::from)?;
-    let raw_size = (sequence.width, sequence.height);
-    let size = size_of(&calib, Some(raw_size), &format!("{} (its images)", args.sequence.display()))?;
-    let rect = rectification_of(&calib, size, args.alpha)?;
+    let done = rectify_sequence(&args.settings, &args.sequence, &args.out, args.alpha)?;
+    let c = &done.camera;
+    println!(
+        "{}: {} rectified pairs of {}×{} (fx {:.2}, cx {:.2}, cy {:.2}, bf {:.4}) and settings.yaml",
+        args.out.display(),
+        done.pairs,
+        c.width,
+        c.height,
+        c.fx,
+        c.cx,
+        c.cy,
+        c.bf
+    );
+    Ok(())
+}
+
+/// What [`rectify_sequence`] wrote.
+#[derive(Debug)]
+pub struct Rectified {
+    pub pairs: usize,
+    pub camera: bdis_core::calib::RectifiedCamera,
+    pub settings: PathBuf,
+}
+
+/// Whether `path` is a raw stereo calibration (`M1 … T`, or ORB-SLAM2's `LEFT`/`RIGHT` blocks), i.e. the
+/// images it goes with need rectifying first. A file that does not parse is not one (its reader says why).
+pub fn is_raw_calibration(path: &Path) -> bool {
+    bdis_core::settings::RawSettings::load(path)
+        .is_ok_and(|raw| ["M1", "M2", "LEFT.K", "RIGHT.K"].iter().any(|k| raw.entries.contains_key(*k)))
+}
+
+/// Rectifies every pair of `sequence` with the calibration `settings` into `out` (`left/`, `right/`,
+/// `times.txt`, `settings.yaml`), with a progress bar on a terminal. Pairs written before an error stay, with
+/// their times.
+pub fn rectify_sequence(settings: &Path, sequence: &Path, out: &Path, alpha: Option<f64>) -> Result<Rectified> {
+    check_alpha(alpha)?;
+    let calib = load(settings)?;
+    let sequence_files = bdis_source::Sequence::open(sequence).map_err(anyhow::Error::from)?;
+    let raw_size = (sequence_files.width, sequence_files.height);
+    let size = size_of(&calib, Some(raw_size), &format!("{} (its images)", sequence.display()))?;
+    let rect = rectification_of(&calib, size, alpha)?;
     let Some(camera) = rect.camera() else {
-        bail!("{}: the baseline is vertical: the tracker needs a horizontal rig", args.settings.display());
+        bail!("{}: the baseline is vertical: the tracker needs a horizontal rig", settings.display());
     };
     let maps = maps_of(&calib, &rect, raw_size);
     for side in ["left", "right"] {
-        let dir = args.out.join(side);
+        let dir = out.join(side);
         std::fs::create_dir_all(&dir).with_context(|| format!("{}: cannot create the folder", dir.display()))?;
     }
-    write_settings(&args.out.join("settings.yaml"), &calib, &camera)?;
-    let bar =
-        bdis_slam::progress::bar(sequence.frames.len() as u64, "rectifying {bar:40} {pos}/{len} pairs ({eta} left)");
+    let settings_out = out.join("settings.yaml");
+    write_settings(&settings_out, &calib, &camera)?;
+    let bar = bdis_slam::progress::bar(
+        sequence_files.frames.len() as u64,
+        "rectifying {bar:40} {pos}/{len} pairs ({eta} left)",
+    );
     let (w, h) = (rect.size.0 as usize, rect.size.1 as usize);
-    let mut out = vec![0u8; w * h * 3];
+    let mut rectified = vec![0u8; w * h * 3];
     let mut times = String::new();
     let mut result = Ok(());
-    for frame in &sequence.frames {
+    for frame in &sequence_files.frames {
         let mut step = || -> Result<()> {
             for (raw_path, map, side) in [(&frame.left, &maps[0], "left"), (&frame.right, &maps[1], "right")] {
                 let raw = image::open(raw_path)
@@ -273,10 +311,10 @@ pub fn rectify(args: RectifyArgs) -> Result<()> {
                         raw_size.1
                     );
                 }
-                map.remap(raw.as_raw(), 3, &mut out);
+                map.remap(raw.as_raw(), 3, &mut rectified);
                 let name = raw_path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
-                let path = args.out.join(side).join(format!("{name}.png"));
-                image::save_buffer(&path, &out, w as u32, h as u32, image::ExtendedColorType::Rgb8)
+                let path = out.join(side).join(format!("{name}.png"));
+                image::save_buffer(&path, &rectified, w as u32, h as u32, image::ExtendedColorType::Rgb8)
                     .with_context(|| format!("{}: cannot write", path.display()))?;
             }
             Ok(())
@@ -293,29 +331,22 @@ pub fn rectify(args: RectifyArgs) -> Result<()> {
     bar.finish_and_clear();
     // The pairs written so far stay usable, with their times, even when a later one failed.
     if !times.is_empty() {
-        let path = args.out.join("times.txt");
+        let path = out.join("times.txt");
         std::fs::write(&path, &times).with_context(|| format!("{}: cannot write", path.display()))?;
     }
     result?;
-    println!(
-        "{}: {} rectified pairs of {}×{} (fx {:.2}, cx {:.2}, cy {:.2}, bf {:.4}) and settings.yaml",
-        args.out.display(),
-        sequence.frames.len(),
-        w,
-        h,
-        camera.fx,
-        camera.cx,
-        camera.cy,
-        camera.bf
-    );
-    Ok(())
+    Ok(Rectified { pairs: sequence_files.frames.len(), camera, settings: settings_out })
 }
 
 fn write_settings(path: &Path, calib: &StereoCalibration, camera: &bdis_core::calib::RectifiedCamera) -> Result<()> {
+    // The tracking settings come from the calibration file where it has them (ORB-SLAM2 settings do), else
+    // ORB-SLAM2's defaults; a malformed one is an error, not a silent default.
     let raw = bdis_core::settings::RawSettings::load(&calib.source).map_err(anyhow::Error::from)?;
-    let number = |key: &str, default: f64| raw.number(key).ok().flatten().map_or(default, |(v, _)| v);
-    let text = format!(
-        "%YAML:1.0\n# Rectified by `bdis-slam rectify` from {}.\n\
+    let number = |key: &str, default: f64| -> Result<f64> {
+        Ok(raw.number(key).map_err(anyhow::Error::from)?.map_or(default, |(v, _)| v))
+    };
+    let mut text = format!(
+        "%YAML:1.0\n# Rectified by bdis-slam from {}.\n\
 Camera.fx: {}\nCamera.fy: {}\nCamera.cx: {}\nCamera.cy: {}\nCamera.width: {}\nCamera.height: {}\nCamera.fps: {}\nCamera.bf: {}\nCamera.RGB: 1\nThDepth: {}\n\
 ORBextractor.nFeatures: {}\nORBextractor.scaleFactor: {}\nORBextractor.nLevels: {}\nORBextractor.iniThFAST: {}\nORBextractor.minThFAST: {}\n",
         calib.source.display(),
@@ -325,14 +356,22 @@ ORBextractor.nFeatures: {}\nORBextractor.scaleFactor: {}\nORBextractor.nLevels: 
         camera.cy,
         camera.width,
         camera.height,
-        number("Camera.fps", 30.0),
+        number("Camera.fps", 30.0)?,
         camera.bf,
-        number("ThDepth", 20.0),
-        number("ORBextractor.nFeatures", 1000.0),
-        number("ORBextractor.scaleFactor", 1.2),
-        number("ORBextractor.nLevels", 8.0),
-        number("ORBextractor.iniThFAST", 20.0),
-        number("ORBextractor.minThFAST", 7.0),
+        number("ThDepth", 20.0)?,
+        number("ORBextractor.nFeatures", 1000.0)?,
+        number("ORBextractor.scaleFactor", 1.2)?,
+        number("ORBextractor.nLevels", 8.0)?,
+        number("ORBextractor.iniThFAST", 20.0)?,
+        number("ORBextractor.minThFAST", 7.0)?,
     );
+    // The dense stereo's and the map's settings go along as written (the settings reader checks them).
+    for (key, entry) in &raw.entries {
+        if (key.starts_with("BDISparam.") || key.starts_with("Viewer3D."))
+            && let bdis_core::settings::RawValue::Scalar(value) = &entry.value
+        {
+            let _ = writeln!(text, "{key}: {value}");
+        }
+    }
     std::fs::write(path, text).with_context(|| format!("{}: cannot write", path.display()))
 }

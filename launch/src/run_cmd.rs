@@ -7,7 +7,7 @@ use std::process::ExitCode;
 use anyhow::{Context, Result};
 
 use crate::plan::plan_for_sequence;
-use crate::synth_cmd;
+use crate::{calib_cmd, synth_cmd};
 
 #[derive(Debug, clap::Args)]
 pub struct RunArgs {
@@ -18,7 +18,9 @@ pub struct RunArgs {
     /// `synthetic:<scene>[:<trajectory>][:<frames>]` (rendered first, e.g. `synthetic:abdomen:sweep:90`).
     #[arg(long, required_unless_present = "launch_file")]
     sequence: Option<PathBuf>,
-    /// Settings file for --sequence (ORB-SLAM2 YAML or bdis-slam TOML).
+    /// Settings file for --sequence (ORB-SLAM2 YAML or bdis-slam TOML). A raw stereo calibration (OpenCV
+    /// `M1 D1 M2 D2 R T`, or ORB-SLAM2 settings with `LEFT`/`RIGHT` blocks) rectifies the sequence into the run
+    /// folder first (as `bdis-slam rectify`), then runs on the rectified pairs.
     #[arg(long, requires = "sequence")]
     settings: Option<PathBuf>,
     /// Pacing for --sequence: on-demand, recorded, a rate such as 30hz (frames a slow consumer misses are
@@ -61,8 +63,25 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
         let written = synth_cmd::render_with_progress(&sequence, &bdis_synth::default_camera(), &request)?;
         let settings = args.settings.clone().unwrap_or(written.settings);
         rendered = Some((run_dir, settings));
+    } else if let (Some(sequence), Some(settings)) = (&args.sequence, &args.settings)
+        && calib_cmd::is_raw_calibration(settings)
+    {
+        // Raw images with their calibration (ORB-SLAM2 rectifies with LEFT/RIGHT blocks too): rectified into the
+        // run folder first, then streamed like any sequence.
+        let name = sequence.file_name().map_or("raw".into(), |n| n.to_string_lossy().into_owned());
+        let run_dir = make_run_dir(args.out.as_deref(), &format!("rectified-{name}"))?;
+        let done = calib_cmd::rectify_sequence(settings, sequence, &run_dir.join("sequence"), None)?;
+        eprintln!(
+            "bdis-slam: {} is a raw stereo calibration: rectified {} pairs into {} (fx {:.2}, bf {:.4})",
+            settings.display(),
+            done.pairs,
+            run_dir.join("sequence").display(),
+            done.camera.fx,
+            done.camera.bf
+        );
+        rendered = Some((run_dir, done.settings));
     }
-    // The sequence to plan for: the rendered one, or the one given.
+    // The sequence to plan for: the rendered (or rectified) one, or the one given.
     let sequence = match (&args.sequence, &rendered) {
         (Some(_), Some((run_dir, settings))) => Some((run_dir.join("sequence"), Some(settings.clone()))),
         (Some(sequence), None) => Some((sequence.clone(), args.settings.clone())),
