@@ -62,20 +62,7 @@ fn run(seq: &Path, settings: &Path, gt: &Path, run_dir: &Path, tag: &str) -> (f6
     assert!(out.status.success(), "{tag}: {}\n{}", text(&out.stdout), text(&out.stderr));
     assert_no_leftovers(&prefix);
     let (rmse, length) = ate(gt, run_dir);
-    let out = run_with_timeout(
-        Command::new(bdis_slam())
-            .args(["eval", "map", "--json", "--mesh"])
-            .arg(gt.join("gt/mesh.ply"))
-            .arg("--map")
-            .arg(run_dir.join("map.ply"))
-            .arg("--align-est")
-            .arg(run_dir.join("keyframes.tum"))
-            .arg("--align-gt")
-            .arg(gt.join("gt/poses.tum")),
-        Duration::from_secs(300),
-    );
-    assert!(out.status.success(), "{}", text(&out.stderr));
-    let score: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let score = map_score(gt, run_dir);
     let mean = score["inliers"]["mean"].as_f64().unwrap_or_else(|| panic!("no inliers.mean in {score}"));
     (rmse, length, mean)
 }

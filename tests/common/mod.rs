@@ -187,3 +187,22 @@ pub fn ate(seq: &Path, run_dir: &Path) -> (f64, f64) {
         .sum();
     (ate.translation.rmse, length)
 }
+
+/// The map scored against the renderer's mesh (`bdis-slam eval map`), moved into the ground truth's frame by
+/// the alignment of the keyframe trajectory (the poses that place the map's points).
+pub fn map_score(seq: &Path, run_dir: &Path) -> serde_json::Value {
+    let out = run_with_timeout(
+        Command::new(bdis_slam())
+            .args(["eval", "map", "--json", "--mesh"])
+            .arg(seq.join("gt/mesh.ply"))
+            .arg("--map")
+            .arg(run_dir.join("map.ply"))
+            .arg("--align-est")
+            .arg(run_dir.join("keyframes.tum"))
+            .arg("--align-gt")
+            .arg(seq.join("gt/poses.tum")),
+        Duration::from_secs(300),
+    );
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    serde_json::from_slice(&out.stdout).unwrap()
+}
