@@ -16,6 +16,15 @@ pub struct JournalWriter {
 impl JournalWriter {
     pub fn open(path: &std::path::Path, append: bool) -> std::io::Result<Self> {
         let file = std::fs::OpenOptions::new().create(true).append(append).write(true).truncate(!append).open(path)?;
+        if append {
+            // A predecessor killed mid-line left a torn last line, which the reader ignores only as the last
+            // line: cut it off, or this instance's first line would be glued to it and read as corrupt later.
+            let text = std::fs::read(path)?;
+            let whole = text.iter().rposition(|&b| b == b'\n').map_or(0, |i| i + 1);
+            if whole < text.len() {
+                file.set_len(whole as u64)?;
+            }
+        }
         Ok(Self { file: Some(file), path: path.to_path_buf(), line: String::with_capacity(256) })
     }
 
@@ -29,5 +38,24 @@ impl JournalWriter {
             tracing::warn!("{}: {e}; a restarted tracker could not continue from here", self.path.display());
             self.file = None;
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_torn_last_line_is_cut_before_appending() {
+        use std::io::Write;
+        let path = std::env::temp_dir().join(format!("bdis-torn-journal-{}", std::process::id()));
+        let mut first = JournalWriter::open(&path, false).unwrap();
+        first.write(|l| frame_line(l, 0, 0, None));
+        std::fs::OpenOptions::new().append(true).open(&path).unwrap().write_all(b"F 1 10").unwrap();
+        let mut second = JournalWriter::open(&path, true).unwrap();
+        second.write(|l| frame_line(l, 1, 1, None));
+        let read = Continuation::parse(&std::fs::read_to_string(&path).unwrap()).unwrap();
+        let _ = std::fs::remove_file(&path);
+        assert_eq!(read.frames.len(), 2);
     }
 }

@@ -288,7 +288,6 @@ pub fn run(config: Config) -> Result<()> {
                 counts.keyframes += 1;
             }
             drop(sample);
-            bdis_ipc::notify(&credits, event_id::CONSUMED)?;
             if let Some(report) = &result.mapper {
                 out.corrections(&tracker, report)?;
             }
@@ -317,6 +316,9 @@ pub fn run(config: Config) -> Result<()> {
             out.journal.write(|line| {
                 journal::frame_line(line, header.frame_seq, header.t_source_ns, world_from_camera.as_ref())
             });
+            // Released only once journalled: acquisition sends a replacement instance every frame this one has
+            // not released, and one released before its journal line would be lost with a crash in between.
+            bdis_ipc::notify(&credits, event_id::CONSUMED)?;
             counts.frames += 1;
             counts.lost += u64::from(result.state == TrackingState::Lost);
             if result.state == TrackingState::Uncertain {
