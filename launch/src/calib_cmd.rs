@@ -274,6 +274,14 @@ pub fn rectify_sequence(settings: &Path, sequence: &Path, out: &Path, alpha: Opt
     check_alpha(alpha)?;
     let calib = load(settings)?;
     let sequence_files = bdis_source::Sequence::open(sequence).map_err(anyhow::Error::from)?;
+    if sequence_files.video.is_some() {
+        // Rectification inside acquisition (straight into the loaned frame) is what a video needs; until then,
+        // ffmpeg writes the pairs: ffmpeg -i FILE -vf crop=iw:ih/2:0:0 left/%d.png (and :0:ih/2 for right/).
+        bail!(
+            "{}: rectifying a video is not supported yet: write its frames as left/ and right/ PNGs (ffmpeg), then rectify those",
+            sequence.display()
+        );
+    }
     let raw_size = (sequence_files.width, sequence_files.height);
     let size = size_of(&calib, Some(raw_size), &format!("{} (its images)", sequence.display()))?;
     let rect = rectification_of(&calib, size, alpha)?;

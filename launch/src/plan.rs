@@ -21,7 +21,7 @@ pub fn plan_for_sequence(
     // field, and no process or shared memory is created.
     let input = bdis_source::check_input(sequence, settings)?;
     let absolute = |p: &Path| std::fs::canonicalize(p).with_context(|| format!("{}: cannot resolve", p.display()));
-    let mut acquisition_args = vec!["--sequence".to_string(), absolute(&input.sequence.root)?.display().to_string()];
+    let mut acquisition_args = vec!["--sequence".to_string(), input.sequence.argument()?];
     if let Some(settings) = &input.settings_path {
         acquisition_args.extend(["--settings".to_string(), absolute(settings)?.display().to_string()]);
     }
@@ -33,7 +33,7 @@ pub fn plan_for_sequence(
     };
     acquisition_args.extend(["--pacing".to_string(), pacing]);
     let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
-    let name = sequence.file_name().map_or_else(|| "sequence".into(), |n| n.to_string_lossy().into_owned());
+    let name = input.sequence.root.file_name().map_or_else(|| "sequence".into(), |n| n.to_string_lossy().into_owned());
     let spec = |name: &str, binary: &str, args: Vec<String>, core: usize| ServiceSpec {
         name: name.into(),
         binary: binary.into(),

@@ -68,6 +68,14 @@ impl Credits {
         }
     }
 
+    /// The frame a credit was spent on could not be sent (a video frame its decoder lost): the credit goes to
+    /// the next frame.
+    pub fn refund(&mut self) {
+        if self.on_demand {
+            self.credits += 1;
+        }
+    }
+
     /// Frame `index` was sent; on demand it is held until a consumer releases it.
     pub fn sent(&mut self, index: usize) {
         if self.on_demand {

@@ -12,7 +12,7 @@ use std::process::ExitCode;
 
 use anyhow::{Context, Result};
 use bdis_ipc::FrameLayout;
-use bdis_source::{Pacing, check_input};
+use bdis_source::{FrameEntry, Pacing, check_input};
 use clap::Parser;
 
 /// Publish a stereo image sequence into shared memory, frame by frame.
@@ -20,8 +20,10 @@ use clap::Parser;
 #[command(name = "bdis-acquisition", version)]
 struct Args {
     /// Sequence folder: BDIS-SLAM/Hamlyn (`images_rectified/{left,right}`), plain (`left/`, `right/`) or KITTI
-    /// (`image_0/`, `image_1/`); or `synthetic:<scene>[:<trajectory>][:<frames>]` (e.g. `synthetic:colon`,
-    /// `synthetic:abdomen:hover:90`), rendered before streaming into the run folder (or a temporary folder).
+    /// (`image_0/`, `image_1/`); a stereo video (`video:top-bottom:FILE`, `video:side-by-side:FILE`,
+    /// `video:two-files:LEFT,RIGHT`, decoded by ffmpeg, timestamps from the container); or
+    /// `synthetic:<scene>[:<trajectory>][:<frames>]` (e.g. `synthetic:colon`, `synthetic:abdomen:hover:90`),
+    /// rendered before streaming into the run folder (or a temporary folder).
     #[arg(long)]
     sequence: PathBuf,
     /// Settings file (ORB-SLAM2 YAML or bdis-slam TOML); checked against the images.
@@ -31,8 +33,11 @@ struct Args {
     /// `on-demand:30hz` (when a consumer asks, but no faster than the rate: never drops a frame).
     #[arg(long, default_value = "on-demand")]
     pacing: Pacing,
+    /// Skip the first N frames (a video is decoded from frame N, exactly).
+    #[arg(long, default_value_t = 0, value_name = "N")]
+    start: usize,
     /// Stop after this many frames.
-    #[arg(long)]
+    #[arg(long, visible_alias = "frames")]
     max_frames: Option<usize>,
     /// Name of this process in the run (telemetry, logs).
     #[arg(long, env = "BDIS_SERVICE_NAME", default_value = "acquisition")]
@@ -69,21 +74,32 @@ fn run(args: Args) -> Result<()> {
         }
         None => (args.sequence.clone(), args.settings.clone()),
     };
-    let input = check_input(&sequence_dir, settings.as_deref())?;
+    let mut input = check_input(&sequence_dir, settings.as_deref())?;
+    if args.start > 0 {
+        input.sequence.skip(args.start)?;
+    }
     let sequence = &input.sequence;
     let layout = FrameLayout::packed(sequence.width, sequence.height).with_context(|| {
         format!("{}: {}×{} images are too large", sequence.root.display(), sequence.width, sequence.height)
     })?;
     let frame_count = args.max_frames.map_or(sequence.len(), |m| m.min(sequence.len()));
     if args.check {
+        let times = match (sequence.frames.first(), sequence.frames.last()) {
+            (Some(FrameEntry { t_source_s: Some(a), .. }), Some(FrameEntry { t_source_s: Some(b), .. })) => {
+                format!("{a:.3}–{b:.3} s")
+            }
+            _ => "no".to_string(),
+        };
+        let layout = match sequence.layout {
+            bdis_source::Layout::Video(arrangement) => format!("video ({})", arrangement.name()),
+            other => format!("{other:?}"),
+        };
         println!(
-            "{}: {:?} layout, {} stereo pairs of {}×{}, timestamps: {}",
+            "{}: {layout} layout, {} stereo pairs of {}×{}, timestamps: {times}",
             sequence.root.display(),
-            sequence.layout,
             sequence.len(),
             sequence.width,
             sequence.height,
-            if sequence.frames[0].t_source_s.is_some() { "yes" } else { "no" }
         );
         return Ok(());
     }

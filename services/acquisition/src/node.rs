@@ -8,7 +8,7 @@ use std::time::Duration;
 use anyhow::Result;
 use bdis_ipc::telemetry::MessageTiming;
 use bdis_ipc::{FrameHeader, FrameLayout, Ipc, TelemetryPublisher, Topic, event_id, monotonic_ns};
-use bdis_source::{CheckedInput, FrameDecoder, Pacing, Schedule};
+use bdis_source::{CheckedInput, FrameReader, Pacing, Schedule};
 use iceoryx2::prelude::*;
 use iceoryx2::waitset::WaitSetRunResult;
 
@@ -59,7 +59,13 @@ pub fn run(config: Config) -> Result<()> {
     );
 
     let schedule = Schedule::new(pacing, sequence.frames[0].t_source_s, schedule_fps);
-    let mut decoder = FrameDecoder::new();
+    let mut reader = FrameReader::new(sequence);
+    if let Err(e) = reader.prepare(&sequence.frames[0]) {
+        // Said again, and the stream ended cleanly, when the first frame is read.
+        tracing::warn!("{e}");
+    }
+    // Frames of a video its decoder could not decode: passed over, each said in the log and counted.
+    let mut lost_in_decoding: u64 = 0;
     let on_demand = pacing.waits_for_consumer();
     let mut credits = Credits::new(on_demand, frames.dynamic_config().number_of_subscribers() > 0);
     let t_start_ns = monotonic_ns();
@@ -137,11 +143,21 @@ pub fn run(config: Config) -> Result<()> {
                 break;
             }
         };
-        if let Err(e) = decoder.decode_pair_into(&entry.left, &entry.right, &layout, sample.payload_mut()) {
-            end = End::Failed(e.into());
-            break;
+        match reader.read_into(entry, &layout, sample.payload_mut()) {
+            Ok(()) => {}
+            Err(e) if e.is_frame_lost() => {
+                tracing::warn!("{e}");
+                lost_in_decoding += 1;
+                credits.refund();
+                index += 1;
+                continue;
+            }
+            Err(e) => {
+                end = End::Failed(e.into());
+                break;
+            }
         }
-        // SAFETY: decode_pair_into wrote every byte of the packed layout, which is the whole loaned slice.
+        // SAFETY: read_into wrote every byte of the packed layout, which is the whole loaned slice.
         let mut sample = unsafe { sample.assume_init() };
         let header = sample.user_header_mut();
         *header = FrameHeader {
@@ -191,7 +207,12 @@ pub fn run(config: Config) -> Result<()> {
         End::Completed | End::StopRequested => {
             telemetry.finished();
             let how = if matches!(end, End::StopRequested) { "stop requested: " } else { "" };
-            tracing::info!("{how}published {published} frames; end of stream");
+            let lost = if lost_in_decoding > 0 {
+                format!(" ({lost_in_decoding} the video's decoder could not decode)")
+            } else {
+                String::new()
+            };
+            tracing::info!("{how}published {published} frames{lost}; end of stream");
             Ok(eos_sent?)
         }
         End::Failed(e) => {

@@ -4,11 +4,15 @@
 
 pub mod decode;
 pub mod pacing;
+pub mod reader;
 pub mod source;
+pub mod video;
 
 pub use decode::{DecodeError, FrameDecoder};
 pub use pacing::{Pacing, Schedule};
+pub use reader::{FrameReader, ReadError};
 pub use source::{FrameEntry, Layout, Sequence, SourceError};
+pub use video::{Arrangement, VideoDecoder, VideoError, VideoSource, VideoSpec};
 
 use std::path::{Path, PathBuf};
 

@@ -4,11 +4,14 @@
 //! * BDIS-SLAM / Hamlyn rectified: `SEQ/times.txt` + `SEQ/images_rectified/{left,right}/<n>.png`, n = 1, 2, …
 //! * plain: `SEQ/left/` + `SEQ/right/` with the same file names (sorted numerically when every name is a number),
 //!   `SEQ/times.txt` optional;
-//! * KITTI odometry: `SEQ/image_0/` (left), `SEQ/image_1/` (right), `SEQ/times.txt`, `SEQ/calib.txt`.
+//! * KITTI odometry: `SEQ/image_0/` (left), `SEQ/image_1/` (right), `SEQ/times.txt`, `SEQ/calib.txt`;
+//! * video: `video:top-bottom:FILE`, `video:side-by-side:FILE`, `video:two-files:LEFT,RIGHT` (see [`crate::video`]).
 
 use std::path::{Path, PathBuf};
 
 use bdis_core::{Distortion, StereoCamera};
+
+use crate::video::{VideoError, VideoSource, VideoSpec};
 
 #[derive(Debug, thiserror::Error)]
 pub enum SourceError {
@@ -42,6 +45,14 @@ pub enum SourceError {
     TimesOrder { path: PathBuf, line: usize, t: f64 },
     #[error("{path}: {field}: {detail}")]
     Calibration { path: PathBuf, field: String, detail: String },
+    #[error(transparent)]
+    Video(#[from] VideoError),
+    #[error(
+        "{path}: a video file; say how its views are arranged: video:top-bottom:{path}, video:side-by-side:{path}, or video:two-files:LEFT,RIGHT"
+    )]
+    VideoWithoutArrangement { path: PathBuf },
+    #[error("--start {start}: the sequence has {count} frames")]
+    StartBeyondEnd { start: usize, count: usize },
     #[error("{settings}: `{field}` is {expected} but the images are {actual} ({image})")]
     SettingsMismatch { settings: PathBuf, field: &'static str, expected: u32, actual: u32, image: PathBuf },
 }
@@ -52,6 +63,9 @@ pub enum Layout {
     Hamlyn,
     Plain,
     Kitti,
+    /// A video file or two (decoded by ffmpeg); the entries' `left`/`right` are the files, `source_index` the
+    /// frame number in them.
+    Video(crate::video::Arrangement),
 }
 
 /// One stereo pair of a sequence.
@@ -75,6 +89,16 @@ pub struct Sequence {
     pub height: u32,
     /// Calibration carried by the sequence itself (KITTI `calib.txt`).
     pub camera: Option<StereoCamera>,
+    /// The video behind a [`Layout::Video`] sequence.
+    pub video: Option<VideoSource>,
+}
+
+/// File extensions taken for a video given without its arrangement.
+fn looks_like_video(path: &Path) -> bool {
+    matches!(
+        path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase).as_deref(),
+        Some("mp4" | "avi" | "mkv" | "mov" | "m4v" | "webm" | "y4m" | "mpg" | "mpeg" | "ts")
+    )
 }
 
 fn is_image(path: &Path) -> bool {
@@ -203,6 +227,12 @@ pub fn parse_kitti_calib(text: &str, path: &Path) -> Result<StereoCamera, Source
 impl Sequence {
     /// Finds the layout of `root`, lists and pairs its images, checks every image header and `times.txt`.
     pub fn open(root: &Path) -> Result<Self, SourceError> {
+        if let Some(spec) = root.to_str().and_then(VideoSpec::parse) {
+            return Self::open_video(&spec?);
+        }
+        if root.is_file() && looks_like_video(root) {
+            return Err(SourceError::VideoWithoutArrangement { path: root.to_path_buf() });
+        }
         if !root.is_dir() {
             return Err(SourceError::MissingFolder { path: root.to_path_buf() });
         }
@@ -241,7 +271,7 @@ impl Sequence {
                     frames.push(FrameEntry { left, right, t_source_s: None, source_index: n as u32 });
                 }
             }
-            Layout::Plain | Layout::Kitti => {
+            Layout::Plain | Layout::Kitti | Layout::Video(_) => {
                 for (i, left) in lefts.iter().enumerate() {
                     let Some(name) = left.file_name() else { continue };
                     let right = right_dir.join(name);
@@ -304,7 +334,52 @@ impl Sequence {
                 return Err(SourceError::SizeChanges { path: f.left.clone(), w: lw, h: lh, w0: width, h0: height });
             }
         }
-        Ok(Self { root: root.to_path_buf(), layout, frames, width, height, camera })
+        Ok(Self { root: root.to_path_buf(), layout, frames, width, height, camera, video: None })
+    }
+
+    /// A video source: its frames with the container's timestamps, numbered from the file's first frame.
+    pub fn open_video(spec: &VideoSpec) -> Result<Self, SourceError> {
+        let video = VideoSource::open(spec)?;
+        let frames = video
+            .timestamps_s
+            .iter()
+            .enumerate()
+            .map(|(i, &t)| FrameEntry {
+                left: spec.left_file().to_path_buf(),
+                right: spec.right_file().to_path_buf(),
+                t_source_s: Some(t),
+                source_index: i as u32,
+            })
+            .collect();
+        Ok(Self {
+            root: spec.left_file().to_path_buf(),
+            layout: Layout::Video(spec.arrangement),
+            frames,
+            width: video.width,
+            height: video.height,
+            camera: None,
+            video: Some(video),
+        })
+    }
+
+    /// Drops the first `start` frames (`--start`); a video then starts decoding at that frame.
+    pub fn skip(&mut self, start: usize) -> Result<(), SourceError> {
+        if start >= self.frames.len() {
+            return Err(SourceError::StartBeyondEnd { start, count: self.frames.len() });
+        }
+        self.frames.drain(..start);
+        Ok(())
+    }
+
+    /// The sequence as another process is given it: the folder's absolute path, or the video spec with
+    /// absolute file names.
+    pub fn argument(&self) -> Result<String, SourceError> {
+        match &self.video {
+            Some(v) => Ok(v.spec.to_absolute_argument()?),
+            None => std::fs::canonicalize(&self.root)
+                .map(|p| p.display().to_string())
+                .map_err(|e| SourceError::Io { path: self.root.clone(), detail: e.to_string() }),
+        }
     }
 
     /// Checks the sequence against a calibration's image size, when the calibration states one.
