@@ -14,8 +14,9 @@ pub struct RunArgs {
     /// Launch file (`launch/*.toml`). Without it, give --sequence (and --settings).
     #[arg(conflicts_with_all = ["sequence"])]
     launch_file: Option<PathBuf>,
-    /// Sequence folder to stream (BDIS-SLAM/Hamlyn, plain left/right, or KITTI layout), or
-    /// `synthetic:<scene>[:<trajectory>][:<frames>]` (rendered first, e.g. `synthetic:abdomen:sweep:90`).
+    /// Sequence folder to stream (BDIS-SLAM/Hamlyn, plain left/right, or KITTI layout); a stereo video
+    /// (`video:top-bottom:FILE`, `video:side-by-side:FILE` or `video:two-files:LEFT,RIGHT`, decoded by ffmpeg);
+    /// or `synthetic:<scene>[:<trajectory>][:<frames>]` (rendered first, e.g. `synthetic:abdomen:sweep:90`).
     #[arg(long, required_unless_present = "launch_file")]
     sequence: Option<PathBuf>,
     /// Settings file for --sequence (ORB-SLAM2 YAML or bdis-slam TOML). A raw stereo calibration (OpenCV
@@ -27,6 +28,12 @@ pub struct RunArgs {
     /// dropped, as with a live camera), or on-demand:30hz (a live camera's pace that never drops a frame).
     #[arg(long, default_value = "on-demand", requires = "sequence")]
     pacing: bdis_source::Pacing,
+    /// Skip the first N frames of --sequence (a video is decoded from frame N, exactly).
+    #[arg(long, default_value_t = 0, value_name = "N", requires = "sequence")]
+    start: usize,
+    /// Stream at most N frames of --sequence (after --start).
+    #[arg(long, value_name = "N", requires = "sequence")]
+    frames: Option<usize>,
     /// Have the probe checksum every frame's pixels (for integrity checks; costs ~1 ms per VGA frame).
     #[arg(long, requires = "sequence")]
     checksums: bool,
@@ -89,8 +96,8 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
     };
     let (launch, launch_path) = match (&args.launch_file, sequence) {
         (Some(path), _) => (LaunchFile::load(path)?, path.clone()),
-        (None, Some((sequence, settings))) => (
-            plan_for_sequence(
+        (None, Some((sequence, settings))) => {
+            let mut plan = plan_for_sequence(
                 &sequence,
                 settings.as_deref(),
                 args.pacing,
@@ -98,9 +105,17 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
                 args.stereo_every,
                 args.track,
                 &args.map_params,
-            )?,
-            PathBuf::from("launch.toml"),
-        ),
+            )?;
+            if let Some(acquisition) = plan.services.iter_mut().find(|s| s.binary == "bdis-acquisition") {
+                if args.start > 0 {
+                    acquisition.args.extend(["--start".to_string(), args.start.to_string()]);
+                }
+                if let Some(frames) = args.frames {
+                    acquisition.args.extend(["--max-frames".to_string(), frames.to_string()]);
+                }
+            }
+            (plan, PathBuf::from("launch.toml"))
+        }
         (None, None) => anyhow::bail!("give a launch file or --sequence"),
     };
     let name = launch.run.name.clone().unwrap_or_else(|| "run".into());
