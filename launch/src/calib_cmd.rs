@@ -11,13 +11,15 @@ use bdis_rectify::{Rectification, RectifyMap, StereoCalibration, stereo_rectify}
 pub enum CalibCommand {
     /// Print what a stereo calibration file says (focal lengths, distortion, baseline, relative pose) and the
     /// rectified camera it gives, so it can be checked before a run. Reads OpenCV `stereoCalibrate` files
-    /// (`M1 D1 M2 D2 R T`, e.g. SCARED) and ORB-SLAM2 settings with `LEFT.*`/`RIGHT.*` blocks.
+    /// (`M1 D1 M2 D2 R T`, e.g. SCARED's endoscope_calibration.yaml), ORB-SLAM2 settings with `LEFT.*`/`RIGHT.*`
+    /// blocks, StereoMIS `StereoCalibration.ini` and `camcal.json`, Hamlyn's calibration text files (their
+    /// folder or one of them) and SERV-CT rectified calibrations (JSON with `P1`, `P2`).
     Show(ShowArgs),
 }
 
 #[derive(Debug, clap::Args)]
 pub struct ShowArgs {
-    /// The calibration file (OpenCV FileStorage YAML).
+    /// The calibration: a YAML, INI or JSON file, or a Hamlyn calibration folder (or one of its files).
     file: PathBuf,
     /// Image size `WxH`, when the file does not give it.
     #[arg(long, value_parser = parse_size)]
@@ -176,11 +178,7 @@ fn json(rect: &Rectification) -> String {
 
 fn describe(calib: &StereoCalibration, rect: &Rectification, alpha: Option<f64>) -> String {
     let mut s = String::new();
-    let layout = if calib.given.is_some() {
-        "ORB-SLAM2 settings with LEFT/RIGHT rectification blocks (the rectification is used as given)"
-    } else {
-        "OpenCV stereoCalibrate layout (M1 D1 M2 D2 R T): rectified here by Bouguet's method"
-    };
+    let layout = calib.layout_name();
     let _ = writeln!(s, "{}: {layout}", calib.source.display());
     for (name, cam) in [("left ", &calib.left), ("right", &calib.right)] {
         let k = &cam.k;
@@ -263,8 +261,7 @@ pub struct Rectified {
 /// Whether `path` is a raw stereo calibration (`M1 … T`, or ORB-SLAM2's `LEFT`/`RIGHT` blocks), i.e. the
 /// images it goes with need rectifying first. A file that does not parse is not one (its reader says why).
 pub fn is_raw_calibration(path: &Path) -> bool {
-    bdis_core::settings::RawSettings::load(path)
-        .is_ok_and(|raw| ["M1", "M2", "LEFT.K", "RIGHT.K"].iter().any(|k| raw.entries.contains_key(*k)))
+    StereoCalibration::is_calibration(path)
 }
 
 /// Rectifies every pair of `sequence` with the calibration `settings` into `out` (`left/`, `right/`,

@@ -1,10 +1,11 @@
-//! The raw stereo calibration and its readers. Two layouts are read today, both OpenCV FileStorage YAML:
+//! The raw stereo calibration and its OpenCV FileStorage YAML readers (the other layouts are in
+//! `formats.rs`):
 //! - the SCARED layout (`M1 D1 M2 D2 R T`, optional `width`/`height` or `imageSize`), which needs rectifying;
 //! - ORB-SLAM2 settings with `LEFT.K/D/R/P` and `RIGHT.*` blocks, which carry their rectification with them.
 
 use bdis_core::settings::{RawSettings, SettingsError};
 use nalgebra::{Matrix3, Matrix3x4, Vector3};
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 #[derive(Debug, thiserror::Error)]
 pub enum CalibrationError {
@@ -200,12 +201,6 @@ impl Fields<'_> {
 }
 
 impl StereoCalibration {
-    /// Reads a stereo calibration (see the module's list of layouts).
-    pub fn load(path: &Path) -> Result<Self, CalibrationError> {
-        let raw = RawSettings::load(path)?;
-        Self::from_raw(&raw)
-    }
-
     pub fn from_raw(raw: &RawSettings) -> Result<Self, CalibrationError> {
         let f = Fields { raw };
         let has = |k: &str| raw.entries.contains_key(k);

@@ -10,6 +10,7 @@
 
 pub mod bouguet;
 pub mod calib;
+pub mod formats;
 pub mod remap;
 
 pub use bouguet::{Rectification, rectification_is_usable, stereo_rectify};

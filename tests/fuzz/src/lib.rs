@@ -20,6 +20,9 @@ pub const TARGETS: &[Target] = &[
     ("settings_yaml", settings_yaml),
     ("settings_toml", settings_toml),
     ("stereo_calibration", stereo_calibration),
+    ("calibration_ini", calibration_ini),
+    ("calibration_json", calibration_json),
+    ("calibration_hamlyn", calibration_hamlyn),
     ("pfm", pfm),
     ("ply", ply),
     ("tum", tum),
@@ -90,6 +93,42 @@ pub fn stereo_calibration(data: &[u8]) {
     let rect = bdis_rectify::stereo_rectify(&calib, (64, 48), None);
     if bdis_rectify::rectification_is_usable(&rect) {
         assert!(rect.p_left.iter().chain(rect.p_right.iter()).all(|v| v.is_finite()));
+    }
+}
+
+/// What every calibration reader promises of a calibration it accepts, and that it rectifies without panic.
+fn check_calibration(calib: &bdis_rectify::StereoCalibration) {
+    for cam in [&calib.left, &calib.right] {
+        assert!(cam.k[(0, 0)] > 0.0 && cam.k[(1, 1)] > 0.0, "accepted camera {cam:?}");
+        assert!(cam.k.iter().chain(&cam.distortion).all(|v| v.is_finite()), "accepted camera {cam:?}");
+    }
+    let r = &calib.rotation;
+    assert!((r.transpose() * r - nalgebra::Matrix3::identity()).abs().max() < 1e-5, "accepted rotation {r}");
+    assert!(calib.translation.norm() > 0.0 && calib.translation.iter().all(|v| v.is_finite()));
+    let _ = bdis_rectify::stereo_rectify(calib, (64, 48), None);
+}
+
+pub fn calibration_ini(data: &[u8]) {
+    let Some(t) = text(data) else { return };
+    if let Ok(calib) = bdis_rectify::formats::parse_stereomis_ini(t, path()) {
+        check_calibration(&calib);
+    }
+}
+
+pub fn calibration_json(data: &[u8]) {
+    let Some(t) = text(data) else { return };
+    if let Ok(calib) = bdis_rectify::formats::parse_json(t, path()) {
+        check_calibration(&calib);
+    }
+}
+
+/// The three Hamlyn files, separated in the input by lines of `---`.
+pub fn calibration_hamlyn(data: &[u8]) {
+    let Some(t) = text(data) else { return };
+    let parts: Vec<&str> = t.splitn(3, "\n---\n").collect();
+    let [left, right, extrinsic] = parts[..] else { return };
+    if let Ok(calib) = bdis_rectify::formats::parse_hamlyn(path(), [left, right, extrinsic]) {
+        check_calibration(&calib);
     }
 }
 
