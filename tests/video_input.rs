@@ -23,18 +23,6 @@ const FRAMES: usize = 40;
 #[global_allocator]
 static GLOBAL: bdis_testkit::CountingAllocator = bdis_testkit::CountingAllocator;
 
-/// ffmpeg and ffprobe, which CI installs (.ci/run); elsewhere the test says it was skipped.
-fn have_ffmpeg() -> bool {
-    let ok = ["ffmpeg", "ffprobe"]
-        .iter()
-        .all(|t| Command::new(t).arg("-version").output().is_ok_and(|o| o.status.success()));
-    if !ok {
-        assert!(std::env::var_os("CI").is_none(), "CI must have ffmpeg (.ci/run installs it)");
-        eprintln!("skipped: ffmpeg is not installed (apt-get install ffmpeg)");
-    }
-    ok
-}
-
 struct Shared {
     tmp: TempDir,
     seq: PathBuf,
@@ -249,6 +237,22 @@ fn cut_and_corrupt_videos_keep_every_good_frame_and_bad_sources_get_one_line() {
     for t in &est {
         assert!(gt.iter().any(|g| (g - t).abs() < 1e-3), "a pose at {t} s, which is no frame's time");
     }
+    // A raw calibration for another frame size than the video's: said before anything starts.
+    let calib =
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/calibrations/scared/endoscope_calibration.yaml");
+    let out = run_with_timeout(
+        Command::new(service_binary("bdis-acquisition"))
+            .args(["--check", "--sequence", &format!("video:top-bottom:{}", tmp.path().join("stacked.mp4").display())])
+            .arg("--calibration")
+            .arg(&calib),
+        Duration::from_secs(60),
+    );
+    let err = text(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains("endoscope_calibration.yaml: the calibration is for 1280×1024 images, but the frames are 320×240"),
+        "{err}"
+    );
     // A mis-stated arrangement, a missing file, a plain video path: one line naming the file, exit 1.
     let odd = tmp.path().join("odd.mp4");
     let out = run_with_timeout(

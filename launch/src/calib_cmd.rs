@@ -5,7 +5,7 @@ use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
-use bdis_rectify::{Rectification, RectifyMap, StereoCalibration, stereo_rectify};
+use bdis_rectify::{Rectification, RectifyMap, StereoCalibration};
 
 #[derive(Debug, clap::Subcommand)]
 pub enum CalibCommand {
@@ -73,26 +73,11 @@ fn check_alpha(alpha: Option<f64>) -> Result<()> {
 
 /// The calibration's rectification at `size`: the one the file gives, else Bouguet's.
 fn rectification_of(calib: &StereoCalibration, size: (u32, u32), alpha: Option<f64>) -> Result<Rectification> {
-    let rect = match &calib.given {
-        Some(given) => Rectification::given(given, size),
-        None => stereo_rectify(calib, size, alpha),
-    };
-    if !bdis_rectify::rectification_is_usable(&rect) {
-        bail!(
-            "{}: this calibration gives no usable rectification (non-finite or zero focal length or baseline): check M1/M2, D1/D2 and T",
-            calib.source.display()
-        );
-    }
-    Ok(rect)
+    calib.rectification(size, alpha).map_err(anyhow::Error::from)
 }
 
 fn maps_of(calib: &StereoCalibration, rect: &Rectification, raw: (u32, u32)) -> [RectifyMap; 2] {
-    let out = (rect.size.0 as usize, rect.size.1 as usize);
-    let raw = (raw.0 as usize, raw.1 as usize);
-    [
-        RectifyMap::new(&calib.left, &rect.r_left, &rect.p_left, out, raw),
-        RectifyMap::new(&calib.right, &rect.r_right, &rect.p_right, out, raw),
-    ]
+    calib.maps(rect, raw)
 }
 
 fn load(path: &Path) -> Result<StereoCalibration> {
@@ -260,6 +245,25 @@ pub struct Rectified {
 
 /// Whether `path` is a raw stereo calibration (`M1 … T`, or ORB-SLAM2's `LEFT`/`RIGHT` blocks), i.e. the
 /// images it goes with need rectifying first. A file that does not parse is not one (its reader says why).
+/// The rectified camera's settings for a raw video that acquisition rectifies as it reads, written to
+/// `out`; the rectified camera.
+pub fn rectified_settings_for_video(
+    calibration: &Path,
+    video: &bdis_source::VideoSpec,
+    out: &Path,
+) -> Result<bdis_core::calib::RectifiedCamera> {
+    let calib = load(calibration)?;
+    let source = bdis_source::VideoSource::open(video)?;
+    let raw_size = (source.width, source.height);
+    let size = size_of(&calib, Some(raw_size), &format!("{} (its frames)", video.left_file().display()))?;
+    let rect = rectification_of(&calib, size, None)?;
+    let Some(camera) = rect.camera() else {
+        bail!("{}: the baseline is vertical: the tracker needs a horizontal rig", calibration.display());
+    };
+    write_settings(out, &calib, &camera)?;
+    Ok(camera)
+}
+
 pub fn is_raw_calibration(path: &Path) -> bool {
     StereoCalibration::is_calibration(path)
 }
@@ -343,11 +347,22 @@ pub fn rectify_sequence(settings: &Path, sequence: &Path, out: &Path, alpha: Opt
     Ok(Rectified { pairs: sequence_files.frames.len(), camera, settings: settings_out })
 }
 
-fn write_settings(path: &Path, calib: &StereoCalibration, camera: &bdis_core::calib::RectifiedCamera) -> Result<()> {
+pub fn write_settings(
+    path: &Path,
+    calib: &StereoCalibration,
+    camera: &bdis_core::calib::RectifiedCamera,
+) -> Result<()> {
     // The tracking settings come from the calibration file where it has them (ORB-SLAM2 settings do), else
-    // ORB-SLAM2's defaults; a malformed one is an error, not a silent default.
-    let raw = bdis_core::settings::RawSettings::load(&calib.source).map_err(anyhow::Error::from)?;
+    // ORB-SLAM2's defaults; a malformed one is an error, not a silent default. Only YAML calibrations can
+    // carry them (the data sets' INI, JSON and text layouts hold the cameras alone).
+    let raw = match bdis_rectify::formats::Layout::of(&calib.source) {
+        bdis_rectify::formats::Layout::OpenCvYaml => {
+            Some(bdis_core::settings::RawSettings::load(&calib.source).map_err(anyhow::Error::from)?)
+        }
+        _ => None,
+    };
     let number = |key: &str, default: f64| -> Result<f64> {
+        let Some(raw) = &raw else { return Ok(default) };
         Ok(raw.number(key).map_err(anyhow::Error::from)?.map_or(default, |(v, _)| v))
     };
     let mut text = format!(
@@ -371,7 +386,7 @@ ORBextractor.nFeatures: {}\nORBextractor.scaleFactor: {}\nORBextractor.nLevels: 
         number("ORBextractor.minThFAST", 7.0)?,
     );
     // The dense stereo's and the map's settings go along as written (the settings reader checks them).
-    for (key, entry) in &raw.entries {
+    for (key, entry) in raw.iter().flat_map(|r| &r.entries) {
         if (key.starts_with("BDISparam.") || key.starts_with("Viewer3D."))
             && let bdis_core::settings::RawValue::Scalar(value) = &entry.value
         {

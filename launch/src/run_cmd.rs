@@ -63,6 +63,8 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
     use bdis_slam::launch_file::LaunchFile;
     // A synthetic source is rendered here first (with a progress bar), then streamed like any sequence.
     let mut rendered: Option<(PathBuf, PathBuf)> = None;
+    // A raw calibration that acquisition applies as it reads (a video).
+    let mut rectify_in_acquisition: Option<PathBuf> = None;
     if let Some(request) = args.sequence.as_ref().and_then(|s| s.to_str()).and_then(bdis_source::parse_synthetic) {
         let request = request.map_err(anyhow::Error::msg)?;
         let run_dir = make_run_dir(args.out.as_deref(), &format!("synthetic-{}", request.scene))?;
@@ -70,6 +72,25 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
         let written = synth_cmd::render_with_progress(&sequence, &bdis_synth::default_camera(), &request)?;
         let settings = args.settings.clone().unwrap_or(written.settings);
         rendered = Some((run_dir, settings));
+    } else if let (Some(sequence), Some(settings)) = (&args.sequence, &args.settings)
+        && calib_cmd::is_raw_calibration(settings)
+        && let Some(video) = sequence.to_str().and_then(bdis_source::VideoSpec::parse)
+    {
+        // A raw video: acquisition rectifies each frame as it reads it (nothing is written to disk); the
+        // tracker and the dense stereo get the rectified camera's settings, written into the run folder.
+        let video = video?;
+        let name = video.left_file().file_stem().map_or("video".into(), |n| n.to_string_lossy().into_owned());
+        let run_dir = make_run_dir(args.out.as_deref(), &format!("rectified-{name}"))?;
+        let camera = calib_cmd::rectified_settings_for_video(settings, &video, &run_dir.join("settings.yaml"))?;
+        eprintln!(
+            "bdis-slam: {} is a raw stereo calibration: acquisition rectifies every frame of {} (fx {:.2}, bf {:.4})",
+            settings.display(),
+            video.left_file().display(),
+            camera.fx,
+            camera.bf
+        );
+        rectify_in_acquisition = Some(std::fs::canonicalize(settings).context("the calibration file")?);
+        rendered = Some((run_dir.clone(), run_dir.join("settings.yaml")));
     } else if let (Some(sequence), Some(settings)) = (&args.sequence, &args.settings)
         && calib_cmd::is_raw_calibration(settings)
     {
@@ -90,6 +111,9 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
     }
     // The sequence to plan for: the rendered (or rectified) one, or the one given.
     let sequence = match (&args.sequence, &rendered) {
+        (Some(video), Some((_, settings))) if rectify_in_acquisition.is_some() => {
+            Some((video.clone(), Some(settings.clone())))
+        }
         (Some(_), Some((run_dir, settings))) => Some((run_dir.join("sequence"), Some(settings.clone()))),
         (Some(sequence), None) => Some((sequence.clone(), args.settings.clone())),
         (None, _) => None,
@@ -112,6 +136,9 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
                 }
                 if let Some(frames) = args.frames {
                     acquisition.args.extend(["--max-frames".to_string(), frames.to_string()]);
+                }
+                if let Some(calibration) = &rectify_in_acquisition {
+                    acquisition.args.extend(["--calibration".to_string(), calibration.display().to_string()]);
                 }
             }
             (plan, PathBuf::from("launch.toml"))

@@ -206,3 +206,15 @@ pub fn map_score(seq: &Path, run_dir: &Path) -> serde_json::Value {
     assert!(out.status.success(), "{}", text(&out.stderr));
     serde_json::from_slice(&out.stdout).unwrap()
 }
+
+/// ffmpeg and ffprobe, which CI installs (.ci/run); elsewhere the test says it was skipped.
+pub fn have_ffmpeg() -> bool {
+    let ok = ["ffmpeg", "ffprobe"]
+        .iter()
+        .all(|t| Command::new(t).arg("-version").output().is_ok_and(|o| o.status.success()));
+    if !ok {
+        assert!(std::env::var_os("CI").is_none(), "CI must have ffmpeg (.ci/run installs it)");
+        eprintln!("skipped: ffmpeg is not installed (apt-get install ffmpeg)");
+    }
+    ok
+}

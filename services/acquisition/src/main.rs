@@ -33,6 +33,15 @@ struct Args {
     /// `on-demand:30hz` (when a consumer asks, but no faster than the rate: never drops a frame).
     #[arg(long, default_value = "on-demand")]
     pacing: Pacing,
+    /// A raw stereo calibration (any layout `bdis-slam calib show` reads): every frame is rectified with it as
+    /// it is read, straight into the shared-memory frame. `--settings` then describes the rectified camera
+    /// (`bdis-slam run` writes it).
+    #[arg(long, value_name = "FILE")]
+    calibration: Option<PathBuf>,
+    /// With --calibration: Bouguet's free scaling (0 keeps only valid pixels, 1 every source pixel; unset keeps
+    /// the cameras' mean focal length).
+    #[arg(long, requires = "calibration")]
+    alpha: Option<f64>,
     /// Skip the first N frames (a video is decoded from frame N, exactly).
     #[arg(long, default_value_t = 0, value_name = "N")]
     start: usize,
@@ -79,9 +88,13 @@ fn run(args: Args) -> Result<()> {
         input.sequence.skip(args.start)?;
     }
     let sequence = &input.sequence;
-    let layout = FrameLayout::packed(sequence.width, sequence.height).with_context(|| {
-        format!("{}: {}×{} images are too large", sequence.root.display(), sequence.width, sequence.height)
-    })?;
+    let rectifier = match &args.calibration {
+        Some(path) => Some(rectifier(path, (sequence.width, sequence.height), args.alpha)?),
+        None => None,
+    };
+    let (width, height) = rectifier.as_ref().map_or((sequence.width, sequence.height), |r| r.rectified_size());
+    let layout = FrameLayout::packed(width, height)
+        .with_context(|| format!("{}: {width}×{height} images are too large", sequence.root.display()))?;
     let frame_count = args.max_frames.map_or(sequence.len(), |m| m.min(sequence.len()));
     if args.check {
         let times = match (sequence.frames.first(), sequence.frames.last()) {
@@ -105,6 +118,7 @@ fn run(args: Args) -> Result<()> {
     }
 
     node::run(node::Config {
+        rectifier,
         schedule_fps: input.fps.unwrap_or(30.0),
         input,
         layout,
@@ -113,4 +127,32 @@ fn run(args: Args) -> Result<()> {
         name: args.name,
         ipc_prefix: args.ipc_prefix,
     })
+}
+
+/// The undistort–rectify maps of a raw calibration for frames of `raw` size, built once before streaming.
+fn rectifier(path: &std::path::Path, raw: (u32, u32), alpha: Option<f64>) -> Result<bdis_source::Rectifier> {
+    if let Some(a) = alpha
+        && !(0.0..=1.0).contains(&a)
+    {
+        anyhow::bail!("--alpha must be within 0..1, found {a}");
+    }
+    let calib = bdis_rectify::StereoCalibration::load(path)?;
+    if let Some(size) = calib.size
+        && size != raw
+    {
+        anyhow::bail!(
+            "{}: the calibration is for {}×{} images, but the frames are {}×{}",
+            path.display(),
+            size.0,
+            size.1,
+            raw.0,
+            raw.1
+        );
+    }
+    let rect = calib.rectification(raw, alpha)?;
+    if rect.camera().is_none() {
+        anyhow::bail!("{}: the baseline is vertical: the tracker needs a horizontal rig", path.display());
+    }
+    bdis_source::Rectifier::new(calib.maps(&rect, raw))
+        .with_context(|| format!("{}: the rectified frames do not fit a shared-memory frame", path.display()))
 }

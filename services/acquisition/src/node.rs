@@ -18,6 +18,8 @@ use crate::credits::{ConsumerEvents, Credits};
 #[derive(Debug)]
 pub struct Config {
     pub input: CheckedInput,
+    /// Rectification applied to every frame as it is read (a raw calibration).
+    pub rectifier: Option<bdis_source::Rectifier>,
     pub layout: FrameLayout,
     /// Frames to publish (the sequence, or fewer with `--max-frames`).
     pub frame_count: usize,
@@ -37,7 +39,7 @@ enum End {
 }
 
 pub fn run(config: Config) -> Result<()> {
-    let Config { input, layout, frame_count, pacing, schedule_fps, name, ipc_prefix } = config;
+    let Config { input, rectifier, layout, frame_count, pacing, schedule_fps, name, ipc_prefix } = config;
     let sequence = &input.sequence;
     let ipc = Ipc::open(&name, &ipc_prefix)?;
     let frames = ipc.frames()?;
@@ -60,6 +62,9 @@ pub fn run(config: Config) -> Result<()> {
 
     let schedule = Schedule::new(pacing, sequence.frames[0].t_source_s, schedule_fps);
     let mut reader = FrameReader::new(sequence);
+    if let Some(rectifier) = rectifier {
+        reader = reader.with_rectifier(rectifier);
+    }
     if let Err(e) = reader.prepare(&sequence.frames[0]) {
         // Said again, and the stream ended cleanly, when the first frame is read.
         tracing::warn!("{e}");
@@ -240,6 +245,7 @@ mod tests {
         }
         let input = bdis_source::check_input(&dir, None).unwrap();
         let config = Config {
+            rectifier: None,
             layout: FrameLayout::packed(w, h).unwrap(),
             frame_count: input.sequence.len(),
             input,

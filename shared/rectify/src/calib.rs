@@ -13,6 +13,10 @@ pub enum CalibrationError {
     Settings(#[from] SettingsError),
     #[error("{path}: not a stereo calibration this reader knows: {why}")]
     Format { path: PathBuf, why: String },
+    #[error(
+        "{path}: this calibration gives no usable rectification (non-finite or zero focal length or baseline): check the cameras' focal lengths and distortion, and T"
+    )]
+    Unusable { path: PathBuf },
 }
 
 /// A pinhole camera with OpenCV's distortion: `k` the intrinsic matrix (fx, skew, cx; fy, cy), `distortion`

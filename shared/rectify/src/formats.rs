@@ -17,7 +17,9 @@ use std::path::{Path, PathBuf};
 use bdis_core::settings::{RawSettings, SettingsError};
 use nalgebra::{Matrix3, Matrix3x4, Rotation3, Vector3};
 
+use crate::bouguet::{Rectification, rectification_is_usable, stereo_rectify};
 use crate::calib::{CalibrationError, CameraModel, GivenRectification, StereoCalibration};
+use crate::remap::RectifyMap;
 
 /// The Hamlyn layout's file names.
 pub const HAMLYN_FILES: [&str; 3] =
@@ -426,6 +428,30 @@ impl StereoCalibration {
                 .is_ok_and(|raw| ["M1", "M2", "LEFT.K", "RIGHT.K"].iter().any(|k| raw.entries.contains_key(*k))),
             _ => path.exists(),
         }
+    }
+
+    /// The rectification of this calibration at `size`: the one the file gives, else Bouguet's (`alpha` as
+    /// OpenCV's; `None` keeps the cameras' mean focal length). An error when it is not usable (non-finite or
+    /// zero focal length or baseline).
+    pub fn rectification(&self, size: (u32, u32), alpha: Option<f64>) -> Result<Rectification, CalibrationError> {
+        let rect = match &self.given {
+            Some(given) => Rectification::given(given, size),
+            None => stereo_rectify(self, size, alpha),
+        };
+        if !rectification_is_usable(&rect) {
+            return Err(CalibrationError::Unusable { path: self.source.clone() });
+        }
+        Ok(rect)
+    }
+
+    /// Both cameras' undistort–rectify maps into `rect`'s image, sampling raw images of `raw` size.
+    pub fn maps(&self, rect: &Rectification, raw: (u32, u32)) -> [RectifyMap; 2] {
+        let out = (rect.size.0 as usize, rect.size.1 as usize);
+        let raw = (raw.0 as usize, raw.1 as usize);
+        [
+            RectifyMap::new(&self.left, &rect.r_left, &rect.p_left, out, raw),
+            RectifyMap::new(&self.right, &rect.r_right, &rect.p_right, out, raw),
+        ]
     }
 
     /// What the file is, for a person checking it: its layout, and whether it is rectified here.

@@ -15,4 +15,4 @@ pub mod remap;
 
 pub use bouguet::{Rectification, rectification_is_usable, stereo_rectify};
 pub use calib::{CalibrationError, CameraModel, StereoCalibration};
-pub use remap::RectifyMap;
+pub use remap::{OutByte, RectifyMap};

@@ -5,8 +5,30 @@
 //! shift per pixel and channel, with no floating point and no allocation. Rectified pixels whose source lies
 //! outside the raw image are black (OpenCV's `BORDER_CONSTANT` 0).
 
+use std::mem::MaybeUninit;
+
 use crate::calib::CameraModel;
 use nalgebra::{Matrix3, Matrix3x4, Vector3};
+
+/// A byte a remap writes: a plain buffer's, or a not yet initialised one's (a loaned shared-memory frame,
+/// written once).
+pub trait OutByte {
+    fn set(&mut self, value: u8);
+}
+
+impl OutByte for u8 {
+    #[inline]
+    fn set(&mut self, value: u8) {
+        *self = value;
+    }
+}
+
+impl OutByte for MaybeUninit<u8> {
+    #[inline]
+    fn set(&mut self, value: u8) {
+        self.write(value);
+    }
+}
 
 /// Sub-pixel steps per pixel of the fixed-point map (5 bits).
 pub const FRACTION_STEPS: u32 = 32;
@@ -87,23 +109,23 @@ impl RectifyMap {
     /// Rectifies a raw image of `channels` (1 or 3) interleaved channels into `out` (rectified size ×
     /// channels). Panics if the buffers' lengths do not match the map or `channels` is neither 1 nor 3 (a
     /// programming error, not bad input).
-    pub fn remap(&self, raw: &[u8], channels: usize, out: &mut [u8]) {
+    pub fn remap<T: OutByte>(&self, raw: &[u8], channels: usize, out: &mut [T]) {
         assert_eq!(raw.len(), self.source_width * self.source_height * channels, "raw image size");
         assert_eq!(out.len(), self.width * self.height * channels, "rectified image size");
         match channels {
-            1 => self.remap_channels::<1>(raw, out),
-            3 => self.remap_channels::<3>(raw, out),
+            1 => self.remap_channels::<1, T>(raw, out),
+            3 => self.remap_channels::<3, T>(raw, out),
             _ => panic!("remap: {channels} channels (1 or 3 are supported)"),
         }
     }
 
     // The channel count is a constant so that the per-pixel work unrolls and the slices' bounds are known.
-    fn remap_channels<const C: usize>(&self, raw: &[u8], out: &mut [u8]) {
+    fn remap_channels<const C: usize, T: OutByte>(&self, raw: &[u8], out: &mut [T]) {
         let row = self.source_width * C;
         let round = 1u32 << (WEIGHT_SHIFT - 1);
         for ((px, &ul), fr) in out.chunks_exact_mut(C).zip(&self.upper_left).zip(&self.fraction) {
             if ul == OUTSIDE {
-                px.fill(0);
+                px.iter_mut().for_each(|b| b.set(0));
                 continue;
             }
             let (fx, fy) = (u32::from(fr[0]), u32::from(fr[1]));
@@ -119,7 +141,7 @@ impl RectifyMap {
                     + w01 * u32::from(top[C + c])
                     + w10 * u32::from(bottom[c])
                     + w11 * u32::from(bottom[C + c]);
-                px[c] = ((sum + round) >> WEIGHT_SHIFT) as u8;
+                px[c].set(((sum + round) >> WEIGHT_SHIFT) as u8);
             }
         }
     }

@@ -10,7 +10,7 @@ pub mod video;
 
 pub use decode::{DecodeError, FrameDecoder};
 pub use pacing::{Pacing, Schedule};
-pub use reader::{FrameReader, ReadError};
+pub use reader::{FrameReader, ReadError, Rectifier};
 pub use source::{FrameEntry, Layout, Sequence, SourceError};
 pub use video::{Arrangement, VideoDecoder, VideoError, VideoSource, VideoSpec};
 

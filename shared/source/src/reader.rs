@@ -5,6 +5,8 @@ use std::mem::MaybeUninit;
 
 use bdis_ipc::FrameLayout;
 
+use bdis_rectify::RectifyMap;
+
 use crate::decode::{DecodeError, FrameDecoder};
 use crate::source::{FrameEntry, Sequence};
 use crate::video::{VideoDecoder, VideoError};
@@ -22,6 +24,35 @@ pub enum ReadError {
 pub struct FrameReader {
     images: FrameDecoder,
     video: Option<VideoDecoder>,
+    rectifier: Option<Rectifier>,
+}
+
+/// Rectification applied as frames are read (a raw stereo calibration): the raw frame goes into a staging
+/// buffer this owns, and each view's map writes the rectified frame straight into the payload, once.
+#[derive(Debug)]
+pub struct Rectifier {
+    maps: [RectifyMap; 2],
+    raw_layout: FrameLayout,
+    staging: Vec<u8>,
+}
+
+impl Rectifier {
+    /// The maps of the left and the right camera (from raw images of one size into rectified images of one
+    /// size); `None` when the sizes disagree or do not fit a frame.
+    pub fn new(maps: [RectifyMap; 2]) -> Option<Self> {
+        let [l, r] = &maps;
+        let same = (l.width, l.height, l.source_width, l.source_height)
+            == (r.width, r.height, r.source_width, r.source_height);
+        let raw_layout =
+            FrameLayout::packed(u32::try_from(l.source_width).ok()?, u32::try_from(l.source_height).ok()?)?;
+        FrameLayout::packed(u32::try_from(l.width).ok()?, u32::try_from(l.height).ok()?)?;
+        same.then(|| Self { staging: vec![0; raw_layout.payload_len()], maps, raw_layout })
+    }
+
+    /// The size of the rectified frames.
+    pub fn rectified_size(&self) -> (u32, u32) {
+        (self.maps[0].width as u32, self.maps[0].height as u32)
+    }
 }
 
 impl ReadError {
@@ -33,7 +64,13 @@ impl ReadError {
 
 impl FrameReader {
     pub fn new(sequence: &Sequence) -> Self {
-        Self { images: FrameDecoder::new(), video: sequence.video.as_ref().map(VideoDecoder::new) }
+        Self { images: FrameDecoder::new(), video: sequence.video.as_ref().map(VideoDecoder::new), rectifier: None }
+    }
+
+    /// Rectifies every frame as it is read; the payload layout is then the rectified size's.
+    pub fn with_rectifier(mut self, rectifier: Rectifier) -> Self {
+        self.rectifier = Some(rectifier);
+        self
     }
 
     /// Gets ready to read from `first` on (a video's decoder is started), so the first frame's latency is
@@ -52,9 +89,36 @@ impl FrameReader {
         layout: &FrameLayout,
         payload: &mut [MaybeUninit<u8>],
     ) -> Result<(), ReadError> {
-        match &mut self.video {
-            Some(video) => Ok(video.read_into(u64::from(entry.source_index), layout, payload)?),
-            None => Ok(self.images.decode_pair_into(&entry.left, &entry.right, layout, payload)?),
-        }
+        let Some(rect) = &mut self.rectifier else {
+            return read_raw(&mut self.images, &mut self.video, entry, layout, payload);
+        };
+        // SAFETY: a `u8` is a valid `MaybeUninit<u8>`, and the readers only ever write initialised bytes into
+        // the slice they are given, so the staging buffer stays initialised.
+        let staging = unsafe { &mut *(rect.staging.as_mut_slice() as *mut [u8] as *mut [MaybeUninit<u8>]) };
+        read_raw(&mut self.images, &mut self.video, entry, &rect.raw_layout, staging)?;
+        let raw_n = rect.raw_layout.width as usize * rect.raw_layout.height as usize;
+        let n = layout.width as usize * layout.height as usize;
+        let (raw_left, rest) = rect.staging.split_at(raw_n);
+        let (raw_right, raw_rgb) = rest.split_at(raw_n);
+        let (left, rest) = payload.split_at_mut(n);
+        let (right, rgb) = rest.split_at_mut(n);
+        let [left_map, right_map] = &rect.maps;
+        left_map.remap(raw_left, 1, left);
+        right_map.remap(raw_right, 1, right);
+        left_map.remap(&raw_rgb[..3 * raw_n], 3, &mut rgb[..3 * n]);
+        Ok(())
+    }
+}
+
+fn read_raw(
+    images: &mut FrameDecoder,
+    video: &mut Option<VideoDecoder>,
+    entry: &FrameEntry,
+    layout: &FrameLayout,
+    payload: &mut [MaybeUninit<u8>],
+) -> Result<(), ReadError> {
+    match video {
+        Some(video) => Ok(video.read_into(u64::from(entry.source_index), layout, payload)?),
+        None => Ok(images.decode_pair_into(&entry.left, &entry.right, layout, payload)?),
     }
 }
