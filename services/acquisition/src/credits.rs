@@ -139,6 +139,19 @@ mod tests {
     }
 
     #[test]
+    fn a_frame_that_could_not_be_sent_gives_its_credit_to_the_next() {
+        let mut c = Credits::new(true, true);
+        c.spend();
+        assert!(c.waiting_for_consumer());
+        // The video's decoder lost that frame: nothing went out, the consumer still waits for one.
+        c.refund();
+        assert!(!c.waiting_for_consumer());
+        c.spend();
+        c.sent(1);
+        assert!(c.waiting_for_consumer());
+    }
+
+    #[test]
     fn paced_by_time_nothing_is_replayed() {
         let mut c = Credits::new(false, false);
         c.sent(0);

@@ -1,6 +1,7 @@
 //! The per-frame cost of reading a stereo source into the packed frame layout, as acquisition does:
-//! `cargo run --release -p bdis-source --example decode_cost -- SOURCE...` (a sequence folder or a `video:`
-//! source; `decode_cost.sh` makes a set from real footage at 640×480 and 1920×1080).
+//! `cargo run --release -p bdis-source --example decode_cost -- [--calibration RAW] SOURCE...` (a sequence
+//! folder or a `video:` source; `decode_cost.sh` makes a set from real footage at 640×480 and 1920×1080). With
+//! `--calibration`, every frame is also rectified as it is read, as acquisition does with its `--calibration`.
 //!
 //! Per source: the median wall time per frame on the reading thread (what a frame waits), that thread's CPU
 //! per frame, and, for a video, the ffmpeg child's CPU per frame (from `getrusage(RUSAGE_CHILDREN)` once it
@@ -20,8 +21,18 @@ fn children_cpu_s() -> f64 {
 }
 
 fn main() {
+    // `--calibration FILE` first: every source is also rectified as it is read (acquisition's --calibration).
+    let mut args: Vec<String> = std::env::args().skip(1).collect();
+    let calibration = match args.first().map(String::as_str) {
+        Some("--calibration") if args.len() > 1 => {
+            let file = args[1].clone();
+            args.drain(..2);
+            Some(bdis_rectify::StereoCalibration::load(Path::new(&file)).unwrap())
+        }
+        _ => None,
+    };
     println!("{:<60} {:>7} {:>11} {:>13} {:>12}", "source", "frames", "wall ms p50", "thread CPU ms", "ffmpeg CPU ms");
-    for source in std::env::args().skip(1) {
+    for source in args {
         let sequence = match bdis_source::Sequence::open(Path::new(&source)) {
             Ok(s) => s,
             Err(e) => {
@@ -33,6 +44,11 @@ fn main() {
         let mut payload = vec![MaybeUninit::new(0u8); layout.payload_len()];
         let children_before = children_cpu_s();
         let mut reader = bdis_source::FrameReader::new(&sequence);
+        if let Some(calib) = &calibration {
+            let raw = (sequence.width, sequence.height);
+            let rect = calib.rectification(raw, None).unwrap();
+            reader = reader.with_rectifier(bdis_source::Rectifier::new(calib.maps(&rect, raw)).unwrap());
+        }
         reader.prepare(&sequence.frames[0]).unwrap();
         let mut wall_ms = Vec::with_capacity(sequence.len());
         let cpu_start = bdis_ipc::clock::thread_cpu_ns();
