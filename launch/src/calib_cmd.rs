@@ -76,10 +76,6 @@ fn rectification_of(calib: &StereoCalibration, size: (u32, u32), alpha: Option<f
     calib.rectification(size, alpha).map_err(anyhow::Error::from)
 }
 
-fn maps_of(calib: &StereoCalibration, rect: &Rectification, raw: (u32, u32)) -> [RectifyMap; 2] {
-    calib.maps(rect, raw)
-}
-
 fn load(path: &Path) -> Result<StereoCalibration> {
     // The reader's errors name the file, line and field already.
     StereoCalibration::load(path).map_err(anyhow::Error::from)
@@ -289,7 +285,7 @@ pub fn rectify_sequence(settings: &Path, sequence: &Path, out: &Path, alpha: Opt
     let Some(camera) = rect.camera() else {
         bail!("{}: the baseline is vertical: the tracker needs a horizontal rig", settings.display());
     };
-    let maps = maps_of(&calib, &rect, raw_size);
+    let maps = calib.maps(&rect, raw_size);
     for side in ["left", "right"] {
         let dir = out.join(side);
         std::fs::create_dir_all(&dir).with_context(|| format!("{}: cannot create the folder", dir.display()))?;

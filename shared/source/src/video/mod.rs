@@ -152,29 +152,22 @@ fn run_tool(tool: &'static str, args: &[&std::ffi::OsStr], path: &Path) -> Resul
     Ok(String::from_utf8_lossy(&out.stdout).into_owned())
 }
 
+/// `ffprobe`'s answer for `entries` of the first video stream, one CSV line per item.
+fn ffprobe(path: &Path, entries: &str) -> Result<String, VideoError> {
+    let args = ["-v", "error", "-select_streams", "v:0", "-show_entries", entries, "-of", "csv=p=0"];
+    let mut all: Vec<&std::ffi::OsStr> = args.iter().map(std::ffi::OsStr::new).collect();
+    all.push(path.as_os_str());
+    run_tool("ffprobe", &all, path)
+}
+
 /// Reads the first video stream's size and the presentation time of every frame (from the packets: the
 /// container's clock, without decoding). A frame without a time gets its predecessor's plus the mean step.
 pub fn probe(path: &Path) -> Result<VideoProbe, VideoError> {
     if !path.is_file() {
         return Err(VideoError::Missing { path: path.to_path_buf() });
     }
-    let os = |s: &'static str| std::ffi::OsStr::new(s);
     let bad = |detail: String| VideoError::Probe { path: path.to_path_buf(), detail };
-    let stream = run_tool(
-        "ffprobe",
-        &[
-            os("-v"),
-            os("error"),
-            os("-select_streams"),
-            os("v:0"),
-            os("-show_entries"),
-            os("stream=width,height"),
-            os("-of"),
-            os("csv=p=0"),
-            path.as_os_str(),
-        ],
-        path,
-    )?;
+    let stream = ffprobe(path, "stream=width,height")?;
     let line = stream.lines().next().map(str::trim).unwrap_or_default();
     let (w, h) = line.split_once(',').ok_or_else(|| bad("no video stream".into()))?;
     let size = |s: &str, field: &str| {
@@ -186,21 +179,7 @@ pub fn probe(path: &Path) -> Result<VideoProbe, VideoError> {
             .ok_or_else(|| bad(format!("stream {field} `{s}` is not a size")))
     };
     let (width, height) = (size(w, "width")?, size(h, "height")?);
-    let packets = run_tool(
-        "ffprobe",
-        &[
-            os("-v"),
-            os("error"),
-            os("-select_streams"),
-            os("v:0"),
-            os("-show_entries"),
-            os("packet=pts_time"),
-            os("-of"),
-            os("csv=p=0"),
-            path.as_os_str(),
-        ],
-        path,
-    )?;
+    let packets = ffprobe(path, "packet=pts_time")?;
     let mut times: Vec<Option<f64>> = packets
         .lines()
         .map(str::trim)
