@@ -32,19 +32,7 @@ fn the_hover_is_tracked_within_a_thousandth_of_its_path() {
     let mut trajectories = Vec::new();
     for tag in ["hover-a", "hover-b"] {
         let run_dir = tmp.path().join(tag);
-        let prefix = prefix(tag);
-        let out = run_with_timeout(
-            Command::new(bdis_slam())
-                .args(["run", "--track", "--sequence"])
-                .arg(&seq)
-                .arg("--settings")
-                .arg(seq.join("settings.yaml"))
-                .args(["--pacing", "on-demand", "--ipc-prefix", &prefix, "--out"])
-                .arg(&run_dir),
-            Duration::from_secs(600),
-        );
-        assert!(out.status.success(), "{tag}: {}\n{}", text(&out.stdout), text(&out.stderr));
-        assert_no_leftovers(&prefix);
+        track_run(&seq, &seq.join("settings.yaml"), &run_dir, tag);
         let summary: serde_json::Value =
             serde_json::from_str(&std::fs::read_to_string(run_dir.join("tracking.json")).unwrap()).unwrap();
         assert_eq!(summary["frames"], FRAMES as u64, "{summary}");

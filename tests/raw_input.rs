@@ -51,19 +51,7 @@ fn synth(out: &Path, raw: Option<&str>) {
 
 /// Tracks and maps `seq` with `settings` through the processes; (ATE RMSE mm, path mm, mean map error mm).
 fn run(seq: &Path, settings: &Path, gt: &Path, run_dir: &Path, tag: &str) -> (f64, f64, f64) {
-    let prefix = prefix(tag);
-    let out = run_with_timeout(
-        Command::new(bdis_slam())
-            .args(["run", "--track", "--sequence"])
-            .arg(seq)
-            .arg("--settings")
-            .arg(settings)
-            .args(["--pacing", "on-demand", "--ipc-prefix", &prefix, "--out"])
-            .arg(run_dir),
-        Duration::from_secs(600),
-    );
-    assert!(out.status.success(), "{tag}: {}\n{}", text(&out.stdout), text(&out.stderr));
-    assert_no_leftovers(&prefix);
+    track_run(seq, settings, run_dir, tag);
     let (rmse, length) = ate(gt, run_dir);
     let score = map_score(gt, run_dir);
     let mean = score["inliers"]["mean"].as_f64().unwrap_or_else(|| panic!("no inliers.mean in {score}"));

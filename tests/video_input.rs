@@ -34,14 +34,7 @@ fn shared() -> &'static Shared {
     SHARED.get_or_init(|| {
         let tmp = TempDir::new("video-input");
         let seq = tmp.path().join("colon");
-        let out = run_with_timeout(
-            Command::new(bdis_slam())
-                .args(["synth", "--frames", &FRAMES.to_string(), "--width", "320", "--height", "240"])
-                .args(["--focal", "260", "--out"])
-                .arg(&seq),
-            Duration::from_secs(900),
-        );
-        assert!(out.status.success(), "{}", text(&out.stderr));
+        render_small_colon(&seq, FRAMES);
         let views = |cmd: &mut Command| {
             // times.txt runs at 30 fps from 0: the container's clock gives the same times back.
             for side in ["left", "right"] {
@@ -80,17 +73,7 @@ fn shared() -> &'static Shared {
 fn run(sequence: &str, tag: &str) -> PathBuf {
     let Shared { tmp, seq } = shared();
     let run_dir = tmp.path().join(format!("run-{tag}"));
-    let prefix = prefix(tag);
-    let out = run_with_timeout(
-        Command::new(bdis_slam())
-            .args(["run", "--track", "--sequence", sequence, "--settings"])
-            .arg(seq.join("settings.yaml"))
-            .args(["--pacing", "on-demand", "--ipc-prefix", &prefix, "--out"])
-            .arg(&run_dir),
-        Duration::from_secs(600),
-    );
-    assert!(out.status.success(), "{tag}: {}\n{}", text(&out.stdout), text(&out.stderr));
-    assert_no_leftovers(&prefix);
+    track_run(sequence, &seq.join("settings.yaml"), &run_dir, tag);
     run_dir
 }
 

@@ -259,6 +259,10 @@ impl LatencyAggregator {
                 acc.last_done_ns = r.t_done_ns;
             }
             TelemetryKind::Finished | TelemetryKind::Failed => {
+                // The final count: inputs seen missing only at the end of the stream (its number tells).
+                if r.dropped > 0 {
+                    acc.dropped_by_pid.insert(r.pid, r.dropped);
+                }
                 instance.ended = Some(kind);
                 if r.pid == acc.pid {
                     acc.ended = Some(kind);

@@ -19,21 +19,37 @@ pub fn plan_for_sequence(
     use bdis_slam::launch_file::{LaunchFile, RunSection, ServiceSpec};
     // Check the input before anything starts: a bad sequence or settings file is reported here, by file and
     // field, and no process or shared memory is created.
-    let input = bdis_source::check_input(sequence, settings)?;
     let absolute = |p: &Path| std::fs::canonicalize(p).with_context(|| format!("{}: cannot resolve", p.display()));
-    let mut acquisition_args = vec!["--sequence".to_string(), input.sequence.argument()?];
-    if let Some(settings) = &input.settings_path {
+    // A live source is opened by acquisition itself (its devices are single-user); checked here as a spec.
+    let live = sequence.to_str().and_then(bdis_source::LiveSpec::parse).transpose()?;
+    let (mut acquisition_args, settings_path, name): (Vec<String>, Option<std::path::PathBuf>, String) = match &live {
+        Some(spec) => {
+            if pacing != bdis_source::Pacing::OnDemand {
+                anyhow::bail!("`{}`: a live source is paced by its devices; leave out --pacing", spec.text);
+            }
+            (vec!["--sequence".to_string(), spec.text.clone()], settings.map(Path::to_path_buf), "live".to_string())
+        }
+        None => {
+            let input = bdis_source::check_input(sequence, settings)?;
+            let name =
+                input.sequence.root.file_name().map_or_else(|| "sequence".into(), |n| n.to_string_lossy().into_owned());
+            (vec!["--sequence".to_string(), input.sequence.argument()?], input.settings_path, name)
+        }
+    };
+    if let Some(settings) = &settings_path {
         acquisition_args.extend(["--settings".to_string(), absolute(settings)?.display().to_string()]);
     }
     let pacing = match pacing {
-        bdis_source::Pacing::OnDemand => "on-demand".to_string(),
-        bdis_source::Pacing::Recorded => "recorded".to_string(),
-        bdis_source::Pacing::Fixed(hz) => format!("{hz}hz"),
-        bdis_source::Pacing::OnDemandAtMost(hz) => format!("on-demand:{hz}hz"),
+        _ if live.is_some() => None,
+        bdis_source::Pacing::OnDemand => Some("on-demand".to_string()),
+        bdis_source::Pacing::Recorded => Some("recorded".to_string()),
+        bdis_source::Pacing::Fixed(hz) => Some(format!("{hz}hz")),
+        bdis_source::Pacing::OnDemandAtMost(hz) => Some(format!("on-demand:{hz}hz")),
     };
-    acquisition_args.extend(["--pacing".to_string(), pacing]);
+    if let Some(pacing) = pacing {
+        acquisition_args.extend(["--pacing".to_string(), pacing]);
+    }
     let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
-    let name = input.sequence.root.file_name().map_or_else(|| "sequence".into(), |n| n.to_string_lossy().into_owned());
     let spec = |name: &str, binary: &str, args: Vec<String>, core: usize| ServiceSpec {
         name: name.into(),
         binary: binary.into(),
@@ -47,7 +63,7 @@ pub fn plan_for_sequence(
     };
     let mut services = vec![spec("acquisition", "bdis-acquisition", acquisition_args, 0)];
     if track {
-        let Some(settings) = &input.settings_path else {
+        let Some(settings) = &settings_path else {
             anyhow::bail!("--track needs --settings (the tracker reads the camera and ORB settings from it)")
         };
         let settings = absolute(settings)?.display().to_string();
@@ -93,7 +109,7 @@ pub fn plan_for_sequence(
         let run = RunSection { name: Some(name), launcher_core: Some(1 % cores), ..Default::default() };
         return Ok(LaunchFile { run, services });
     }
-    match (stereo_every, &input.settings_path) {
+    match (stereo_every, &settings_path) {
         (Some(every), Some(settings)) => {
             let settings = absolute(settings)?.display().to_string();
             services.push(spec(

@@ -218,3 +218,35 @@ pub fn have_ffmpeg() -> bool {
     }
     ok
 }
+
+/// Renders the small colon flight the input tests share into `out`: `frames` frames of 320×240 (focal length
+/// 260 px, the renderer's field of view at that size).
+pub fn render_small_colon(out: &Path, frames: usize) {
+    let done = run_with_timeout(
+        Command::new(bdis_slam())
+            .args(["synth", "--frames", &frames.to_string(), "--width", "320", "--height", "240"])
+            .args(["--focal", "260", "--out"])
+            .arg(out),
+        Duration::from_secs(900),
+    );
+    assert!(done.status.success(), "{}", text(&done.stderr));
+}
+
+/// Tracks and maps `source` (a sequence folder, or a `video:` or `live:` source) end to end through the
+/// processes with `settings`, under a shared-memory prefix of its own, into `run_dir`: it must end cleanly and
+/// leave no shared memory behind.
+pub fn track_run(source: impl AsRef<std::ffi::OsStr>, settings: &Path, run_dir: &Path, tag: &str) {
+    let prefix = prefix(tag);
+    let out = run_with_timeout(
+        Command::new(bdis_slam())
+            .args(["run", "--track", "--sequence"])
+            .arg(source)
+            .arg("--settings")
+            .arg(settings)
+            .args(["--ipc-prefix", &prefix, "--out"])
+            .arg(run_dir),
+        Duration::from_secs(600),
+    );
+    assert!(out.status.success(), "{tag}: {}\n{}", text(&out.stdout), text(&out.stderr));
+    assert_no_leftovers(&prefix);
+}

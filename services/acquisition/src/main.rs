@@ -5,7 +5,9 @@
 //! sample flagged `END_OF_STREAM`, so consumers finish cleanly, also after an error or a stop request.
 
 mod credits;
+mod live;
 mod node;
+mod ports;
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -23,7 +25,10 @@ struct Args {
     /// (`image_0/`, `image_1/`); a stereo video (`video:top-bottom:FILE`, `video:side-by-side:FILE`,
     /// `video:two-files:LEFT,RIGHT`, decoded by ffmpeg, timestamps from the container); or
     /// `synthetic:<scene>[:<trajectory>][:<frames>]` (e.g. `synthetic:colon`, `synthetic:abdomen:hover:90`),
-    /// rendered before streaming into the run folder (or a temporary folder).
+    /// rendered before streaming into the run folder (or a temporary folder); or a live source, paced by its
+    /// devices: `live:v4l2:side-by-side:/dev/video0`, `live:v4l2:top-bottom:/dev/video0`,
+    /// `live:v4l2:two-devices:/dev/video0,/dev/video2`, or an emulated device replaying a folder of pairs,
+    /// `live:emulated:<side-by-side|top-bottom|two-devices>:<yuyv|nv12|mjpeg>:<rate>hz:DIR`.
     #[arg(long)]
     sequence: PathBuf,
     /// Settings file (ORB-SLAM2 YAML or bdis-slam TOML); checked against the images.
@@ -67,6 +72,9 @@ fn main() -> ExitCode {
 
 /// The input is rendered (a synthetic source) and checked here, before any shared memory exists.
 fn run(args: Args) -> Result<()> {
+    if let Some(spec) = args.sequence.to_str().and_then(bdis_source::LiveSpec::parse) {
+        return run_live(args, spec?);
+    }
     let (sequence_dir, settings) = match args.sequence.to_str().and_then(bdis_source::parse_synthetic) {
         Some(request) => {
             let request = request.map_err(anyhow::Error::msg)?;
@@ -124,6 +132,25 @@ fn run(args: Args) -> Result<()> {
         layout,
         frame_count,
         pacing: args.pacing,
+        name: args.name,
+        ipc_prefix: args.ipc_prefix,
+    })
+}
+
+/// A live source: paced by its devices, so no --pacing; rectification is not applied to it yet.
+fn run_live(args: Args, spec: bdis_source::LiveSpec) -> Result<()> {
+    if args.pacing != Pacing::OnDemand {
+        anyhow::bail!("`{}`: a live source is paced by its devices; leave out --pacing", spec.text);
+    }
+    if args.calibration.is_some() {
+        anyhow::bail!("`{}`: --calibration is not applied to live sources yet; rectify in the grabber", spec.text);
+    }
+    live::open_and_run(live::Options {
+        spec,
+        settings: args.settings,
+        start: args.start,
+        max_frames: args.max_frames,
+        check: args.check,
         name: args.name,
         ipc_prefix: args.ipc_prefix,
     })

@@ -7,7 +7,7 @@ use std::time::Duration;
 
 use anyhow::Result;
 use bdis_ipc::telemetry::MessageTiming;
-use bdis_ipc::{FrameHeader, FrameLayout, Ipc, TelemetryPublisher, Topic, event_id, monotonic_ns};
+use bdis_ipc::{FrameHeader, FrameLayout, event_id, monotonic_ns};
 use bdis_source::{CheckedInput, FrameReader, Pacing, Schedule};
 use iceoryx2::prelude::*;
 use iceoryx2::waitset::WaitSetRunResult;
@@ -41,18 +41,13 @@ enum End {
 pub fn run(config: Config) -> Result<()> {
     let Config { input, rectifier, layout, frame_count, pacing, schedule_fps, name, ipc_prefix } = config;
     let sequence = &input.sequence;
-    let ipc = Ipc::open(&name, &ipc_prefix)?;
-    let frames = ipc.frames()?;
     let frame_bytes = layout.payload_len();
-    let publisher = ipc.frame_publisher(&frames, frame_bytes)?;
-    let notifier = ipc.notifier(&ipc.events(Topic::Frames)?)?;
-    let consumed = ipc.listener(&ipc.frames_consumed()?)?;
-    let mut telemetry = TelemetryPublisher::new(&ipc, &name, None, Some(Topic::Frames))?;
+    let mut ports = crate::ports::Ports::open(&name, &ipc_prefix, frame_bytes)?;
     // Acquisition waits on its consumers' credits with a timeout of its own (a frame's due time), so it keeps
     // its own WaitSet rather than `bdis_node::serve`.
     let waitset = WaitSetBuilder::new().create::<ipc::Service>().map_err(bdis_node::NodeError::WaitSet)?;
-    let consumed_guard = waitset.attach_notification(&consumed).map_err(bdis_node::NodeError::Attach)?;
-    telemetry.ready();
+    let consumed_guard = waitset.attach_notification(&ports.consumed).map_err(bdis_node::NodeError::Attach)?;
+    ports.telemetry.ready();
     tracing::info!(
         "streaming {frame_count} frames of {}×{} from {} ({pacing:?} pacing, prefix {ipc_prefix})",
         sequence.width,
@@ -72,7 +67,7 @@ pub fn run(config: Config) -> Result<()> {
     // Frames of a video its decoder could not decode: passed over, each said in the log and counted.
     let mut lost_in_decoding: u64 = 0;
     let on_demand = pacing.waits_for_consumer();
-    let mut credits = Credits::new(on_demand, frames.dynamic_config().number_of_subscribers() > 0);
+    let mut credits = Credits::new(on_demand, ports.frames.dynamic_config().number_of_subscribers() > 0);
     let t_start_ns = monotonic_ns();
     let mut published: u64 = 0;
     let mut end = End::Completed;
@@ -98,7 +93,7 @@ pub fn run(config: Config) -> Result<()> {
                 .wait_and_process_once_with_timeout(
                     |id| {
                         if id.has_event_from(&consumed_guard) {
-                            let _ = consumed.try_wait(|activation| match activation.id.as_value() {
+                            let _ = ports.consumed.try_wait(|activation| match activation.id.as_value() {
                                 event_id::CONSUMED => events.released += activation.count,
                                 event_id::JOINED => events.joined += activation.count,
                                 event_id::NOTIFIER_DEAD => events.died += activation.count,
@@ -115,7 +110,7 @@ pub fn run(config: Config) -> Result<()> {
             }
             answer_join |= events.joined > 0;
             let replay_from = credits.on_events(events);
-            telemetry.keepalive();
+            ports.telemetry.keepalive();
             if matches!(result, WaitSetRunResult::TerminationRequest | WaitSetRunResult::Interrupt) {
                 end = End::StopRequested;
                 break 'frames;
@@ -130,7 +125,7 @@ pub fn run(config: Config) -> Result<()> {
                 waited_ms += timeout.as_millis() as u64;
                 if waited_ms > 0 && waited_ms.is_multiple_of(5000) {
                     tracing::warn!("no consumer has asked for frame {index} for {} s", waited_ms / 1000);
-                    ipc.cleanup_dead_nodes();
+                    ports.ipc.cleanup_dead_nodes();
                 }
                 continue;
             }
@@ -141,7 +136,7 @@ pub fn run(config: Config) -> Result<()> {
         }
 
         let t_capture_ns = monotonic_ns();
-        let mut sample = match publisher.loan_slice_uninit(frame_bytes) {
+        let mut sample = match ports.publisher.loan_slice_uninit(frame_bytes) {
             Ok(s) => s,
             Err(e) => {
                 end = End::Failed(anyhow::Error::new(e).context("loan a shared-memory frame"));
@@ -180,12 +175,12 @@ pub fn run(config: Config) -> Result<()> {
             end = End::Failed(anyhow::Error::new(e).context(format!("send frame {index}")));
             break;
         }
-        if let Err(e) = bdis_ipc::notify(&notifier, event_id::NEW_SAMPLE) {
+        if let Err(e) = bdis_ipc::notify(&ports.notifier, event_id::NEW_SAMPLE) {
             tracing::warn!("frame {index}: {:#}", anyhow::Error::from(e));
         }
         published += 1;
         answer_join = false;
-        telemetry.message(
+        ports.telemetry.message(
             MessageTiming { frame_seq: index as u64, t_capture_ns, t_done_ns: t_publish_ns, ..Default::default() },
             0,
         );
@@ -193,24 +188,11 @@ pub fn run(config: Config) -> Result<()> {
         index += 1;
     }
 
-    // End of stream in every case, so consumers stop cleanly and keep what they have. Its sequence number is
-    // the number of frames of the stream (replays sent some twice; they count once).
-    let eos_sent = bdis_node::send_end_of_stream(
-        &publisher,
-        FrameHeader {
-            frame_seq: index as u64,
-            flags: FrameHeader::END_OF_STREAM,
-            t_capture_ns: monotonic_ns(),
-            t_publish_ns: monotonic_ns(),
-            ..Default::default()
-        },
-    );
-    if let Err(e) = bdis_ipc::notify(&notifier, event_id::END_OF_STREAM) {
-        tracing::warn!("end of stream: {:#}", anyhow::Error::from(e));
-    }
+    // Its sequence number is the number of frames of the stream (replays sent some twice; they count once).
+    let eos_sent = ports.end_stream(index as u64);
     match end {
         End::Completed | End::StopRequested => {
-            telemetry.finished();
+            ports.telemetry.finished();
             let how = if matches!(end, End::StopRequested) { "stop requested: " } else { "" };
             let lost = if lost_in_decoding > 0 {
                 format!(" ({lost_in_decoding} the video's decoder could not decode)")
@@ -221,7 +203,7 @@ pub fn run(config: Config) -> Result<()> {
             Ok(eos_sent?)
         }
         End::Failed(e) => {
-            telemetry.failed();
+            ports.telemetry.failed();
             Err(e.context(format!("stopped after {published} frames")))
         }
     }
@@ -230,6 +212,7 @@ pub fn run(config: Config) -> Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use bdis_ipc::{Ipc, Topic};
 
     /// `n` PNG pairs of `w`×`h` whose pixels encode their number, and an on-demand acquisition over them.
     #[allow(clippy::unwrap_used)]

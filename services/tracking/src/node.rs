@@ -218,6 +218,9 @@ pub fn run(config: Config) -> Result<()> {
     let mut counts =
         Counts { frame_ms: Vec::with_capacity(4096), keyframe_ms: Vec::with_capacity(1024), ..Default::default() };
     let mut quality_log = crate::quality_log::QualityLog::open(&out_dir)?;
+    // Frames acquisition published that this instance never saw (overwritten while it was busy); the stream's
+    // frames are numbered from 0, so a first frame numbered later says how many were missed before it.
+    let (mut missed_frames, mut last_tracked): (u64, Option<u64>) = (0, earlier.last_frame_seq());
     telemetry.ready();
     bdis_ipc::notify(&credits, event_id::JOINED)?;
     tracing::info!("tracking ready ({width}×{height}, {n_features} features)");
@@ -239,6 +242,9 @@ pub fn run(config: Config) -> Result<()> {
                     continue;
                 } // The last bundle adjustment's corrections go out before the end of the stream, so the mosaic,
                 // which stops at the end of the depth stream, has applied them when it writes the map.
+                // Frames between the last one taken and the end of the stream were overwritten unseen.
+                missed_frames += header.frame_seq.saturating_sub(last_tracked.map_or(0, |last| last + 1));
+                telemetry.set_dropped(missed_frames);
                 let last = tracker.finish();
                 out.corrections(&tracker, &last)?;
                 finished = true;
@@ -273,6 +279,8 @@ pub fn run(config: Config) -> Result<()> {
                     continue;
                 }
             };
+            missed_frames += header.frame_seq.saturating_sub(last_tracked.map_or(0, |last| last + 1));
+            last_tracked = Some(header.frame_seq);
             // The tracking thread's CPU (bundle adjustment runs on a worker thread and is not part of it).
             let cpu_start = bdis_ipc::clock::thread_cpu_ns();
             let result = tracker
@@ -360,8 +368,9 @@ pub fn run(config: Config) -> Result<()> {
                     t_receive_ns,
                     t_done_ns: t_publish_ns,
                 },
-                // The tracker takes every frame: nothing dropped (a slow tracker slows on-demand acquisition).
-                0,
+                // On demand the tracker takes every frame (a slow tracker slows acquisition); behind a rate or a
+                // live device, the frames it was too slow for are gaps in the frame numbers.
+                missed_frames,
             );
         }
         Ok(Flow::Continue)

@@ -240,6 +240,12 @@ impl TelemetryPublisher {
         self.send(TelemetryKind::Message, timing, false);
     }
 
+    /// The running count of input messages seen missing, when it grows without a message handled (gaps
+    /// before the end of the stream); the end record carries it.
+    pub fn set_dropped(&mut self, dropped: u64) {
+        self.template.dropped = dropped;
+    }
+
     /// The stream ended normally.
     pub fn finished(&mut self) {
         self.send(

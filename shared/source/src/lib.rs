@@ -3,12 +3,14 @@
 //! launcher's offline commands use it.
 
 pub mod decode;
+pub mod live;
 pub mod pacing;
 pub mod reader;
 pub mod source;
 pub mod video;
 
 pub use decode::{DecodeError, FrameDecoder};
+pub use live::{LiveError, LiveSource, LiveSpec};
 pub use pacing::{Pacing, Schedule};
 pub use reader::{FrameReader, ReadError, Rectifier};
 pub use source::{FrameEntry, Layout, Sequence, SourceError};
