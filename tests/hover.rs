@@ -32,7 +32,7 @@ fn the_hover_is_tracked_within_a_thousandth_of_its_path() {
     let mut trajectories = Vec::new();
     for tag in ["hover-a", "hover-b"] {
         let run_dir = tmp.path().join(tag);
-        track_run(&seq, &seq.join("settings.yaml"), &run_dir, tag);
+        track_run(&seq, &seq.join("settings.yaml"), &run_dir, tag, &[]);
         let summary: serde_json::Value =
             serde_json::from_str(&std::fs::read_to_string(run_dir.join("tracking.json")).unwrap()).unwrap();
         assert_eq!(summary["frames"], FRAMES as u64, "{summary}");

@@ -39,7 +39,7 @@ fn shared() -> &'static Shared {
 fn run(source: &str, tag: &str) -> PathBuf {
     let Shared { tmp, seq } = shared();
     let run_dir = tmp.path().join(format!("run-{tag}"));
-    track_run(source, &seq.join("settings.yaml"), &run_dir, tag);
+    track_run(source, &seq.join("settings.yaml"), &run_dir, tag, &[]);
     run_dir
 }
 
@@ -196,6 +196,33 @@ fn live_frames_are_the_sources_pixels_and_a_warm_frame_allocates_nothing() {
         assert_eq!(checked, 12, "{pixel}: the device ended early");
         if pixel != "mjpeg" {
             assert_eq!(allocations, Some(0), "{pixel}: allocations in 8 warmed-up live frames");
+        }
+    }
+}
+
+/// An interlaced device's frames published as their top field: half the rows, each the frame's even row.
+#[test]
+fn an_interlaced_device_is_published_as_its_top_field() {
+    let Shared { seq, .. } = shared();
+    let folder = bdis_source::Sequence::open(seq).unwrap();
+    let (w, h) = (folder.width as usize, folder.height as usize);
+    let spec = format!("live:emulated:side-by-side:yuyv:50hz:{}", seq.display());
+    let spec = bdis_source::LiveSpec::parse(&spec).unwrap().unwrap();
+    let source = bdis_source::LiveSource::open(&spec, 0).unwrap();
+    let mut source = source.with_fields(bdis_source::FieldMode::TopField).unwrap();
+    assert_eq!(source.view_size(), (w as u32, h as u32 / 2));
+    let layout = bdis_ipc::FrameLayout::packed(w as u32, h as u32 / 2).unwrap();
+    let mut payload = vec![MaybeUninit::new(0u8); layout.payload_len()];
+    next_frame(&mut source).unwrap();
+    let captured = source.read_into(&layout, &mut payload).unwrap();
+    let full = bdis_ipc::FrameLayout::packed(w as u32, h as u32).unwrap();
+    let mut expected = vec![MaybeUninit::new(0u8); full.payload_len()];
+    let entry = &folder.frames[captured.sequence as usize];
+    bdis_source::FrameDecoder::new().decode_pair_into(&entry.left, &entry.right, &full, &mut expected).unwrap();
+    for r in 0..h / 2 {
+        for x in 0..w {
+            let (got, want) = unsafe { (payload[r * w + x].assume_init(), expected[2 * r * w + x].assume_init()) };
+            assert!(got.abs_diff(want) <= 1, "field row {r}, column {x}: {got}, the frame's row {}: {want}", 2 * r);
         }
     }
 }

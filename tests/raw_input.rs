@@ -51,7 +51,7 @@ fn synth(out: &Path, raw: Option<&str>) {
 
 /// Tracks and maps `seq` with `settings` through the processes; (ATE RMSE mm, path mm, mean map error mm).
 fn run(seq: &Path, settings: &Path, gt: &Path, run_dir: &Path, tag: &str) -> (f64, f64, f64) {
-    track_run(seq, settings, run_dir, tag);
+    track_run(seq, settings, run_dir, tag, &[]);
     let (rmse, length) = ate(gt, run_dir);
     let score = map_score(gt, run_dir);
     let mean = score["inliers"]["mean"].as_f64().unwrap_or_else(|| panic!("no inliers.mean in {score}"));

@@ -73,7 +73,7 @@ fn shared() -> &'static Shared {
 fn run(sequence: &str, tag: &str) -> PathBuf {
     let Shared { tmp, seq } = shared();
     let run_dir = tmp.path().join(format!("run-{tag}"));
-    track_run(sequence, &seq.join("settings.yaml"), &run_dir, tag);
+    track_run(sequence, &seq.join("settings.yaml"), &run_dir, tag, &[]);
     run_dir
 }
 

@@ -67,8 +67,14 @@ struct Spread {
 pub fn bench_isolation(args: IsolationArgs) -> Result<ExitCode> {
     anyhow::ensure!((1..=50).contains(&args.pairs), "--pairs: give 1 to 50");
     let settings = args.settings.clone().unwrap_or_else(|| args.sequence.join("settings.yaml"));
-    let full =
-        plan_for_sequence(&args.sequence, Some(&settings), bdis_source::Pacing::OnDemand, false, None, true, &[])?;
+    let full = plan_for_sequence(
+        crate::plan::PlanInput::new(&args.sequence, Some(&settings)),
+        bdis_source::Pacing::OnDemand,
+        false,
+        None,
+        true,
+        &[],
+    )?;
     let mut alone = full.clone();
     alone.services.retain(|s| s.name == "acquisition" || s.name == "tracking");
     let root = make_run_dir(args.out.as_deref(), "isolation")?;

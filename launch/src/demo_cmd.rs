@@ -42,7 +42,14 @@ pub fn demo(args: DemoArgs) -> Result<ExitCode> {
     let preview = run_dir.join("preview.png");
     write_side_by_side(&sequence.join("left/1.png"), &sequence.join("right/1.png"), &preview)?;
 
-    let launch = plan_for_sequence(&sequence, Some(&settings), args.pacing, false, None, true, &[])?;
+    let launch = plan_for_sequence(
+        crate::plan::PlanInput::new(&sequence, Some(&settings)),
+        args.pacing,
+        false,
+        None,
+        true,
+        &[],
+    )?;
     let (code, result) = execute_and_report(&launch, Path::new("launch.toml"), &run_dir, None)?;
     let find = |name: &str| result.latency.processes.iter().find(|p| p.name == name);
     let depth: Option<bdis_slam::probe::DepthSummary> =

@@ -6,10 +6,24 @@ use std::path::Path;
 
 use anyhow::{Context, Result};
 
+/// What a plan streams: a sequence (folder, video or live source), its settings, and whether acquisition
+/// splits interlaced frames (the settings then describe the fields).
+#[derive(Debug, Clone, Copy)]
+pub struct PlanInput<'a> {
+    pub sequence: &'a Path,
+    pub settings: Option<&'a Path>,
+    pub interlaced: Option<bdis_source::FieldMode>,
+}
+
+impl<'a> PlanInput<'a> {
+    pub fn new(sequence: &'a Path, settings: Option<&'a Path>) -> Self {
+        Self { sequence, settings, interlaced: None }
+    }
+}
+
 /// The launch plan `run --sequence` builds: acquisition, then the probe as its consumer.
 pub fn plan_for_sequence(
-    sequence: &Path,
-    settings: Option<&Path>,
+    input: PlanInput<'_>,
     pacing: bdis_source::Pacing,
     checksums: bool,
     stereo_every: Option<u64>,
@@ -17,6 +31,7 @@ pub fn plan_for_sequence(
     map_params: &[String],
 ) -> Result<bdis_slam::launch_file::LaunchFile> {
     use bdis_slam::launch_file::{LaunchFile, RunSection, ServiceSpec};
+    let PlanInput { sequence, settings, interlaced } = input;
     // Check the input before anything starts: a bad sequence or settings file is reported here, by file and
     // field, and no process or shared memory is created.
     let absolute = |p: &Path| std::fs::canonicalize(p).with_context(|| format!("{}: cannot resolve", p.display()));
@@ -30,12 +45,21 @@ pub fn plan_for_sequence(
             (vec!["--sequence".to_string(), spec.text.clone()], settings.map(Path::to_path_buf), "live".to_string())
         }
         None => {
-            let input = bdis_source::check_input(sequence, settings)?;
-            let name =
-                input.sequence.root.file_name().map_or_else(|| "sequence".into(), |n| n.to_string_lossy().into_owned());
-            (vec!["--sequence".to_string(), input.sequence.argument()?], input.settings_path, name)
+            // The settings of fields do not describe the woven frames on disk: acquisition checks them against
+            // the fields it publishes.
+            let checked = bdis_source::check_input(sequence, if interlaced.is_some() { None } else { settings })?;
+            let name = checked
+                .sequence
+                .root
+                .file_name()
+                .map_or_else(|| "sequence".into(), |n| n.to_string_lossy().into_owned());
+            let args = vec!["--sequence".to_string(), checked.sequence.argument()?];
+            (args, settings.map(Path::to_path_buf).or(checked.settings_path), name)
         }
     };
+    if let Some(mode) = interlaced {
+        acquisition_args.extend(["--interlaced".to_string(), mode.name().to_string()]);
+    }
     if let Some(settings) = &settings_path {
         acquisition_args.extend(["--settings".to_string(), absolute(settings)?.display().to_string()]);
     }

@@ -28,6 +28,11 @@ pub struct RunArgs {
     /// dropped, as with a live camera), or on-demand:30hz (a live camera's pace that never drops a frame).
     #[arg(long, default_value = "on-demand", requires = "sequence")]
     pacing: bdis_source::Pacing,
+    /// Interlaced footage (1080i): track one field of each frame (`top-field`, `bottom-field`: half the rows;
+    /// the run folder gets settings.yaml with fy and cy halved) or the top field with the other rows
+    /// interpolated (`bob`). --settings describe the woven frames.
+    #[arg(long, value_name = "MODE", requires = "settings")]
+    interlaced: Option<bdis_source::FieldMode>,
     /// Skip the first N frames of --sequence (a video is decoded from frame N, exactly).
     #[arg(long, default_value_t = 0, value_name = "N", requires = "sequence")]
     start: usize,
@@ -65,6 +70,8 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
     let mut rendered: Option<(PathBuf, PathBuf)> = None;
     // A raw calibration that acquisition applies as it reads (a video).
     let mut rectify_in_acquisition: Option<PathBuf> = None;
+    // Woven frames that acquisition splits into fields (`--interlaced`).
+    let mut interlaced_source: Option<PathBuf> = None;
     if let Some(request) = args.sequence.as_ref().and_then(|s| s.to_str()).and_then(bdis_source::parse_synthetic) {
         let request = request.map_err(anyhow::Error::msg)?;
         let run_dir = make_run_dir(args.out.as_deref(), &format!("synthetic-{}", request.scene))?;
@@ -109,8 +116,24 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
         );
         rendered = Some((run_dir, done.settings));
     }
+    // Interlaced: the fields' settings are written into the run folder; acquisition splits each frame.
+    if let (Some(mode), None, Some(sequence), Some(settings)) =
+        (args.interlaced, &rendered, &args.sequence, &args.settings)
+    {
+        let name = sequence.file_name().map_or("interlaced".into(), |n| n.to_string_lossy().into_owned());
+        let run_dir = make_run_dir(args.out.as_deref(), &format!("{}-{name}", mode.name()))?;
+        let field_settings = run_dir.join("settings.yaml");
+        crate::fields::write_field_settings(settings, mode, &field_settings)?;
+        rendered = Some((run_dir, field_settings));
+        interlaced_source = Some(sequence.clone());
+    } else if args.interlaced.is_some() {
+        anyhow::bail!("--interlaced takes a sequence of woven frames with their (rectified) settings");
+    }
     // The sequence to plan for: the rendered (or rectified) one, or the one given.
     let sequence = match (&args.sequence, &rendered) {
+        (Some(_), Some((_, settings))) if interlaced_source.is_some() => {
+            interlaced_source.clone().map(|s| (s, Some(settings.clone())))
+        }
         (Some(video), Some((_, settings))) if rectify_in_acquisition.is_some() => {
             Some((video.clone(), Some(settings.clone())))
         }
@@ -121,15 +144,13 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
     let (launch, launch_path) = match (&args.launch_file, sequence) {
         (Some(path), _) => (LaunchFile::load(path)?, path.clone()),
         (None, Some((sequence, settings))) => {
-            let mut plan = plan_for_sequence(
-                &sequence,
-                settings.as_deref(),
-                args.pacing,
-                args.checksums,
-                args.stereo_every,
-                args.track,
-                &args.map_params,
-            )?;
+            let input = crate::plan::PlanInput {
+                sequence: &sequence,
+                settings: settings.as_deref(),
+                interlaced: args.interlaced.filter(|_| interlaced_source.is_some()),
+            };
+            let mut plan =
+                plan_for_sequence(input, args.pacing, args.checksums, args.stereo_every, args.track, &args.map_params)?;
             if let Some(acquisition) = plan.services.iter_mut().find(|s| s.binary == "bdis-acquisition") {
                 if args.start > 0 {
                     acquisition.args.extend(["--start".to_string(), args.start.to_string()]);

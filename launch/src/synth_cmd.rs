@@ -42,6 +42,12 @@ pub struct SynthArgs {
     /// `calib.yaml` (OpenCV layout) instead of `settings.yaml`: rectify with `bdis-slam rectify`.
     #[arg(long)]
     raw: Option<String>,
+    /// Interlaced footage, as an SDI camera (1080i) gives it: renders one frame per field at twice --fps and
+    /// weaves each pair (top field first) into one frame; writes `interlaced/` (the woven frames) and
+    /// `progressive/` (the top fields' frames whole: what a progressive camera would give), each with its
+    /// settings and ground truth, and the field-rate render in `fields/`. Track with `run --interlaced`.
+    #[arg(long, conflicts_with = "raw")]
+    interlaced: bool,
     /// Texture and shape seed: the same seed gives byte-identical files.
     #[arg(long, default_value_t = 2026)]
     seed: u64,
@@ -73,16 +79,36 @@ pub fn synth(args: SynthArgs) -> Result<()> {
         cy: f64::from(args.height) / 2.0,
         bf: args.focal * args.baseline_mm,
     };
+    // Interlaced: one rendered frame per field, at twice the rate.
+    let fields = if args.interlaced { 2 } else { 1 };
     let request = bdis_synth::SceneRequest {
         scene: args.scene.clone(),
         trajectory: args.trajectory.clone(),
-        frames: args.frames,
-        fps: args.fps,
+        frames: args.frames * fields,
+        fps: args.fps * fields as f64,
         speed_mm_s: args.speed,
         motion,
         seed: args.seed,
         raw: args.raw.clone(),
     };
+    if args.interlaced {
+        render_with_progress(&args.out.join("fields"), &rig, &request)?;
+        let (interlaced, progressive) = (args.out.join("interlaced"), args.out.join("progressive"));
+        let woven = bdis_synth::interlace::weave(&args.out.join("fields"), &interlaced, &progressive)?;
+        println!(
+            "{}: {} interlaced stereo frames of {}×{} (top field first) in interlaced/, the same frames progressive in \
+             progressive/, {} fields in fields/; track with: bdis-slam run --track --sequence {} --settings {} \
+             --interlaced top-field",
+            args.out.display(),
+            woven.frames,
+            args.width,
+            args.height,
+            2 * woven.frames,
+            interlaced.display(),
+            interlaced.join("settings.yaml").display()
+        );
+        return Ok(());
+    }
     let written = render_with_progress(&args.out, &rig, &request)?;
     if args.raw.is_some() {
         println!(

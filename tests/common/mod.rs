@@ -234,8 +234,8 @@ pub fn render_small_colon(out: &Path, frames: usize) {
 
 /// Tracks and maps `source` (a sequence folder, or a `video:` or `live:` source) end to end through the
 /// processes with `settings`, under a shared-memory prefix of its own, into `run_dir`: it must end cleanly and
-/// leave no shared memory behind.
-pub fn track_run(source: impl AsRef<std::ffi::OsStr>, settings: &Path, run_dir: &Path, tag: &str) {
+/// leave no shared memory behind. `extra` goes on the command line after them.
+pub fn track_run(source: impl AsRef<std::ffi::OsStr>, settings: &Path, run_dir: &Path, tag: &str, extra: &[&str]) {
     let prefix = prefix(tag);
     let out = run_with_timeout(
         Command::new(bdis_slam())
@@ -243,6 +243,7 @@ pub fn track_run(source: impl AsRef<std::ffi::OsStr>, settings: &Path, run_dir: 
             .arg(source)
             .arg("--settings")
             .arg(settings)
+            .args(extra)
             .args(["--ipc-prefix", &prefix, "--out"])
             .arg(run_dir),
         Duration::from_secs(600),

@@ -32,6 +32,7 @@ pub struct Options {
     pub settings: Option<std::path::PathBuf>,
     pub start: usize,
     pub max_frames: Option<usize>,
+    pub interlaced: Option<bdis_source::FieldMode>,
     /// Only open the devices, print what they deliver, and exit.
     pub check: bool,
     pub name: String,
@@ -41,8 +42,14 @@ pub struct Options {
 /// Opens the devices (an emulated one starts capturing) and checks them against the settings before any
 /// shared memory exists, then streams.
 pub fn open_and_run(options: Options) -> Result<()> {
-    let Options { spec, settings, start, max_frames, check, name, ipc_prefix } = options;
-    let source = LiveSource::open(&spec, start)?;
+    let Options { spec, settings, start, max_frames, interlaced, check, name, ipc_prefix } = options;
+    let mut source = LiveSource::open(&spec, start)?;
+    if let Some(mode) = interlaced {
+        let (w, h) = source.view_size();
+        source = source
+            .with_fields(mode)
+            .with_context(|| format!("`{}`: {w}×{h} views cannot be split into fields", spec.text))?;
+    }
     let (width, height) = source.view_size();
     if let Some(path) = &settings {
         let settings = bdis_core::Settings::load(path)?;

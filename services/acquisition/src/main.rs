@@ -5,6 +5,7 @@
 //! sample flagged `END_OF_STREAM`, so consumers finish cleanly, also after an error or a stop request.
 
 mod credits;
+mod input;
 mod live;
 mod node;
 mod ports;
@@ -14,7 +15,7 @@ use std::process::ExitCode;
 
 use anyhow::{Context, Result};
 use bdis_ipc::FrameLayout;
-use bdis_source::{FrameEntry, Pacing, check_input};
+use bdis_source::{Pacing, check_input};
 use clap::Parser;
 
 /// Publish a stereo image sequence into shared memory, frame by frame.
@@ -47,6 +48,11 @@ struct Args {
     /// the cameras' mean focal length).
     #[arg(long, requires = "calibration")]
     alpha: Option<f64>,
+    /// Interlaced frames (1080i): publish one field of each (`top-field`, `bottom-field`: half the rows; the
+    /// settings then describe the field's camera, fy and cy halved — `bdis-slam run --interlaced` writes them)
+    /// or the top field with the other rows interpolated (`bob`: same size and camera).
+    #[arg(long, value_name = "MODE", conflicts_with = "calibration")]
+    interlaced: Option<bdis_source::FieldMode>,
     /// Skip the first N frames (a video is decoded from frame N, exactly).
     #[arg(long, default_value_t = 0, value_name = "N")]
     start: usize,
@@ -91,42 +97,43 @@ fn run(args: Args) -> Result<()> {
         }
         None => (args.sequence.clone(), args.settings.clone()),
     };
-    let mut input = check_input(&sequence_dir, settings.as_deref())?;
+    // Interlaced: the settings describe the published fields, not the woven frames; checked against those.
+    let checked_settings = if args.interlaced.is_some() { None } else { settings.as_deref() };
+    let mut input = check_input(&sequence_dir, checked_settings)?;
     if args.start > 0 {
         input.sequence.skip(args.start)?;
     }
     let sequence = &input.sequence;
     let rectifier = match &args.calibration {
-        Some(path) => Some(rectifier(path, (sequence.width, sequence.height), args.alpha)?),
+        Some(path) => Some(input::rectifier(path, (sequence.width, sequence.height), args.alpha)?),
         None => None,
     };
-    let (width, height) = rectifier.as_ref().map_or((sequence.width, sequence.height), |r| r.rectified_size());
+    let (width, height) = match args.interlaced {
+        Some(mode) => mode.output_size(sequence.width, sequence.height).with_context(|| {
+            format!(
+                "{}: {}×{} frames cannot be split into fields",
+                sequence.root.display(),
+                sequence.width,
+                sequence.height
+            )
+        })?,
+        None => rectifier.as_ref().map_or((sequence.width, sequence.height), |r| r.rectified_size()),
+    };
+    if let (Some(_), Some(path)) = (args.interlaced, &settings) {
+        input::adopt_settings(&mut input, path, (width, height))?;
+    }
+    let sequence = &input.sequence;
     let layout = FrameLayout::packed(width, height)
         .with_context(|| format!("{}: {width}×{height} images are too large", sequence.root.display()))?;
     let frame_count = args.max_frames.map_or(sequence.len(), |m| m.min(sequence.len()));
     if args.check {
-        let times = match (sequence.frames.first(), sequence.frames.last()) {
-            (Some(FrameEntry { t_source_s: Some(a), .. }), Some(FrameEntry { t_source_s: Some(b), .. })) => {
-                format!("{a:.3}–{b:.3} s")
-            }
-            _ => "no".to_string(),
-        };
-        let layout = match sequence.layout {
-            bdis_source::Layout::Video(arrangement) => format!("video ({})", arrangement.name()),
-            other => format!("{other:?}"),
-        };
-        println!(
-            "{}: {layout} layout, {} stereo pairs of {}×{}, timestamps: {times}",
-            sequence.root.display(),
-            sequence.len(),
-            sequence.width,
-            sequence.height,
-        );
+        input::print_check(sequence);
         return Ok(());
     }
 
     node::run(node::Config {
         rectifier,
+        fields: args.interlaced,
         schedule_fps: input.fps.unwrap_or(30.0),
         input,
         layout,
@@ -150,36 +157,9 @@ fn run_live(args: Args, spec: bdis_source::LiveSpec) -> Result<()> {
         settings: args.settings,
         start: args.start,
         max_frames: args.max_frames,
+        interlaced: args.interlaced,
         check: args.check,
         name: args.name,
         ipc_prefix: args.ipc_prefix,
     })
-}
-
-/// The undistort–rectify maps of a raw calibration for frames of `raw` size, built once before streaming.
-fn rectifier(path: &std::path::Path, raw: (u32, u32), alpha: Option<f64>) -> Result<bdis_source::Rectifier> {
-    if let Some(a) = alpha
-        && !(0.0..=1.0).contains(&a)
-    {
-        anyhow::bail!("--alpha must be within 0..1, found {a}");
-    }
-    let calib = bdis_rectify::StereoCalibration::load(path)?;
-    if let Some(size) = calib.size
-        && size != raw
-    {
-        anyhow::bail!(
-            "{}: the calibration is for {}×{} images, but the frames are {}×{}",
-            path.display(),
-            size.0,
-            size.1,
-            raw.0,
-            raw.1
-        );
-    }
-    let rect = calib.rectification(raw, alpha)?;
-    if rect.camera().is_none() {
-        anyhow::bail!("{}: the baseline is vertical: the tracker needs a horizontal rig", path.display());
-    }
-    bdis_source::Rectifier::new(calib.maps(&rect, raw))
-        .with_context(|| format!("{}: the rectified frames do not fit a shared-memory frame", path.display()))
 }

@@ -5,7 +5,7 @@
 
 use std::time::Duration;
 
-use anyhow::Result;
+use anyhow::{Context, Result};
 use bdis_ipc::telemetry::MessageTiming;
 use bdis_ipc::{FrameHeader, FrameLayout, event_id, monotonic_ns};
 use bdis_source::{CheckedInput, FrameReader, Pacing, Schedule};
@@ -20,6 +20,8 @@ pub struct Config {
     pub input: CheckedInput,
     /// Rectification applied to every frame as it is read (a raw calibration).
     pub rectifier: Option<bdis_source::Rectifier>,
+    /// One field of each interlaced frame (or the frame bobbed), instead of the woven frame.
+    pub fields: Option<bdis_source::FieldMode>,
     pub layout: FrameLayout,
     /// Frames to publish (the sequence, or fewer with `--max-frames`).
     pub frame_count: usize,
@@ -39,7 +41,7 @@ enum End {
 }
 
 pub fn run(config: Config) -> Result<()> {
-    let Config { input, rectifier, layout, frame_count, pacing, schedule_fps, name, ipc_prefix } = config;
+    let Config { input, rectifier, fields, layout, frame_count, pacing, schedule_fps, name, ipc_prefix } = config;
     let sequence = &input.sequence;
     let frame_bytes = layout.payload_len();
     let mut ports = crate::ports::Ports::open(&name, &ipc_prefix, frame_bytes)?;
@@ -59,6 +61,11 @@ pub fn run(config: Config) -> Result<()> {
     let mut reader = FrameReader::new(sequence);
     if let Some(rectifier) = rectifier {
         reader = reader.with_rectifier(rectifier);
+    }
+    if let Some(mode) = fields {
+        reader = reader
+            .with_fields(mode, sequence.width, sequence.height)
+            .context("interlaced frames: their size cannot be split into fields")?;
     }
     if let Err(e) = reader.prepare(&sequence.frames[0]) {
         // Said again, and the stream ended cleanly, when the first frame is read.
@@ -229,6 +236,7 @@ mod tests {
         let input = bdis_source::check_input(&dir, None).unwrap();
         let config = Config {
             rectifier: None,
+            fields: None,
             layout: FrameLayout::packed(w, h).unwrap(),
             frame_count: input.sequence.len(),
             input,

@@ -3,6 +3,7 @@
 //! launcher's offline commands use it.
 
 pub mod decode;
+pub mod fields;
 pub mod live;
 pub mod pacing;
 pub mod reader;
@@ -10,6 +11,7 @@ pub mod source;
 pub mod video;
 
 pub use decode::{DecodeError, FrameDecoder};
+pub use fields::FieldMode;
 pub use live::{LiveError, LiveSource, LiveSpec};
 pub use pacing::{Pacing, Schedule};
 pub use reader::{FrameReader, ReadError, Rectifier};

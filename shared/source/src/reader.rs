@@ -8,6 +8,7 @@ use bdis_ipc::FrameLayout;
 use bdis_rectify::RectifyMap;
 
 use crate::decode::{DecodeError, FrameDecoder};
+use crate::fields::FieldMode;
 use crate::source::{FrameEntry, Sequence};
 use crate::video::{VideoDecoder, VideoError};
 
@@ -25,6 +26,16 @@ pub struct FrameReader {
     images: FrameDecoder,
     video: Option<VideoDecoder>,
     rectifier: Option<Rectifier>,
+    fields: Option<Fields>,
+}
+
+/// Interlaced frames: the woven frame goes into a staging buffer this owns, and the field (or the bobbed
+/// frame) is written from it into the payload, once.
+#[derive(Debug)]
+struct Fields {
+    mode: FieldMode,
+    woven_layout: FrameLayout,
+    staging: Vec<u8>,
 }
 
 /// Rectification applied as frames are read (a raw stereo calibration): the raw frame goes into a staging
@@ -64,13 +75,31 @@ impl ReadError {
 
 impl FrameReader {
     pub fn new(sequence: &Sequence) -> Self {
-        Self { images: FrameDecoder::new(), video: sequence.video.as_ref().map(VideoDecoder::new), rectifier: None }
+        Self {
+            images: FrameDecoder::new(),
+            video: sequence.video.as_ref().map(VideoDecoder::new),
+            rectifier: None,
+            fields: None,
+        }
     }
 
     /// Rectifies every frame as it is read; the payload layout is then the rectified size's.
     pub fn with_rectifier(mut self, rectifier: Rectifier) -> Self {
         self.rectifier = Some(rectifier);
         self
+    }
+
+    /// Takes one field of (or bobs) each woven frame of `width × height`; the payload layout is then
+    /// `mode.output_size`'s. `None` for a size the mode cannot split, or together with a rectifier (the maps
+    /// are for whole frames).
+    pub fn with_fields(mut self, mode: FieldMode, width: u32, height: u32) -> Option<Self> {
+        mode.output_size(width, height)?;
+        let woven_layout = FrameLayout::packed(width, height)?;
+        if self.rectifier.is_some() {
+            return None;
+        }
+        self.fields = Some(Fields { mode, staging: vec![0; woven_layout.payload_len()], woven_layout });
+        Some(self)
     }
 
     /// Gets ready to read from `first` on (a video's decoder is started), so the first frame's latency is
@@ -89,6 +118,13 @@ impl FrameReader {
         layout: &FrameLayout,
         payload: &mut [MaybeUninit<u8>],
     ) -> Result<(), ReadError> {
+        if let Some(fields) = &mut self.fields {
+            // SAFETY: as for the rectifier's staging buffer below.
+            let staging = unsafe { &mut *(fields.staging.as_mut_slice() as *mut [u8] as *mut [MaybeUninit<u8>]) };
+            read_raw(&mut self.images, &mut self.video, entry, &fields.woven_layout, staging)?;
+            fields.mode.apply(&fields.staging, &fields.woven_layout, layout, payload);
+            return Ok(());
+        }
         let Some(rect) = &mut self.rectifier else {
             return read_raw(&mut self.images, &mut self.video, entry, layout, payload);
         };

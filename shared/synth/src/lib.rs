@@ -6,6 +6,7 @@
 
 pub mod abdomen;
 pub mod colon;
+pub mod interlace;
 pub mod render;
 
 use std::path::{Path, PathBuf};

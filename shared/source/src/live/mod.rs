@@ -220,6 +220,8 @@ pub struct LiveSource {
     pending: Vec<Pending>,
     views: Vec<View>,
     converter: Converter,
+    /// Interlaced devices: the woven frame is converted into this staging buffer, then split into fields.
+    fields: Option<(crate::FieldMode, FrameLayout, Vec<u8>)>,
     /// Frames one device delivered that found no partner from the other (two devices).
     pub unpaired: u64,
 }
@@ -256,13 +258,27 @@ impl LiveSource {
             devices,
             views,
             converter: Converter::new(),
+            fields: None,
             unpaired: 0,
         })
     }
 
-    /// The size of each camera's view: the frames' size.
+    /// Publishes one field of each interlaced frame (or bobs it); `None` when the views cannot be split.
+    pub fn with_fields(mut self, mode: crate::FieldMode) -> Option<Self> {
+        let (w, h) = (self.views[0].width, self.views[0].height);
+        mode.output_size(w, h)?;
+        let woven = FrameLayout::packed(w, h)?;
+        self.fields = Some((mode, woven, vec![0; woven.payload_len()]));
+        Some(self)
+    }
+
+    /// The size of the published frames: each camera's view (one field of it, when interlaced).
     pub fn view_size(&self) -> (u32, u32) {
-        (self.views[0].width, self.views[0].height)
+        let (w, h) = (self.views[0].width, self.views[0].height);
+        match &self.fields {
+            Some((mode, ..)) => mode.output_size(w, h).unwrap_or((w, h)),
+            None => (w, h),
+        }
     }
 
     /// The devices' formats, to report.
@@ -306,6 +322,18 @@ impl LiveSource {
 
     /// Writes the complete frame into `payload` (left grey, right grey, left RGB).
     pub fn read_into(&mut self, layout: &FrameLayout, payload: &mut [MaybeUninit<u8>]) -> Result<Captured, LiveError> {
+        let Some((mode, woven, mut staging)) = self.fields.take() else { return self.convert_into(layout, payload) };
+        // SAFETY: a `u8` is a valid `MaybeUninit<u8>`, and the conversion writes only initialised bytes.
+        let staging_uninit = unsafe { &mut *(staging.as_mut_slice() as *mut [u8] as *mut [MaybeUninit<u8>]) };
+        let converted = self.convert_into(&woven, staging_uninit);
+        if converted.is_ok() {
+            mode.apply(&staging, &woven, layout, payload);
+        }
+        self.fields = Some((mode, woven, staging));
+        converted
+    }
+
+    fn convert_into(&mut self, layout: &FrameLayout, payload: &mut [MaybeUninit<u8>]) -> Result<Captured, LiveError> {
         let n = layout.width as usize * layout.height as usize;
         let (left_gray, rest) = payload.split_at_mut(n);
         let (right_gray, rgb) = rest.split_at_mut(n);
