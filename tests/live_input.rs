@@ -28,7 +28,7 @@ struct Shared {
 fn shared() -> &'static Shared {
     static SHARED: OnceLock<Shared> = OnceLock::new();
     SHARED.get_or_init(|| {
-        let tmp = TempDir::new("live-input");
+        let tmp = TempDir::new("live-input").removed_at_exit();
         let seq = tmp.path().join("colon");
         render_small_colon(&seq, FRAMES);
         Shared { tmp, seq }

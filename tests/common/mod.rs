@@ -63,6 +63,35 @@ impl Drop for TempDir {
     }
 }
 
+/// Folders shared by the tests of one binary (held in a `static`, which is never dropped), removed when the
+/// test binary exits.
+static REMOVE_AT_EXIT: std::sync::Mutex<Vec<PathBuf>> = std::sync::Mutex::new(Vec::new());
+
+extern "C" fn remove_shared_dirs() {
+    if let Ok(dirs) = REMOVE_AT_EXIT.lock() {
+        for dir in dirs.iter() {
+            let _ = std::fs::remove_dir_all(dir);
+        }
+    }
+}
+
+impl TempDir {
+    /// For a folder kept in a `static` for every test of the binary: removed when the binary exits (unless
+    /// `BDIS_KEEP_TEST_DIRS` is set).
+    pub fn removed_at_exit(self) -> Self {
+        if std::env::var_os("BDIS_KEEP_TEST_DIRS").is_none()
+            && let Ok(mut dirs) = REMOVE_AT_EXIT.lock()
+        {
+            if dirs.is_empty() {
+                // SAFETY: registers a plain function with no captured state; it runs once at exit.
+                unsafe { libc::atexit(remove_shared_dirs) };
+            }
+            dirs.push(self.0.clone());
+        }
+        self
+    }
+}
+
 /// A shared-memory prefix unique to this test.
 pub fn prefix(tag: &str) -> String {
     let nanos = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).unwrap().subsec_nanos();
