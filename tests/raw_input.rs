@@ -135,5 +135,23 @@ fn raw_distorted_footage_rectified_here_tracks_and_maps_as_well_as_a_rectified_r
                 "map error {map_v} mm from the raw video against {map_ref} mm rendered rectified"
             );
         }
+        if rig == "strong" {
+            // The raw rig behind a live grabber (the emulated device, side by side, YUYV, 10 Hz): acquisition
+            // rectifies each frame as it takes it, the rectified settings come from the calibration alone.
+            let live = format!("live:emulated:side-by-side:yuyv:10hz:{}", raw.display());
+            let live_run = tmp.path().join(format!("run-{rig}-live"));
+            track_run(&live, &raw.join("calib.yaml"), &live_run, &format!("raw-{rig}-live"), &[]);
+            assert!(live_run.join("settings.yaml").is_file() && !live_run.join("sequence").exists());
+            // Poses are on the device's clock (frame k at k / 10 s): the truth is put on it to compare.
+            let mut gt = bdis_core::formats::trajectory::read_tum(&raw.join("gt/poses.tum")).unwrap();
+            for (k, p) in gt.iter_mut().enumerate() {
+                p.t_s = k as f64 / 10.0;
+            }
+            let est = bdis_core::formats::trajectory::read_tum(&live_run.join("trajectory.tum")).unwrap();
+            let ate_l = bdis_eval::traj::ate(&gt, &est, 1e-3).unwrap().translation.rmse;
+            eprintln!("raw `{rig}` live, rectified in acquisition: ATE {ate_l:.4} mm over {} poses", est.len());
+            assert_eq!(est.len(), FRAMES, "a pose for every live frame");
+            assert!(ate_l <= 1.5 * ate_ref, "ATE {ate_l} mm live against {ate_ref} mm rendered rectified");
+        }
     }
 }

@@ -260,6 +260,32 @@ pub fn rectified_settings_for_video(
     Ok(camera)
 }
 
+/// The rectified camera's settings for a live source rectified in acquisition, written to `out`. The raw size
+/// is the calibration's own, or the replayed folder's for an emulated device (a real device is not opened
+/// here: it has one user, acquisition).
+pub fn rectified_settings_for_live(
+    calibration: &Path,
+    live: &bdis_source::LiveSpec,
+    out: &Path,
+) -> Result<bdis_core::calib::RectifiedCamera> {
+    let calib = load(calibration)?;
+    let views = match &live.backend {
+        bdis_source::live::Backend::Emulated { sequence, .. } => {
+            let folder = bdis_source::Sequence::open(sequence)?;
+            Some((folder.width, folder.height))
+        }
+        bdis_source::live::Backend::V4l2 { .. } => None,
+    };
+    let size = size_of(&calib, views, &format!("`{}` (its views)", live.text))
+        .with_context(|| "a live device's image size comes from the calibration (its width and height)")?;
+    let rect = rectification_of(&calib, size, None)?;
+    let Some(camera) = rect.camera() else {
+        bail!("{}: the baseline is vertical: the tracker needs a horizontal rig", calibration.display());
+    };
+    write_settings(out, &calib, &camera)?;
+    Ok(camera)
+}
+
 pub fn is_raw_calibration(path: &Path) -> bool {
     StereoCalibration::is_calibration(path)
 }

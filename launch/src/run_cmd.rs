@@ -81,6 +81,22 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
         rendered = Some((run_dir, settings));
     } else if let (Some(sequence), Some(settings)) = (&args.sequence, &args.settings)
         && calib_cmd::is_raw_calibration(settings)
+        && let Some(live) = sequence.to_str().and_then(bdis_source::LiveSpec::parse)
+    {
+        // A raw rig on a live device: acquisition rectifies each frame as it takes it.
+        let live = live?;
+        let run_dir = make_run_dir(args.out.as_deref(), "rectified-live")?;
+        let camera = calib_cmd::rectified_settings_for_live(settings, &live, &run_dir.join("settings.yaml"))?;
+        eprintln!(
+            "bdis-slam: {} is a raw stereo calibration: acquisition rectifies every live frame (fx {:.2}, bf {:.4})",
+            settings.display(),
+            camera.fx,
+            camera.bf
+        );
+        rectify_in_acquisition = Some(std::fs::canonicalize(settings).context("the calibration file")?);
+        rendered = Some((run_dir.clone(), run_dir.join("settings.yaml")));
+    } else if let (Some(sequence), Some(settings)) = (&args.sequence, &args.settings)
+        && calib_cmd::is_raw_calibration(settings)
         && let Some(video) = sequence.to_str().and_then(bdis_source::VideoSpec::parse)
     {
         // A raw video: acquisition rectifies each frame as it reads it (nothing is written to disk); the

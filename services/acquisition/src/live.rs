@@ -33,6 +33,8 @@ pub struct Options {
     pub start: usize,
     pub max_frames: Option<usize>,
     pub interlaced: Option<bdis_source::FieldMode>,
+    /// A raw stereo calibration to rectify every frame with, and its free scaling.
+    pub calibration: Option<(std::path::PathBuf, Option<f64>)>,
     /// Only open the devices, print what they deliver, and exit.
     pub check: bool,
     pub name: String,
@@ -42,8 +44,12 @@ pub struct Options {
 /// Opens the devices (an emulated one starts capturing) and checks them against the settings before any
 /// shared memory exists, then streams.
 pub fn open_and_run(options: Options) -> Result<()> {
-    let Options { spec, settings, start, max_frames, interlaced, check, name, ipc_prefix } = options;
+    let Options { spec, settings, start, max_frames, interlaced, calibration, check, name, ipc_prefix } = options;
     let mut source = LiveSource::open(&spec, start)?;
+    if let Some((path, alpha)) = &calibration {
+        let rectifier = crate::input::rectifier(path, source.view_size(), *alpha)?;
+        source = source.with_rectifier(rectifier).context("the rectification's maps do not fit the views")?;
+    }
     if let Some(mode) = interlaced {
         let (w, h) = source.view_size();
         source = source

@@ -144,13 +144,10 @@ fn run(args: Args) -> Result<()> {
     })
 }
 
-/// A live source: paced by its devices, so no --pacing; rectification is not applied to it yet.
+/// A live source: paced by its devices, so no --pacing.
 fn run_live(args: Args, spec: bdis_source::LiveSpec) -> Result<()> {
     if args.pacing != Pacing::OnDemand {
         anyhow::bail!("`{}`: a live source is paced by its devices; leave out --pacing", spec.text);
-    }
-    if args.calibration.is_some() {
-        anyhow::bail!("`{}`: --calibration is not applied to live sources yet; rectify in the grabber", spec.text);
     }
     live::open_and_run(live::Options {
         spec,
@@ -158,6 +155,7 @@ fn run_live(args: Args, spec: bdis_source::LiveSpec) -> Result<()> {
         start: args.start,
         max_frames: args.max_frames,
         interlaced: args.interlaced,
+        calibration: args.calibration.map(|path| (path, args.alpha)),
         check: args.check,
         name: args.name,
         ipc_prefix: args.ipc_prefix,

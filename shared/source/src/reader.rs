@@ -64,6 +64,36 @@ impl Rectifier {
     pub fn rectified_size(&self) -> (u32, u32) {
         (self.maps[0].width as u32, self.maps[0].height as u32)
     }
+
+    /// The size of the raw frames the maps read.
+    pub fn raw_size(&self) -> (u32, u32) {
+        (self.raw_layout.width, self.raw_layout.height)
+    }
+
+    /// Has `read` write the raw frame into the staging buffer (raw layout), then writes the rectified frame
+    /// (`layout`) into `payload`.
+    pub fn apply<T, E>(
+        &mut self,
+        layout: &FrameLayout,
+        payload: &mut [MaybeUninit<u8>],
+        read: impl FnOnce(&FrameLayout, &mut [MaybeUninit<u8>]) -> Result<T, E>,
+    ) -> Result<T, E> {
+        // SAFETY: a `u8` is a valid `MaybeUninit<u8>`, and the readers only ever write initialised bytes into
+        // the slice they are given, so the staging buffer stays initialised.
+        let staging = unsafe { &mut *(self.staging.as_mut_slice() as *mut [u8] as *mut [MaybeUninit<u8>]) };
+        let read = read(&self.raw_layout, staging)?;
+        let raw_n = self.raw_layout.width as usize * self.raw_layout.height as usize;
+        let n = layout.width as usize * layout.height as usize;
+        let (raw_left, rest) = self.staging.split_at(raw_n);
+        let (raw_right, raw_rgb) = rest.split_at(raw_n);
+        let (left, rest) = payload.split_at_mut(n);
+        let (right, rgb) = rest.split_at_mut(n);
+        let [left_map, right_map] = &self.maps;
+        left_map.remap(raw_left, 1, left);
+        right_map.remap(raw_right, 1, right);
+        left_map.remap(&raw_rgb[..3 * raw_n], 3, &mut rgb[..3 * n]);
+        Ok(read)
+    }
 }
 
 impl ReadError {
@@ -125,24 +155,13 @@ impl FrameReader {
             fields.mode.apply(&fields.staging, &fields.woven_layout, layout, payload);
             return Ok(());
         }
-        let Some(rect) = &mut self.rectifier else {
-            return read_raw(&mut self.images, &mut self.video, entry, layout, payload);
-        };
-        // SAFETY: a `u8` is a valid `MaybeUninit<u8>`, and the readers only ever write initialised bytes into
-        // the slice they are given, so the staging buffer stays initialised.
-        let staging = unsafe { &mut *(rect.staging.as_mut_slice() as *mut [u8] as *mut [MaybeUninit<u8>]) };
-        read_raw(&mut self.images, &mut self.video, entry, &rect.raw_layout, staging)?;
-        let raw_n = rect.raw_layout.width as usize * rect.raw_layout.height as usize;
-        let n = layout.width as usize * layout.height as usize;
-        let (raw_left, rest) = rect.staging.split_at(raw_n);
-        let (raw_right, raw_rgb) = rest.split_at(raw_n);
-        let (left, rest) = payload.split_at_mut(n);
-        let (right, rgb) = rest.split_at_mut(n);
-        let [left_map, right_map] = &rect.maps;
-        left_map.remap(raw_left, 1, left);
-        right_map.remap(raw_right, 1, right);
-        left_map.remap(&raw_rgb[..3 * raw_n], 3, &mut rgb[..3 * n]);
-        Ok(())
+        let Self { images, video, rectifier, .. } = self;
+        match rectifier {
+            Some(rect) => {
+                rect.apply(layout, payload, |raw_layout, staging| read_raw(images, video, entry, raw_layout, staging))
+            }
+            None => read_raw(images, video, entry, layout, payload),
+        }
     }
 }
 

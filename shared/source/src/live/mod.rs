@@ -222,6 +222,8 @@ pub struct LiveSource {
     converter: Converter,
     /// Interlaced devices: the woven frame is converted into this staging buffer, then split into fields.
     fields: Option<(crate::FieldMode, FrameLayout, Vec<u8>)>,
+    /// A raw stereo rig: each frame is converted into the rectifier's staging buffer, then remapped.
+    rectifier: Option<crate::Rectifier>,
     /// Frames one device delivered that found no partner from the other (two devices).
     pub unpaired: u64,
 }
@@ -259,12 +261,26 @@ impl LiveSource {
             views,
             converter: Converter::new(),
             fields: None,
+            rectifier: None,
             unpaired: 0,
         })
     }
 
+    /// Rectifies every frame (a raw rig's calibration, maps built for the views' size); `None` when the maps
+    /// are for another size, or together with fields.
+    pub fn with_rectifier(mut self, rectifier: crate::Rectifier) -> Option<Self> {
+        if rectifier.raw_size() != (self.views[0].width, self.views[0].height) || self.fields.is_some() {
+            return None;
+        }
+        self.rectifier = Some(rectifier);
+        Some(self)
+    }
+
     /// Publishes one field of each interlaced frame (or bobs it); `None` when the views cannot be split.
     pub fn with_fields(mut self, mode: crate::FieldMode) -> Option<Self> {
+        if self.rectifier.is_some() {
+            return None;
+        }
         let (w, h) = (self.views[0].width, self.views[0].height);
         mode.output_size(w, h)?;
         let woven = FrameLayout::packed(w, h)?;
@@ -275,9 +291,10 @@ impl LiveSource {
     /// The size of the published frames: each camera's view (one field of it, when interlaced).
     pub fn view_size(&self) -> (u32, u32) {
         let (w, h) = (self.views[0].width, self.views[0].height);
-        match &self.fields {
-            Some((mode, ..)) => mode.output_size(w, h).unwrap_or((w, h)),
-            None => (w, h),
+        match (&self.fields, &self.rectifier) {
+            (Some((mode, ..)), _) => mode.output_size(w, h).unwrap_or((w, h)),
+            (None, Some(rectifier)) => rectifier.rectified_size(),
+            (None, None) => (w, h),
         }
     }
 
@@ -322,6 +339,11 @@ impl LiveSource {
 
     /// Writes the complete frame into `payload` (left grey, right grey, left RGB).
     pub fn read_into(&mut self, layout: &FrameLayout, payload: &mut [MaybeUninit<u8>]) -> Result<Captured, LiveError> {
+        if let Some(mut rectifier) = self.rectifier.take() {
+            let read = rectifier.apply(layout, payload, |raw, staging| self.convert_into(raw, staging));
+            self.rectifier = Some(rectifier);
+            return read;
+        }
         let Some((mode, woven, mut staging)) = self.fields.take() else { return self.convert_into(layout, payload) };
         // SAFETY: a `u8` is a valid `MaybeUninit<u8>`, and the conversion writes only initialised bytes.
         let staging_uninit = unsafe { &mut *(staging.as_mut_slice() as *mut [u8] as *mut [MaybeUninit<u8>]) };
