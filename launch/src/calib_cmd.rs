@@ -239,8 +239,6 @@ pub struct Rectified {
     pub settings: PathBuf,
 }
 
-/// Whether `path` is a raw stereo calibration (`M1 … T`, or ORB-SLAM2's `LEFT`/`RIGHT` blocks), i.e. the
-/// images it goes with need rectifying first. A file that does not parse is not one (its reader says why).
 /// The rectified camera's settings for a raw video that acquisition rectifies as it reads, written to
 /// `out`; the rectified camera.
 pub fn rectified_settings_for_video(
@@ -252,11 +250,20 @@ pub fn rectified_settings_for_video(
     let source = bdis_source::VideoSource::open(video)?;
     let raw_size = (source.width, source.height);
     let size = size_of(&calib, Some(raw_size), &format!("{} (its frames)", video.left_file().display()))?;
-    let rect = rectification_of(&calib, size, None)?;
+    write_rectified_settings(&calib, size, out)
+}
+
+/// Rectifies `calib` for raw images of `size` and writes the rectified camera's settings to `out`.
+fn write_rectified_settings(
+    calib: &StereoCalibration,
+    size: (u32, u32),
+    out: &Path,
+) -> Result<bdis_core::calib::RectifiedCamera> {
+    let rect = rectification_of(calib, size, None)?;
     let Some(camera) = rect.camera() else {
-        bail!("{}: the baseline is vertical: the tracker needs a horizontal rig", calibration.display());
+        bail!("{}: the baseline is vertical: the tracker needs a horizontal rig", calib.source.display());
     };
-    write_settings(out, &calib, &camera)?;
+    write_settings(out, calib, &camera)?;
     Ok(camera)
 }
 
@@ -278,14 +285,11 @@ pub fn rectified_settings_for_live(
     };
     let size = size_of(&calib, views, &format!("`{}` (its views)", live.text))
         .with_context(|| "a live device's image size comes from the calibration (its width and height)")?;
-    let rect = rectification_of(&calib, size, None)?;
-    let Some(camera) = rect.camera() else {
-        bail!("{}: the baseline is vertical: the tracker needs a horizontal rig", calibration.display());
-    };
-    write_settings(out, &calib, &camera)?;
-    Ok(camera)
+    write_rectified_settings(&calib, size, out)
 }
 
+/// Whether `path` is a raw stereo calibration (`M1 … T`, or ORB-SLAM2's `LEFT`/`RIGHT` blocks), i.e. the
+/// images it goes with need rectifying first. A file that does not parse is not one (its reader says why).
 pub fn is_raw_calibration(path: &Path) -> bool {
     StereoCalibration::is_calibration(path)
 }
