@@ -87,17 +87,15 @@ impl V4l2Device {
     /// (linuxvideo 0.3.5 does not hand out the driver's buffer timestamp), so capture → pose latency from a
     /// V4L2 device leaves out the driver's own delay.
     pub fn take(&mut self, pending: &mut Pending) -> Result<Take, LiveError> {
-        let mut took = false;
         let path = &self.path;
         let io = |e: std::io::Error| LiveError::Device {
             path: path.clone(),
             what: "dequeue a frame",
             detail: e.to_string(),
         };
-        loop {
-            if took && self.stream.will_block().map_err(io)? {
-                break;
-            }
+        // Only buffers the driver has filled: a wake-up may come from the other device or the WaitSet's timeout,
+        // and a dequeue with none filled would block acquisition until this device delivers.
+        while !self.stream.will_block().map_err(io)? {
             let data = &mut pending.data;
             let corrupt = self
                 .stream
@@ -117,7 +115,6 @@ impl V4l2Device {
                 let t_first = *self.t_first_ns.get_or_insert(now);
                 pending.fill(sequence, now, now - t_first);
             }
-            took = true;
         }
         Ok(if pending.full { Take::Frame } else { Take::Nothing })
     }
