@@ -70,8 +70,6 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
     let mut rendered: Option<(PathBuf, PathBuf)> = None;
     // A raw calibration that acquisition applies as it reads (a video).
     let mut rectify_in_acquisition: Option<PathBuf> = None;
-    // Woven frames that acquisition splits into fields (`--interlaced`).
-    let mut interlaced_source: Option<PathBuf> = None;
     if let Some(request) = args.sequence.as_ref().and_then(|s| s.to_str()).and_then(bdis_source::parse_synthetic) {
         let request = request.map_err(anyhow::Error::msg)?;
         let run_dir = make_run_dir(args.out.as_deref(), &format!("synthetic-{}", request.scene))?;
@@ -141,17 +139,15 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
         let field_settings = run_dir.join("settings.yaml");
         crate::fields::write_field_settings(settings, mode, &field_settings)?;
         rendered = Some((run_dir, field_settings));
-        interlaced_source = Some(sequence.clone());
     } else if args.interlaced.is_some() {
         anyhow::bail!("--interlaced takes a sequence of woven frames with their (rectified) settings");
     }
     // The sequence to plan for: the rendered (or rectified) one, or the one given.
     let sequence = match (&args.sequence, &rendered) {
-        (Some(_), Some((_, settings))) if interlaced_source.is_some() => {
-            interlaced_source.clone().map(|s| (s, Some(settings.clone())))
-        }
-        (Some(video), Some((_, settings))) if rectify_in_acquisition.is_some() => {
-            Some((video.clone(), Some(settings.clone())))
+        // Acquisition reads the given sequence (rectifying it, or splitting its fields) with the run folder's
+        // settings.
+        (Some(sequence), Some((_, settings))) if rectify_in_acquisition.is_some() || args.interlaced.is_some() => {
+            Some((sequence.clone(), Some(settings.clone())))
         }
         (Some(_), Some((run_dir, settings))) => Some((run_dir.join("sequence"), Some(settings.clone()))),
         (Some(sequence), None) => Some((sequence.clone(), args.settings.clone())),
@@ -163,7 +159,7 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
             let input = crate::plan::PlanInput {
                 sequence: &sequence,
                 settings: settings.as_deref(),
-                interlaced: args.interlaced.filter(|_| interlaced_source.is_some()),
+                interlaced: args.interlaced,
             };
             let mut plan =
                 plan_for_sequence(input, args.pacing, args.checksums, args.stereo_every, args.track, &args.map_params)?;

@@ -8,18 +8,12 @@ use bdis_source::{CheckedInput, FrameEntry, Sequence};
 /// checked against those, not against the woven frames on disk.
 pub fn adopt_settings(input: &mut CheckedInput, path: &std::path::Path, published: (u32, u32)) -> Result<()> {
     let settings = bdis_core::Settings::load(path)?;
-    for (field, expected, actual) in
-        [("Camera.width", settings.camera.width, published.0), ("Camera.height", settings.camera.height, published.1)]
-    {
-        if let Some(expected) = expected
-            && expected != actual
-        {
-            anyhow::bail!(
-                "{}: {field} is {expected}, but the published frames are {actual} (with --interlaced the settings \
-                 describe the field: `bdis-slam run --interlaced` writes them from the frame's)",
-                path.display()
-            );
-        }
+    if let Some((field, expected, actual)) = bdis_source::size_mismatch(&settings.camera, published) {
+        anyhow::bail!(
+            "{}: {field} is {expected}, but the published frames are {actual} (with --interlaced the settings \
+             describe the field: `bdis-slam run --interlaced` writes them from the frame's)",
+            path.display()
+        );
     }
     input.camera = Some(settings.camera);
     input.fps = Some(settings.fps);

@@ -8,7 +8,7 @@ use std::time::Duration;
 
 use anyhow::{Context, Result};
 use bdis_ipc::telemetry::MessageTiming;
-use bdis_ipc::{FrameHeader, FrameLayout, event_id, monotonic_ns};
+use bdis_ipc::{FrameHeader, FrameLayout, event_id};
 use bdis_source::live::{LiveSource, Poll};
 use iceoryx2::prelude::*;
 use iceoryx2::waitset::WaitSetRunResult;
@@ -59,13 +59,8 @@ pub fn open_and_run(options: Options) -> Result<()> {
     let (width, height) = source.view_size();
     if let Some(path) = &settings {
         let settings = bdis_core::Settings::load(path)?;
-        if let (Some(w), Some(h)) = (settings.camera.width, settings.camera.height)
-            && (w, h) != (width, height)
-        {
-            anyhow::bail!(
-                "{}: Camera.width × Camera.height is {w}×{h}, but the live views are {width}×{height}",
-                path.display()
-            );
+        if let Some((field, expected, _)) = bdis_source::size_mismatch(&settings.camera, (width, height)) {
+            anyhow::bail!("{}: {field} is {expected}, but the live views are {width}×{height}", path.display());
         }
     }
     let layout = FrameLayout::packed(width, height)
@@ -174,11 +169,10 @@ pub fn run(config: Config) -> Result<()> {
             dropped += captured.sequence.saturating_sub(last_sequence.map_or(0, |last| last + 1));
             last_sequence = Some(captured.sequence);
             // SAFETY: read_into wrote every byte of the packed layout, which is the whole loaned slice.
-            let mut sample = unsafe { sample.assume_init() };
-            let header = sample.user_header_mut();
+            let sample = unsafe { sample.assume_init() };
             // Frames are numbered as published (consumers count their own misses from the gaps); the device's
             // number is kept as the source index.
-            *header = FrameHeader {
+            let header = FrameHeader {
                 frame_seq: published,
                 t_capture_ns: captured.t_capture_ns,
                 // The device's clock from the start of its stream: what a recording's timestamps are.
@@ -187,16 +181,13 @@ pub fn run(config: Config) -> Result<()> {
                 flags: if answer_join { FrameHeader::ANSWERS_JOIN } else { 0 },
                 ..Default::default()
             };
-            layout.write_into(header);
-            let t_publish_ns = monotonic_ns();
-            header.t_publish_ns = t_publish_ns;
-            if let Err(e) = sample.send() {
-                result = Err(anyhow::Error::new(e).context(format!("send frame {published}")));
-                break 'stream false;
-            }
-            if let Err(e) = bdis_ipc::notify(&ports.notifier, event_id::NEW_SAMPLE) {
-                tracing::warn!("frame {published}: {:#}", anyhow::Error::from(e));
-            }
+            let t_publish_ns = match ports.publish(sample, header, &layout) {
+                Ok(t) => t,
+                Err(e) => {
+                    result = Err(e);
+                    break 'stream false;
+                }
+            };
             published += 1;
             answer_join = false;
             ports.telemetry.message(

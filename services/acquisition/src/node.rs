@@ -165,9 +165,8 @@ pub fn run(config: Config) -> Result<()> {
             }
         }
         // SAFETY: read_into wrote every byte of the packed layout, which is the whole loaned slice.
-        let mut sample = unsafe { sample.assume_init() };
-        let header = sample.user_header_mut();
-        *header = FrameHeader {
+        let sample = unsafe { sample.assume_init() };
+        let header = FrameHeader {
             frame_seq: index as u64,
             t_capture_ns,
             t_source_ns: entry.t_source_s.map_or(0, |t| (t * 1e9) as u64),
@@ -175,16 +174,13 @@ pub fn run(config: Config) -> Result<()> {
             flags: if answer_join { FrameHeader::ANSWERS_JOIN } else { 0 },
             ..Default::default()
         };
-        layout.write_into(header);
-        let t_publish_ns = monotonic_ns();
-        header.t_publish_ns = t_publish_ns;
-        if let Err(e) = sample.send() {
-            end = End::Failed(anyhow::Error::new(e).context(format!("send frame {index}")));
-            break;
-        }
-        if let Err(e) = bdis_ipc::notify(&ports.notifier, event_id::NEW_SAMPLE) {
-            tracing::warn!("frame {index}: {:#}", anyhow::Error::from(e));
-        }
+        let t_publish_ns = match ports.publish(sample, header, &layout) {
+            Ok(t) => t,
+            Err(e) => {
+                end = End::Failed(e);
+                break;
+            }
+        };
         published += 1;
         answer_join = false;
         ports.telemetry.message(

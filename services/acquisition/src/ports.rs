@@ -1,11 +1,12 @@
 //! The shared-memory ports of an acquisition instance, the same for a sequence and for a live source.
 
 use anyhow::Result;
-use bdis_ipc::{FrameHeader, FramesService, Ipc, TelemetryPublisher, Topic, event_id, monotonic_ns};
+use bdis_ipc::{FrameHeader, FrameLayout, FramesService, Ipc, TelemetryPublisher, Topic, event_id, monotonic_ns};
 use iceoryx2::port::listener::Listener;
 use iceoryx2::port::notifier::Notifier;
 use iceoryx2::port::publisher::Publisher;
 use iceoryx2::prelude::*;
+use iceoryx2::sample_mut::SampleMut;
 
 pub struct Ports {
     /// The frames service, kept open for its subscriber count.
@@ -38,6 +39,27 @@ impl Ports {
             frames,
             ipc,
         })
+    }
+
+    /// Sends a filled frame with `header` (completed with the payload's layout and the publish time) and wakes
+    /// the consumers; the publish time.
+    pub fn publish(
+        &self,
+        mut sample: SampleMut<ipc::Service, [u8], FrameHeader>,
+        header: FrameHeader,
+        layout: &FrameLayout,
+    ) -> Result<u64> {
+        let frame_seq = header.frame_seq;
+        let slot = sample.user_header_mut();
+        *slot = header;
+        layout.write_into(slot);
+        let t_publish_ns = monotonic_ns();
+        slot.t_publish_ns = t_publish_ns;
+        sample.send().map_err(|e| anyhow::Error::new(e).context(format!("send frame {frame_seq}")))?;
+        if let Err(e) = bdis_ipc::notify(&self.notifier, event_id::NEW_SAMPLE) {
+            tracing::warn!("frame {frame_seq}: {:#}", anyhow::Error::from(e));
+        }
+        Ok(t_publish_ns)
     }
 
     /// Sends the end of the stream, numbered after the last frame, so consumers stop cleanly and keep what

@@ -15,7 +15,7 @@ pub use fields::FieldMode;
 pub use live::{LiveError, LiveSource, LiveSpec};
 pub use pacing::{Pacing, Schedule};
 pub use reader::{FrameReader, ReadError, Rectifier};
-pub use source::{FrameEntry, Layout, Sequence, SourceError};
+pub use source::{FrameEntry, Layout, Sequence, SourceError, size_mismatch};
 pub use video::{Arrangement, VideoDecoder, VideoError, VideoSource, VideoSpec};
 
 use std::path::{Path, PathBuf};

@@ -384,22 +384,16 @@ impl Sequence {
 
     /// Checks the sequence against a calibration's image size, when the calibration states one.
     pub fn check_camera(&self, camera: &StereoCamera, settings_path: &Path) -> Result<(), SourceError> {
-        for (field, expected, actual) in
-            [("Camera.width", camera.width, self.width), ("Camera.height", camera.height, self.height)]
-        {
-            if let Some(expected) = expected
-                && expected != actual
-            {
-                return Err(SourceError::SettingsMismatch {
-                    settings: settings_path.to_path_buf(),
-                    field,
-                    expected,
-                    actual,
-                    image: self.frames[0].left.clone(),
-                });
-            }
+        match size_mismatch(camera, (self.width, self.height)) {
+            Some((field, expected, actual)) => Err(SourceError::SettingsMismatch {
+                settings: settings_path.to_path_buf(),
+                field,
+                expected,
+                actual,
+                image: self.frames[0].left.clone(),
+            }),
+            None => Ok(()),
         }
-        Ok(())
     }
 
     pub fn len(&self) -> usize {
@@ -409,6 +403,14 @@ impl Sequence {
     pub fn is_empty(&self) -> bool {
         self.frames.is_empty()
     }
+}
+
+/// The first of `Camera.width` / `Camera.height` that a camera states and that differs from `size`: the field,
+/// the camera's value and the size's.
+pub fn size_mismatch(camera: &StereoCamera, size: (u32, u32)) -> Option<(&'static str, u32, u32)> {
+    [("Camera.width", camera.width, size.0), ("Camera.height", camera.height, size.1)]
+        .into_iter()
+        .find_map(|(field, expected, actual)| expected.filter(|&e| e != actual).map(|e| (field, e, actual)))
 }
 
 #[cfg(test)]

@@ -61,8 +61,8 @@ impl std::fmt::Debug for Message {
 }
 
 impl EmulatedDevice {
-    /// Starts the device on `sequence`'s frames from `first` (at most `frames` of them), the first captured at
-    /// `t_start_ns` and the others `1/rate_hz` apart.
+    /// Starts the device on `sequence`'s frames, the first captured at `t_start_ns` and the others `1/rate_hz`
+    /// apart.
     pub fn start(
         sequence: &Sequence,
         views: Views,

@@ -18,7 +18,7 @@ mod v4l2;
 
 use std::mem::MaybeUninit;
 use std::os::fd::BorrowedFd;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 use bdis_ipc::FrameLayout;
 
@@ -366,16 +366,14 @@ impl LiveSource {
         for p in &mut self.pending {
             p.full = false;
         }
-        if let [one] = &self.devices[..] {
-            let decoded = self.converter.decode(&self.pending[0].data, &one.format()).map_err(convert)?;
-            decoded.view_into(self.views[0], left_gray, Some(&mut rgb[..3 * n]));
+        // The left view (with its colour) from the first device; the right from the same image (one device) or
+        // from the second device's.
+        let decoded = self.converter.decode(&self.pending[0].data, &self.devices[0].format()).map_err(convert)?;
+        decoded.view_into(self.views[0], left_gray, Some(&mut rgb[..3 * n]));
+        if let [_, second] = &self.devices[..] {
+            let decoded = self.converter.decode(&self.pending[1].data, &second.format()).map_err(convert)?;
             decoded.view_into(self.views[1], right_gray, None);
         } else {
-            let format = self.devices[0].format();
-            let decoded = self.converter.decode(&self.pending[0].data, &format).map_err(convert)?;
-            decoded.view_into(self.views[0], left_gray, Some(&mut rgb[..3 * n]));
-            let format = self.devices[1].format();
-            let decoded = self.converter.decode(&self.pending[1].data, &format).map_err(convert)?;
             decoded.view_into(self.views[1], right_gray, None);
         }
         Ok(captured)
@@ -419,9 +417,4 @@ fn views_of(spec: &LiveSpec, devices: &[Device]) -> Result<Vec<View>, LiveError>
         }
     }
     Ok(views)
-}
-
-/// True when `path` names a live source (`live:…`).
-pub fn is_live(path: &Path) -> bool {
-    path.to_str().is_some_and(|s| s.starts_with("live:"))
 }
