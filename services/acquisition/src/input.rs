@@ -30,7 +30,10 @@ pub fn print_check(sequence: &Sequence) {
         _ => "no".to_string(),
     };
     let layout = match sequence.layout {
-        bdis_source::Layout::Video(arrangement) => format!("video ({})", arrangement.name()),
+        bdis_source::Layout::Video(arrangement) => {
+            let decoder = sequence.video.as_ref().map_or("ffmpeg", |v| v.decoder);
+            format!("video ({}, {decoder})", arrangement.name())
+        }
         other => format!("{other:?}"),
     };
     println!(

@@ -5,7 +5,8 @@
 //!
 //! Per source: the median wall time per frame on the reading thread (what a frame waits), that thread's CPU
 //! per frame, and, for a video, the ffmpeg child's CPU per frame (from `getrusage(RUSAGE_CHILDREN)` once it
-//! has been reaped): decoding runs in the child, on whichever core is free.
+//! has been reaped): decoding runs in the child, on whichever core is free. Y4M and MJPEG AVI are decoded on
+//! the reading thread (no child): their decoder is named after the source.
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
 use std::mem::MaybeUninit;
@@ -31,7 +32,7 @@ fn main() {
         }
         _ => None,
     };
-    println!("{:<60} {:>7} {:>11} {:>13} {:>12}", "source", "frames", "wall ms p50", "thread CPU ms", "ffmpeg CPU ms");
+    println!("{:<80} {:>7} {:>11} {:>13} {:>12}", "source", "frames", "wall ms p50", "thread CPU ms", "ffmpeg CPU ms");
     for source in args {
         let sequence = match bdis_source::Sequence::open(Path::new(&source)) {
             Ok(s) => s,
@@ -61,10 +62,11 @@ fn main() {
         drop(reader);
         let child_ms = (children_cpu_s() - children_before) * 1e3 / sequence.len() as f64;
         wall_ms.sort_by(f64::total_cmp);
-        let name = format!("{source} ({}×{})", sequence.width, sequence.height);
+        let decoder = sequence.video.as_ref().map_or(String::new(), |v| format!(", {}", v.decoder));
+        let name = format!("{source} ({}×{}{decoder})", sequence.width, sequence.height);
         println!(
-            "{:<60} {:>7} {:>11.2} {:>13.2} {:>12.2}",
-            name.chars().rev().take(60).collect::<Vec<_>>().into_iter().rev().collect::<String>(),
+            "{:<80} {:>7} {:>11.2} {:>13.2} {:>12.2}",
+            name.chars().rev().take(80).collect::<Vec<_>>().into_iter().rev().collect::<String>(),
             sequence.len(),
             wall_ms[wall_ms.len() / 2],
             thread_cpu_ms,

@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Makes the sources decode_cost.rs measures from real footage (../shared/data/kitti-a, 51 stereo frames), scaled
 # to 640×480 and 1920×1080: PNG pairs, a stacked H.264 mp4 as a recorder writes it (CRF 18, 4:2:0), the same
-# lossless, a side-by-side MJPEG AVI, and two FFV1 files; then measures them.
+# lossless, a side-by-side MJPEG AVI (read in process, without ffmpeg), a stacked Y4M (4:2:0, read in process)
+# and two FFV1 files; then measures them.
 # Usage: shared/source/examples/decode_cost.sh [WORK_DIR]
 set -euo pipefail
 cd "$(dirname "$0")/../../.."
@@ -18,11 +19,13 @@ for size in 640x480 1920x1080; do
   ffmpeg -v error -y "${in[@]}" -filter_complex vstack -c:v libx264 -crf 18 -pix_fmt yuv420p "$d/stacked.mp4"
   ffmpeg -v error -y "${in[@]}" -filter_complex vstack -c:v libx264 -qp 0 -pix_fmt yuv444p "$d/stacked-lossless.mp4"
   ffmpeg -v error -y "${in[@]}" -filter_complex hstack -c:v mjpeg -q:v 2 -pix_fmt yuvj422p "$d/side-by-side.avi"
+  ffmpeg -v error -y "${in[@]}" -filter_complex vstack -pix_fmt yuv420p "$d/stacked.y4m"
   for side in left right; do
     ffmpeg -v error -y -framerate 10 -i "$d/seq/$side/%d.png" -c:v ffv1 -pix_fmt bgr0 "$d/$side.mkv"
   done
   sources+=("$d/seq" "video:top-bottom:$d/stacked.mp4" "video:top-bottom:$d/stacked-lossless.mp4"
-            "video:side-by-side:$d/side-by-side.avi" "video:two-files:$d/left.mkv,$d/right.mkv")
+            "video:side-by-side:$d/side-by-side.avi" "video:top-bottom:$d/stacked.y4m"
+            "video:two-files:$d/left.mkv,$d/right.mkv")
 done
 cargo run -q --release -j2 -p bdis-source --example decode_cost -- "${sources[@]}"
 # The same, rectified as it is read (acquisition's --calibration): the sample rig of tests/calibrations scaled to

@@ -37,6 +37,15 @@ pub fn gray_of(r: u8, g: u8, b: u8) -> u8 {
     ((u32::from(r) * 4899 + u32::from(g) * 9617 + u32::from(b) * 1868 + 8192) >> 14) as u8
 }
 
+/// BT.601 studio-range YUV to full-range RGB, in 8-bit fixed point (capture devices, Y4M).
+#[inline]
+pub(crate) fn rgb_of_yuv(y: u8, u: u8, v: u8) -> [u8; 3] {
+    let c = 298 * (i32::from(y) - 16) + 128;
+    let (d, e) = (i32::from(u) - 128, i32::from(v) - 128);
+    let clamp = |x: i32| (x >> 8).clamp(0, 255) as u8;
+    [clamp(c + 409 * e), clamp(c - 100 * d - 208 * e), clamp(c + 516 * d)]
+}
+
 fn decode_into(path: &Path, buf: &mut Vec<u8>, width: u32, height: u32) -> Result<Decoded, DecodeError> {
     let fail = |detail: String| DecodeError::Decode { path: path.to_path_buf(), detail };
     let decoder = image::ImageReader::open(path)

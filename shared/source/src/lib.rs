@@ -16,7 +16,7 @@ pub use live::{LiveError, LiveSource, LiveSpec};
 pub use pacing::{Pacing, Schedule};
 pub use reader::{FrameReader, ReadError, Rectifier};
 pub use source::{FrameEntry, Layout, Sequence, SourceError, size_mismatch};
-pub use video::{Arrangement, VideoDecoder, VideoError, VideoSource, VideoSpec};
+pub use video::{Arrangement, VideoDecoder, VideoError, VideoSource, VideoSpec, split_into};
 
 use std::path::{Path, PathBuf};
 

@@ -32,6 +32,7 @@ pub const TARGETS: &[Target] = &[
     ("journal", journal),
     ("map_bin", map_bin),
     ("launch_file", launch_file),
+    ("video_native", video_native),
     ("ipc_frame", frame),
     ("ipc_keyframe", keyframe),
     ("ipc_depth", depth),
@@ -130,6 +131,12 @@ pub fn calibration_hamlyn(data: &[u8]) {
     if let Ok(calib) = bdis_rectify::formats::parse_hamlyn(path(), [left, right, extrinsic]) {
         check_calibration(&calib);
     }
+}
+
+/// A video file read without ffmpeg (Y4M, Motion-JPEG AVI): indexed, then every frame it lists decoded. The
+/// reader itself asserts that every indexed frame lies inside the file and has a finite time.
+pub fn video_native(data: &[u8]) {
+    let _ = bdis_source::video::index_and_decode(data);
 }
 
 pub fn pfm(data: &[u8]) {

@@ -9,7 +9,7 @@ use std::mem::MaybeUninit;
 
 use image::ImageDecoder;
 
-use crate::decode::gray_of;
+use crate::decode::{gray_of, rgb_of_yuv};
 
 /// A pixel format a capture device delivers that bdis-slam reads.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -177,15 +177,6 @@ impl Converter {
 #[inline]
 fn gray_of_luma(y: u8) -> u8 {
     ((298 * (i32::from(y) - 16) + 128) >> 8).clamp(0, 255) as u8
-}
-
-/// BT.601 studio-range YUV to full-range RGB, in 8-bit fixed point.
-#[inline]
-fn rgb_of_yuv(y: u8, u: u8, v: u8) -> [u8; 3] {
-    let c = 298 * (i32::from(y) - 16) + 128;
-    let (d, e) = (i32::from(u) - 128, i32::from(v) - 128);
-    let clamp = |x: i32| (x >> 8).clamp(0, 255) as u8;
-    [clamp(c + 409 * e), clamp(c - 100 * d - 208 * e), clamp(c + 516 * d)]
 }
 
 impl Decoded<'_> {

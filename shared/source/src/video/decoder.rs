@@ -10,11 +10,51 @@ use std::sync::mpsc::{Receiver, SyncSender, sync_channel};
 
 use bdis_ipc::FrameLayout;
 
+use super::native::{self, NativeReader};
 use super::{Arrangement, VideoError, VideoSource};
 use crate::decode::gray_of;
 
+/// One file's decoder: the container read here, or an ffmpeg child.
+enum Decoding {
+    Native(NativeReader),
+    Ffmpeg(FfmpegDecoding),
+}
+
+impl Decoding {
+    fn start(path: &Path, first_frame: u64, timestamps_s: &[f64]) -> Result<Self, VideoError> {
+        Ok(match native::index(path)? {
+            Some(index) => {
+                let mut reader = NativeReader::open(path, index)?;
+                reader.seek_to(first_frame, timestamps_s);
+                Decoding::Native(reader)
+            }
+            None => Decoding::Ffmpeg(FfmpegDecoding::start(path, first_frame, timestamps_s.to_vec())?),
+        })
+    }
+
+    /// Reads the next frame into `buf` and returns its frame number (by its time). `Ok(None)` at the end.
+    fn read_frame(&mut self, buf: &mut [u8], timestamps_s: &[f64]) -> Result<Option<u64>, VideoError> {
+        match self {
+            Decoding::Native(reader) => reader.read_frame(buf, timestamps_s),
+            Decoding::Ffmpeg(child) => child.read_frame(buf),
+        }
+    }
+
+    /// Why the file ended before its last frame, for [`VideoError::EndedEarly`].
+    fn ended(&mut self, decoded: u64, expected: usize) -> VideoError {
+        match self {
+            Decoding::Native(reader) => {
+                VideoError::EndedEarly { path: reader.path().to_path_buf(), decoded, expected, stderr: String::new() }
+            }
+            Decoding::Ffmpeg(child) => {
+                VideoError::EndedEarly { path: child.path.clone(), decoded, expected, stderr: child.last_words() }
+            }
+        }
+    }
+}
+
 /// One ffmpeg child decoding one file to raw RGB on its stdout.
-struct Decoding {
+struct FfmpegDecoding {
     path: PathBuf,
     child: Child,
     stdout: ChildStdout,
@@ -57,7 +97,7 @@ fn read_stderr(stderr: ChildStderr, times: SyncSender<f64>) -> String {
     }
 }
 
-impl Decoding {
+impl FfmpegDecoding {
     fn start(path: &Path, first_frame: u64, timestamps_s: Vec<f64>) -> Result<Self, VideoError> {
         let mut command = Command::new("ffmpeg");
         command.args(["-nostdin", "-hide_banner", "-nostats", "-loglevel", "info", "-i"]).arg(path);
@@ -128,7 +168,7 @@ impl Decoding {
     }
 }
 
-impl Drop for Decoding {
+impl Drop for FfmpegDecoding {
     fn drop(&mut self) {
         let _ = self.child.kill();
         let _ = self.child.wait();
@@ -180,9 +220,19 @@ impl VideoDecoder {
     /// Starts the decoder(s) at `frame`: before the first frame is due, so ffmpeg's start-up is not a frame's
     /// latency; and again when a replay goes back further than the kept frames.
     pub fn start_at(&mut self, frame: u64) -> Result<(), VideoError> {
+        // A file read here is indexed: going back is a seek, not a new decoder.
+        if !self.decoding.is_empty() && self.decoding.iter().all(|d| matches!(d, Decoding::Native(_))) {
+            for d in &mut self.decoding {
+                if let Decoding::Native(reader) = d {
+                    reader.seek_to(frame, &self.source.timestamps_s);
+                }
+            }
+            self.next_frame = frame;
+            return Ok(());
+        }
         self.decoding.clear();
         for f in &self.source.spec.files {
-            self.decoding.push(Decoding::start(f, frame, self.source.timestamps_s.clone())?);
+            self.decoding.push(Decoding::start(f, frame, &self.source.timestamps_s)?);
         }
         self.next_frame = frame;
         Ok(())
@@ -199,26 +249,22 @@ impl VideoDecoder {
         let bytes = self.file_frame_bytes();
         slot.left.resize(bytes, 0);
         let expected = self.source.timestamps_s.len();
-        let ended = |d: &mut Decoding, decoded: u64| VideoError::EndedEarly {
-            path: d.path.clone(),
-            decoded,
-            expected,
-            stderr: d.last_words(),
-        };
+        let ended = |d: &mut Decoding, decoded: u64| d.ended(decoded, expected);
+        let times = &self.source.timestamps_s;
         let next = self.next_frame;
         let (first, rest) = self.decoding.split_first_mut().ok_or_else(|| VideoError::Pipe {
             path: self.source.spec.left_file().to_path_buf(),
             detail: "no decoder running".into(),
         })?;
-        let mut frame = first.read_frame(&mut slot.left)?.ok_or_else(|| ended(first, next))?;
+        let mut frame = first.read_frame(&mut slot.left, times)?.ok_or_else(|| ended(first, next))?;
         if let Some(second) = rest.first_mut() {
             slot.right.resize(bytes, 0);
-            let mut right = second.read_frame(&mut slot.right)?.ok_or_else(|| ended(second, next))?;
+            let mut right = second.read_frame(&mut slot.right, times)?.ok_or_else(|| ended(second, next))?;
             while right != frame {
                 if right < frame {
-                    right = second.read_frame(&mut slot.right)?.ok_or_else(|| ended(second, next))?;
+                    right = second.read_frame(&mut slot.right, times)?.ok_or_else(|| ended(second, next))?;
                 } else {
-                    frame = first.read_frame(&mut slot.left)?.ok_or_else(|| ended(first, next))?;
+                    frame = first.read_frame(&mut slot.left, times)?.ok_or_else(|| ended(first, next))?;
                 }
             }
         }

@@ -3,11 +3,17 @@
 //! Decoding goes through the `ffmpeg` command-line tool as a child process that writes raw RGB frames on a
 //! pipe: every codec ffmpeg knows, no libav linked into the product (Debian's build is GPL), and a decoder that
 //! crashes on a corrupt file takes down its child, not acquisition. Timestamps are the container's (packet
-//! presentation times, read once by `ffprobe` before the first frame is published).
+//! presentation times, read once by `ffprobe` before the first frame is published). Y4M and Motion-JPEG AVI
+//! are read here instead, without ffmpeg (`native`): they need no codec the product does not already have.
 
+mod avi;
 mod decoder;
+mod native;
+mod y4m;
 
 pub use decoder::{VideoDecoder, split_into};
+#[doc(hidden)]
+pub use native::index_and_decode;
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
@@ -136,6 +142,8 @@ pub struct VideoProbe {
     pub height: u32,
     /// Presentation time of each frame in seconds, in display order.
     pub timestamps_s: Vec<f64>,
+    /// Who decodes it: `ffmpeg`, or the container read here.
+    pub decoder: &'static str,
 }
 
 fn run_tool(tool: &'static str, args: &[&std::ffi::OsStr], path: &Path) -> Result<String, VideoError> {
@@ -165,6 +173,10 @@ fn ffprobe(path: &Path, entries: &str) -> Result<String, VideoError> {
 pub fn probe(path: &Path) -> Result<VideoProbe, VideoError> {
     if !path.is_file() {
         return Err(VideoError::Missing { path: path.to_path_buf() });
+    }
+    if let Some(index) = native::index(path)? {
+        let decoder = index.decoder();
+        return Ok(VideoProbe { width: index.width, height: index.height, timestamps_s: index.timestamps_s, decoder });
     }
     let bad = |detail: String| VideoError::Probe { path: path.to_path_buf(), detail };
     let stream = ffprobe(path, "stream=width,height")?;
@@ -214,7 +226,7 @@ pub fn probe(path: &Path) -> Result<VideoProbe, VideoError> {
     }
     let mut timestamps_s: Vec<f64> = times.into_iter().flatten().collect();
     timestamps_s.sort_by(f64::total_cmp);
-    Ok(VideoProbe { width, height, timestamps_s })
+    Ok(VideoProbe { width, height, timestamps_s, decoder: "ffmpeg" })
 }
 
 /// A checked video source: its views' size and every frame's time.
@@ -225,6 +237,8 @@ pub struct VideoSource {
     pub width: u32,
     pub height: u32,
     pub timestamps_s: Vec<f64>,
+    /// Who decodes the (left) file: `ffmpeg`, or the container read here.
+    pub decoder: &'static str,
 }
 
 impl VideoSource {
@@ -261,7 +275,7 @@ impl VideoSource {
                 });
             }
         };
-        Ok(Self { spec: spec.clone(), width, height, timestamps_s: left.timestamps_s })
+        Ok(Self { spec: spec.clone(), width, height, timestamps_s: left.timestamps_s, decoder: left.decoder })
     }
 }
 

@@ -1,0 +1,225 @@
+//! YUV4MPEG2 (`.y4m`): a one-line header, then per frame a `FRAME` line and the raw planes (Y, then U and V
+//! at the header's chroma subsampling). Read here, without ffmpeg, for 8-bit 4:2:0, 4:2:2, 4:4:4 and mono;
+//! other colour spaces (10-bit, alpha) are left to ffmpeg.
+
+use std::io::SeekFrom;
+use std::path::Path;
+
+use super::VideoError;
+use super::native::{Container, FrameSpan, MAX_SIDE, NativeIndex, ReadSeek};
+
+/// How the chroma planes are subsampled (horizontal, vertical), or no chroma at all.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(super) enum Chroma {
+    Sub { x: u32, y: u32 },
+    Mono,
+}
+
+/// What a Y4M frame's planes are.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(super) struct PlaneLayout {
+    pub width: u32,
+    pub height: u32,
+    pub chroma: Chroma,
+    /// `XCOLORRANGE=FULL`: luma and chroma use 0..255 (JPEG); otherwise the studio range of BT.601.
+    pub full_range: bool,
+}
+
+impl PlaneLayout {
+    fn chroma_size(&self) -> (usize, usize) {
+        match self.chroma {
+            Chroma::Sub { x, y } => (self.width.div_ceil(x) as usize, self.height.div_ceil(y) as usize),
+            Chroma::Mono => (0, 0),
+        }
+    }
+
+    /// Bytes of one frame's planes.
+    pub fn frame_bytes(&self) -> u64 {
+        let (cw, ch) = self.chroma_size();
+        u64::from(self.width) * u64::from(self.height) + 2 * (cw * ch) as u64
+    }
+
+    /// Converts one frame's planes to packed RGB (`width × height × 3` bytes in `rgb`). BT.601, as ffmpeg
+    /// assumes for an untagged Y4M; each chroma sample is used for the pixels it covers.
+    pub fn convert_into_rgb(&self, planes: &[u8], rgb: &mut [u8]) {
+        let (w, h) = (self.width as usize, self.height as usize);
+        let (cw, ch) = self.chroma_size();
+        let (luma, chroma) = planes.split_at(w * h);
+        let (u_plane, v_plane) = chroma.split_at(cw * ch);
+        let convert = if self.full_range { rgb_of_full_yuv } else { crate::decode::rgb_of_yuv };
+        for y in 0..h {
+            let luma_row = &luma[y * w..(y + 1) * w];
+            let out = &mut rgb[3 * y * w..3 * (y + 1) * w];
+            match self.chroma {
+                Chroma::Mono => {
+                    for (o, &l) in out.chunks_exact_mut(3).zip(luma_row) {
+                        o.copy_from_slice(&convert(l, 128, 128));
+                    }
+                }
+                Chroma::Sub { x: sx, y: sy } => {
+                    let c0 = (y / sy as usize) * cw;
+                    let (u_row, v_row) = (&u_plane[c0..c0 + cw], &v_plane[c0..c0 + cw]);
+                    for (i, (o, &l)) in out.chunks_exact_mut(3).zip(luma_row).enumerate() {
+                        let c = i / sx as usize;
+                        o.copy_from_slice(&convert(l, u_row[c], v_row[c]));
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// Full-range (JPEG) YUV to RGB, in the same 8-bit fixed point as the studio-range conversion.
+fn rgb_of_full_yuv(y: u8, u: u8, v: u8) -> [u8; 3] {
+    let c = (i32::from(y) << 8) + 128;
+    let (d, e) = (i32::from(u) - 128, i32::from(v) - 128);
+    let clamp = |x: i32| (x >> 8).clamp(0, 255) as u8;
+    [clamp(c + 359 * e), clamp(c - 88 * d - 183 * e), clamp(c + 454 * d)]
+}
+
+/// The header's fields this reader needs.
+struct Header {
+    planes: PlaneLayout,
+    /// Frames per second as a fraction.
+    rate: (u64, u64),
+}
+
+/// Parses the header line (without its newline). `Ok(None)`: a valid colour space this reader leaves to
+/// ffmpeg.
+fn parse_header(path: &Path, line: &str) -> Result<Option<Header>, VideoError> {
+    let bad = |detail: String| VideoError::Probe { path: path.to_path_buf(), detail };
+    let mut tokens = line.split(' ').filter(|t| !t.is_empty());
+    if tokens.next() != Some("YUV4MPEG2") {
+        return Err(bad("not a YUV4MPEG2 header".into()));
+    }
+    let (mut width, mut height, mut rate, mut colour, mut full_range) = (None, None, None, "420jpeg", false);
+    for token in tokens {
+        // The tag is one character (a header is ASCII, but a damaged one need not be).
+        let Some(tag) = token.chars().next() else { continue };
+        let value = &token[tag.len_utf8()..];
+        match tag {
+            'W' => width = value.parse::<u32>().ok().filter(|v| (1..=MAX_SIDE).contains(v)),
+            'H' => height = value.parse::<u32>().ok().filter(|v| (1..=MAX_SIDE).contains(v)),
+            'F' => {
+                let fraction = value.split_once(':').and_then(|(n, d)| Some((n.parse().ok()?, d.parse().ok()?)));
+                rate = fraction.filter(|&(n, d): &(u64, u64)| n > 0 && d > 0);
+                if rate.is_none() {
+                    return Err(bad(format!("header field F `{value}` is not a frame rate (N:D)")));
+                }
+            }
+            'C' => colour = value,
+            'X' => full_range |= value == "COLORRANGE=FULL",
+            _ => {}
+        }
+    }
+    let width = width.ok_or_else(|| bad("header field W (width) is missing or not a size (1 to 16384)".into()))?;
+    let height = height.ok_or_else(|| bad("header field H (height) is missing or not a size (1 to 16384)".into()))?;
+    let rate = rate.ok_or_else(|| bad("header field F (frame rate) is missing".into()))?;
+    let chroma = match colour {
+        "420jpeg" | "420paldv" | "420mpeg2" | "420" => Chroma::Sub { x: 2, y: 2 },
+        "422" => Chroma::Sub { x: 2, y: 1 },
+        "411" => Chroma::Sub { x: 4, y: 1 },
+        "444" => Chroma::Sub { x: 1, y: 1 },
+        "mono" => Chroma::Mono,
+        _ => return Ok(None),
+    };
+    Ok(Some(Header { planes: PlaneLayout { width, height, chroma, full_range }, rate }))
+}
+
+/// Reads up to a newline from the file's position (at most about `limit` bytes) and leaves the file after it;
+/// `None` at the end of the file.
+fn read_line(file: &mut impl ReadSeek, limit: usize, line: &mut Vec<u8>) -> std::io::Result<Option<()>> {
+    line.clear();
+    let start = file.stream_position()?;
+    let mut chunk = [0u8; 128];
+    loop {
+        let n = file.read(&mut chunk)?;
+        if n == 0 {
+            return Ok((!line.is_empty()).then_some(()));
+        }
+        if let Some(i) = chunk[..n].iter().position(|&b| b == b'\n') {
+            line.extend_from_slice(&chunk[..i]);
+            file.seek(SeekFrom::Start(start + line.len() as u64 + 1))?;
+            return Ok(Some(()));
+        }
+        line.extend_from_slice(&chunk[..n]);
+        if line.len() >= limit {
+            return Ok(Some(()));
+        }
+    }
+}
+
+/// Indexes a Y4M file: its planes and every whole frame's offset.
+pub(super) fn index(path: &Path, file: &mut impl ReadSeek, file_len: u64) -> Result<Option<NativeIndex>, VideoError> {
+    let io = |e: std::io::Error| VideoError::Probe { path: path.to_path_buf(), detail: e.to_string() };
+    let bad = |detail: String| VideoError::Probe { path: path.to_path_buf(), detail };
+    file.seek(SeekFrom::Start(0)).map_err(io)?;
+    let mut line = Vec::with_capacity(256);
+    read_line(file, 4096, &mut line).map_err(io)?;
+    let Some(header) = parse_header(path, &String::from_utf8_lossy(&line))? else {
+        return Ok(None);
+    };
+    let frame_bytes = header.planes.frame_bytes();
+    let mut frames = Vec::new();
+    let mut offset = file.stream_position().map_err(io)?;
+    while offset < file_len {
+        let frame = frames.len();
+        if read_line(file, 4096, &mut line).map_err(io)?.is_none() {
+            break;
+        }
+        if !line.starts_with(b"FRAME") {
+            return Err(bad(format!("frame {frame} at byte {offset}: no FRAME marker")));
+        }
+        let data = file.stream_position().map_err(io)?;
+        if data + frame_bytes > file_len {
+            break;
+        }
+        frames.push(FrameSpan { offset: data, bytes: frame_bytes });
+        offset = data + frame_bytes;
+        file.seek(SeekFrom::Start(offset)).map_err(io)?;
+    }
+    if frames.is_empty() {
+        return Err(bad("no video frames".into()));
+    }
+    let (n, d) = header.rate;
+    let timestamps_s = (0..frames.len() as u64).map(|i| (i * d) as f64 / n as f64).collect();
+    let (width, height) = (header.planes.width, header.planes.height);
+    Ok(Some(NativeIndex { container: Container::Y4m(header.planes), width, height, frames, timestamps_s }))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn headers_name_the_field_that_is_wrong() {
+        let p = Path::new("clip.y4m");
+        let ok = parse_header(p, "YUV4MPEG2 W640 H480 F30000:1001 Ip A1:1 C420jpeg XYSCSS=420JPEG").unwrap().unwrap();
+        assert_eq!((ok.planes.width, ok.planes.height, ok.rate), (640, 480, (30000, 1001)));
+        assert_eq!(ok.planes.frame_bytes(), 640 * 480 * 3 / 2);
+        let full = parse_header(p, "YUV4MPEG2 W5 H3 F25:1 C422 XCOLORRANGE=FULL").unwrap().unwrap();
+        assert!(full.planes.full_range);
+        assert_eq!(full.planes.frame_bytes(), 15 + 2 * 3 * 3);
+        assert!(parse_header(p, "YUV4MPEG2 W640 H480 F30:1 C420p10").unwrap().is_none(), "left to ffmpeg");
+        for (line, field) in [
+            ("YUV4MPEG2 H480 F30:1", "W (width)"),
+            ("YUV4MPEG2 W640 H0 F30:1", "H (height)"),
+            ("YUV4MPEG2 W640 H480 F30:0", "F `30:0`"),
+            ("YUV4MPEG2 W640 H480", "F (frame rate)"),
+        ] {
+            let e = parse_header(p, line).err().map(|e| e.to_string()).unwrap_or_default();
+            assert!(e.contains("clip.y4m") && e.contains(field), "{line}: {e}");
+        }
+    }
+
+    #[test]
+    fn planes_convert_as_bt601() {
+        // 2×2, 4:2:0: one chroma sample; studio-range white, black and mid grey, then saturated red.
+        let layout = PlaneLayout { width: 2, height: 2, chroma: Chroma::Sub { x: 2, y: 2 }, full_range: false };
+        let mut rgb = [0u8; 12];
+        layout.convert_into_rgb(&[235, 16, 126, 126, 128, 128], &mut rgb);
+        assert_eq!(rgb, [255, 255, 255, 0, 0, 0, 128, 128, 128, 128, 128, 128]);
+        layout.convert_into_rgb(&[81, 81, 81, 81, 90, 240], &mut rgb);
+        assert!(rgb[0] >= 253 && rgb[1] <= 2 && rgb[2] <= 2, "{rgb:?}");
+    }
+}
