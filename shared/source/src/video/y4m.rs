@@ -42,14 +42,20 @@ impl PlaneLayout {
     /// Converts one frame's planes to packed RGB (`width × height × 3` bytes in `rgb`). BT.601, as ffmpeg
     /// assumes for an untagged Y4M; each chroma sample is used for the pixels it covers.
     pub fn convert_into_rgb(&self, planes: &[u8], rgb: &mut [u8]) {
+        // One loop per range, so the conversion inlines into it.
+        if self.full_range {
+            self.convert_with(planes, rgb, rgb_of_full_yuv);
+        } else {
+            self.convert_with(planes, rgb, crate::decode::rgb_of_yuv);
+        }
+    }
+
+    fn convert_with(&self, planes: &[u8], rgb: &mut [u8], convert: impl Fn(u8, u8, u8) -> [u8; 3]) {
         let (w, h) = (self.width as usize, self.height as usize);
         let (cw, ch) = self.chroma_size();
         let (luma, chroma) = planes.split_at(w * h);
         let (u_plane, v_plane) = chroma.split_at(cw * ch);
-        let convert = if self.full_range { rgb_of_full_yuv } else { crate::decode::rgb_of_yuv };
-        for y in 0..h {
-            let luma_row = &luma[y * w..(y + 1) * w];
-            let out = &mut rgb[3 * y * w..3 * (y + 1) * w];
+        for (y, (luma_row, out)) in luma.chunks_exact(w).zip(rgb.chunks_exact_mut(3 * w)).take(h).enumerate() {
             match self.chroma {
                 Chroma::Mono => {
                     for (o, &l) in out.chunks_exact_mut(3).zip(luma_row) {
@@ -57,11 +63,13 @@ impl PlaneLayout {
                     }
                 }
                 Chroma::Sub { x: sx, y: sy } => {
-                    let c0 = (y / sy as usize) * cw;
-                    let (u_row, v_row) = (&u_plane[c0..c0 + cw], &v_plane[c0..c0 + cw]);
-                    for (i, (o, &l)) in out.chunks_exact_mut(3).zip(luma_row).enumerate() {
-                        let c = i / sx as usize;
-                        o.copy_from_slice(&convert(l, u_row[c], v_row[c]));
+                    let (sx, c0) = (sx as usize, (y / sy as usize) * cw);
+                    let chroma_row = u_plane[c0..c0 + cw].iter().zip(&v_plane[c0..c0 + cw]);
+                    // Each chroma sample with the (up to) `sx` pixels it covers.
+                    for ((pixels, out), (&u, &v)) in luma_row.chunks(sx).zip(out.chunks_mut(3 * sx)).zip(chroma_row) {
+                        for (o, &l) in out.chunks_exact_mut(3).zip(pixels) {
+                            o.copy_from_slice(&convert(l, u, v));
+                        }
                     }
                 }
             }
