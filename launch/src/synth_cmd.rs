@@ -48,6 +48,11 @@ pub struct SynthArgs {
     /// settings and ground truth, and the field-rate render in `fields/`. Track with `run --interlaced`.
     #[arg(long, conflicts_with = "raw")]
     interlaced: bool,
+    /// Blur of the optics, Gaussian σ in pixels of the camera (the raw one with --raw), applied before the
+    /// sensor noise: a lens's spread and a pixel's area, which a real endoscope has and a ray per pixel has not
+    /// (0.5 is a sharp HD endoscope). 0: none
+    #[arg(long, default_value_t = 0.0)]
+    optics_blur_px: f64,
     /// Texture and shape seed: the same seed gives byte-identical files.
     #[arg(long, default_value_t = 2026)]
     seed: u64,
@@ -90,6 +95,7 @@ pub fn synth(args: SynthArgs) -> Result<()> {
         motion,
         seed: args.seed,
         raw: args.raw.clone(),
+        optics_blur_px: args.optics_blur_px,
     };
     if args.interlaced {
         render_with_progress(&args.out.join("fields"), &rig, &request)?;

@@ -329,6 +329,8 @@ pub struct SceneRequest {
     /// A raw rig ([`render::RawLens::preset`]: `mild`, `strong`): distorted, turned cameras and `calib.yaml`
     /// instead of rectified pairs and `settings.yaml`. `None`: rectified.
     pub raw: Option<String>,
+    /// σ (px) of the optics' blur ([`render::Shading::optics_blur_px`]); 0: none.
+    pub optics_blur_px: f64,
 }
 
 impl Default for SceneRequest {
@@ -342,6 +344,7 @@ impl Default for SceneRequest {
             motion: Motion::Steady,
             seed: 2026,
             raw: None,
+            optics_blur_px: 0.0,
         }
     }
 }
@@ -358,6 +361,9 @@ impl SceneRequest {
             "abdomen" => &["hover", "sweep", "revisit", "pan", "oblique"],
             other => return invalid(format!("`{other}` is not a scene (colon, abdomen)")),
         };
+        if !(0.0..=5.0).contains(&self.optics_blur_px) {
+            return invalid(format!("optics blur σ {} px is outside 0–5 px", self.optics_blur_px));
+        }
         if let Some(raw) = &self.raw
             && !RAW_LENSES.contains(&raw.as_str())
         {
@@ -391,6 +397,7 @@ pub fn write_scene(
     let path_total_s = warp(total_s);
     let trajectory = request.trajectory.as_deref();
     let lens = request.raw.as_deref().and_then(|name| render::RawLens::preset(name, rig));
+    let optics_blur_px = request.optics_blur_px;
     match (request.scene.as_str(), trajectory) {
         ("colon", None | Some("forward") | Some("revisit")) => {
             let colon = colon::Colon { seed, texture: TissueTexture { seed }, ..colon::Colon::default() };
@@ -407,7 +414,7 @@ pub fn write_scene(
                 &colon,
                 &path,
                 mesh,
-                &render::Shading { lens, ..render::Shading::default() },
+                &render::Shading { lens, optics_blur_px, ..render::Shading::default() },
                 request.frames,
                 request.fps,
                 progress,
@@ -428,7 +435,8 @@ pub fn write_scene(
             };
             let mesh = abdomen.mesh(60.0 + speed.abs() * path_total_s, 0.5);
             // A laparoscope's light is stronger and the wall farther away than in a colon.
-            let shading = render::Shading { exposure_distance_mm: 65.0, lens, ..render::Shading::default() };
+            let shading =
+                render::Shading { exposure_distance_mm: 65.0, lens, optics_blur_px, ..render::Shading::default() };
             render::write_sequence(dir, rig, &abdomen, &path, mesh, &shading, request.frames, request.fps, progress)
         }
         _ => Err(SynthError::Request {

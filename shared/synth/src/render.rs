@@ -42,6 +42,10 @@ pub struct Shading {
     pub vignetting: f64,
     /// Uniform sensor noise amplitude, grey levels.
     pub noise: f64,
+    /// σ (px) of the optics' blur — the lens's spread and the pixel's area — applied to the radiance in the
+    /// camera's own pixel grid (the raw one, for a raw rig), before the sensor's noise. 0: one ray per pixel
+    /// centre, as sharp as the texture's own band limit.
+    pub optics_blur_px: f64,
     /// Raw optics: `None` renders a rectified pair; `Some` renders what distorted, slightly turned cameras at
     /// the same centres see ([`RawLens`]), to be rectified by `bdis-slam rectify`.
     pub lens: Option<RawLens>,
@@ -135,6 +139,7 @@ impl Default for Shading {
             shininess: 40.0,
             vignetting: 0.3,
             noise: 2.0,
+            optics_blur_px: 0.0,
             lens: None,
         }
     }
@@ -205,30 +210,18 @@ pub fn render(
         // z-depth (of the rectified camera) = t · (camera-z of the unit ray).
         Some(([0, 1, 2].map(|c| 255.0 * (albedo[c] * diffuse + spec)), hit.t * dir_cam.z / dir_cam.norm()))
     };
-    let write = |px: &mut [u8], radiance: [f64; 3], x: u32, y: u32, view: u64| {
-        for c in 0..3 {
-            let noise = if shading.lighting {
-                (hash_noise(surface.seed() ^ view, frame, u64::from(y * w + x) * 3 + c as u64) - 0.5)
-                    * 2.0
-                    * shading.noise
-            } else {
-                0.0
-            };
-            px[c] = (radiance[c] + noise).round().clamp(0.0, 255.0) as u8;
-        }
-    };
+    // Radiance per pixel and channel, before the optics' blur and the sensor's noise; NaN where no ray met a
+    // wall (black, and without noise unless the optics blur light into it).
+    let mut left_radiance = vec![f64::NAN; 3 * (w * h) as usize];
+    let mut right_radiance = vec![f64::NAN; 3 * (w * h) as usize];
     // One ray through each pixel centre; rows are split between two threads (two cores on these machines).
-    let render_rows = |pose: &Isometry3<f64>, img_rows: &mut [u8], depth_rows: &mut [f32], y0: u32, view: u64| {
-        for (row_i, row) in img_rows.chunks_mut(3 * w as usize).enumerate() {
+    let render_rows = |pose: &Isometry3<f64>, rows: &mut [f64], depth_rows: &mut [f32], y0: u32, view: u64| {
+        for (row_i, row) in rows.chunks_mut(3 * w as usize).enumerate() {
             let y = y0 + row_i as u32;
             for x in 0..w {
-                let px = &mut row[3 * x as usize..3 * x as usize + 3];
-                match shade(pose, view, f64::from(x) + 0.5, f64::from(y) + 0.5) {
-                    Some((radiance, z)) => {
-                        depth_rows[row_i * w as usize + x as usize] = z as f32;
-                        write(px, radiance, x, y, view);
-                    }
-                    None => px.copy_from_slice(&[0, 0, 0]),
+                if let Some((radiance, z)) = shade(pose, view, f64::from(x) + 0.5, f64::from(y) + 0.5) {
+                    depth_rows[row_i * w as usize + x as usize] = z as f32;
+                    row[3 * x as usize..3 * x as usize + 3].copy_from_slice(&radiance);
                 }
             }
         }
@@ -237,9 +230,9 @@ pub fn render(
     let dsplit = (h / 2) as usize * w as usize;
     let world_from_right = &world_from_right;
     std::thread::scope(|s| {
-        let (l_top, l_bottom) = left.split_at_mut(split);
+        let (l_top, l_bottom) = left_radiance.split_at_mut(split);
         let (d_top, d_bottom) = depth.split_at_mut(dsplit);
-        let (r_top, r_bottom) = right.split_at_mut(split);
+        let (r_top, r_bottom) = right_radiance.split_at_mut(split);
         let (rd_top, rd_bottom) = right_depth.split_at_mut(dsplit);
         let render = &render_rows;
         s.spawn(move || {
@@ -252,8 +245,8 @@ pub fn render(
     // A little anti-aliasing where it matters: pixels on a depth edge (a fold's rim, a blob's flank against the
     // background) get the mean of four sub-pixel rays. The texture is band-limited, so elsewhere one ray is
     // enough; the ground-truth depth stays that of the pixel centre.
-    for (img, zbuf, pose, view) in
-        [(&mut left, &depth, world_from_left, 1u64), (&mut right, &right_depth, world_from_right, 2)]
+    for (radiance_image, zbuf, pose, view) in
+        [(&mut left_radiance, &depth, world_from_left, 1u64), (&mut right_radiance, &right_depth, world_from_right, 2)]
     {
         let at = |x: u32, y: u32| f64::from(zbuf[(y * w + x) as usize]);
         for y in 0..h {
@@ -277,12 +270,63 @@ pub fn render(
                         }
                     }
                 }
-                let px = img.get_pixel_mut(x, y);
-                write(&mut px.0, sum, x, y, view);
+                let at = 3 * (y * w + x) as usize;
+                radiance_image[at..at + 3].copy_from_slice(&sum);
+            }
+        }
+    }
+    // The optics, then the sensor: blur in the camera's pixel grid, noise per pixel, rounding to grey levels.
+    for (radiance_image, img, view) in [(&mut left_radiance, &mut left, 1u64), (&mut right_radiance, &mut right, 2)] {
+        if shading.optics_blur_px > 0.0 {
+            radiance_image.iter_mut().filter(|r| r.is_nan()).for_each(|r| *r = 0.0);
+            gaussian_blur_rgb(radiance_image, w as usize, h as usize, shading.optics_blur_px);
+        }
+        for (i, (px, radiance)) in img.chunks_exact_mut(3).zip(radiance_image.chunks_exact(3)).enumerate() {
+            if radiance[0].is_nan() {
+                px.copy_from_slice(&[0, 0, 0]);
+                continue;
+            }
+            for c in 0..3 {
+                let noise = if shading.lighting {
+                    (hash_noise(surface.seed() ^ view, frame, i as u64 * 3 + c as u64) - 0.5) * 2.0 * shading.noise
+                } else {
+                    0.0
+                };
+                px[c] = (radiance[c] + noise).round().clamp(0.0, 255.0) as u8;
             }
         }
     }
     RenderedPair { left, right, depth }
+}
+
+/// Blurs an interleaved RGB image in place by a Gaussian of `sigma_px` (separable, kernel out to 3σ, edges
+/// repeated).
+fn gaussian_blur_rgb(image: &mut [f64], w: usize, h: usize, sigma_px: f64) {
+    let radius = (3.0 * sigma_px).ceil() as isize;
+    let weights: Vec<f64> = (-radius..=radius).map(|d| (-0.5 * (d as f64 / sigma_px).powi(2)).exp()).collect();
+    let total: f64 = weights.iter().sum();
+    let weights: Vec<f64> = weights.iter().map(|x| x / total).collect();
+    let mut scratch = vec![0.0f64; image.len()];
+    // Rows into the scratch image, then columns back.
+    let pass = |from: &[f64], to: &mut [f64], along_rows: bool| {
+        let (n, m) = if along_rows { (w, h) } else { (h, w) };
+        for line in 0..m {
+            for i in 0..n {
+                let mut sum = [0.0f64; 3];
+                for (k, &wk) in weights.iter().enumerate() {
+                    let j = (i as isize + k as isize - radius).clamp(0, n as isize - 1) as usize;
+                    let at = if along_rows { 3 * (line * w + j) } else { 3 * (j * w + line) };
+                    for c in 0..3 {
+                        sum[c] += wk * from[at + c];
+                    }
+                }
+                let at = if along_rows { 3 * (line * w + i) } else { 3 * (i * w + line) };
+                to[at..at + 3].copy_from_slice(&sum);
+            }
+        }
+    };
+    pass(image, &mut scratch, true);
+    pass(&scratch, image, false);
 }
 
 /// What a written sequence holds, for the caller's summary.

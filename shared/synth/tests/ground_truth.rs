@@ -210,3 +210,28 @@ fn the_same_request_writes_identical_files() {
     }
     std::fs::remove_dir_all(&base).unwrap();
 }
+
+#[test]
+fn the_optics_blur_softens_the_image_keeps_its_light_and_leaves_depth_alone() {
+    let rig = rig();
+    let pose = Colon::default().forward_pose(0.3, 20.0);
+    let sharp = render(&Colon::default(), &rig, &albedo_only(), &pose, 3);
+    let blurred = render(&Colon::default(), &rig, &Shading { optics_blur_px: 0.7, ..albedo_only() }, &pose, 3);
+    // Energy of the horizontal second difference: the image's finest detail.
+    let detail = |img: &image::RgbImage| {
+        let g: Vec<f64> = img.pixels().map(|p| f64::from(p.0[1])).collect();
+        let w = img.width() as usize;
+        g.chunks(w).flat_map(|row| row.windows(3).map(|t| (t[0] - 2.0 * t[1] + t[2]).powi(2))).sum::<f64>()
+    };
+    let mean = |img: &image::RgbImage| {
+        img.pixels().map(|p| f64::from(p.0[1])).sum::<f64>() / f64::from(img.width() * img.height())
+    };
+    assert!(detail(&blurred.left) < 0.5 * detail(&sharp.left), "{} vs {}", detail(&blurred.left), detail(&sharp.left));
+    // A blur moves light around, it does not make or lose it (up to the image border and rounding).
+    assert!((mean(&blurred.left) - mean(&sharp.left)).abs() < 0.02 * mean(&sharp.left));
+    let bits = |d: &[f32]| d.iter().map(|z| z.to_bits()).collect::<Vec<_>>();
+    assert_eq!(bits(&blurred.depth), bits(&sharp.depth));
+    // σ out of range is refused before anything is rendered.
+    let request = bdis_synth::SceneRequest { optics_blur_px: -1.0, ..Default::default() };
+    assert!(request.validate().unwrap_err().to_string().contains("optics blur"));
+}
