@@ -4,6 +4,7 @@
 
 pub mod decode;
 pub mod fields;
+mod jpeg;
 pub mod live;
 pub mod pacing;
 pub mod reader;

@@ -112,6 +112,8 @@ pub enum ConvertError {
 #[derive(Debug, Default)]
 pub struct Converter {
     rgb: Vec<u8>,
+    /// A frame completed with the standard Huffman tables, when it came without them.
+    completed: Vec<u8>,
 }
 
 /// A device frame ready to be cut into views.
@@ -146,6 +148,8 @@ impl Converter {
             PixelFormat::Nv12 => Source::Nv12 { data, stride },
             PixelFormat::Mjpeg => {
                 let jpeg = |e: image::ImageError| ConvertError::Jpeg(e.to_string());
+                // UVC devices send Motion-JPEG without Huffman tables: the standard ones are meant.
+                let data = crate::jpeg::with_huffman_tables(data, &mut self.completed);
                 let decoder = image::codecs::jpeg::JpegDecoder::new(std::io::Cursor::new(data)).map_err(jpeg)?;
                 let (got_w, got_h) = decoder.dimensions();
                 if (got_w, got_h) != (width, height) {

@@ -239,6 +239,8 @@ impl Device {
                 image::codecs::jpeg::JpegEncoder::new_with_quality(&mut *out, 95)
                     .encode(&canvas, width, height, image::ExtendedColorType::Rgb8)
                     .map_err(|e| e.to_string())?;
+                // As UVC cameras send Motion-JPEG: without Huffman tables (the standard ones are meant).
+                crate::jpeg::strip_huffman_tables(out);
             }
         }
         Ok(())

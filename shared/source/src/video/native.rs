@@ -91,12 +91,14 @@ pub(super) struct NativeReader {
     next: usize,
     /// One frame's bytes as stored (planes or a JPEG).
     stored: Vec<u8>,
+    /// A JPEG completed with the standard Huffman tables, when it came without them.
+    completed: Vec<u8>,
 }
 
 impl NativeReader {
     pub fn open(path: &Path, index: NativeIndex) -> Result<Self, VideoError> {
         let file = std::fs::File::open(path).map_err(|_| VideoError::Missing { path: path.to_path_buf() })?;
-        Ok(Self { path: path.to_path_buf(), file, index, next: 0, stored: Vec::new() })
+        Ok(Self { path: path.to_path_buf(), file, index, next: 0, stored: Vec::new(), completed: Vec::new() })
     }
 
     /// The next read returns the first frame at or after `first_frame` (numbered as in the file's times).
@@ -124,7 +126,10 @@ impl NativeReader {
                     planes.convert_into_rgb(&self.stored, rgb);
                     true
                 }
-                Container::MjpegAvi => decode_jpeg(&self.stored, self.index.width, self.index.height, rgb),
+                Container::MjpegAvi => {
+                    let jpeg = crate::jpeg::with_huffman_tables(&self.stored, &mut self.completed);
+                    decode_jpeg(jpeg, self.index.width, self.index.height, rgb)
+                }
             };
             if decoded {
                 let t = self.index.timestamps_s[frame];
@@ -186,7 +191,7 @@ pub fn index_and_decode(data: &[u8]) -> Result<usize, VideoError> {
         return Ok(0);
     }
     let mut rgb = vec![0u8; 3 * index.width as usize * index.height as usize];
-    let mut decoded = 0;
+    let (mut decoded, mut completed) = (0, Vec::new());
     for span in &index.frames {
         let end = span.offset.saturating_add(span.bytes);
         assert!(end <= data.len() as u64, "an indexed frame lies inside the file");
@@ -196,7 +201,12 @@ pub fn index_and_decode(data: &[u8]) -> Result<usize, VideoError> {
                 planes.convert_into_rgb(stored, &mut rgb);
                 true
             }
-            Container::MjpegAvi => decode_jpeg(stored, index.width, index.height, &mut rgb),
+            Container::MjpegAvi => decode_jpeg(
+                crate::jpeg::with_huffman_tables(stored, &mut completed),
+                index.width,
+                index.height,
+                &mut rgb,
+            ),
         });
     }
     Ok(decoded)
