@@ -187,8 +187,8 @@ pub fn probe(path: &Path) -> Result<VideoProbe, VideoError> {
             .trim_end_matches(',')
             .parse::<u32>()
             .ok()
-            .filter(|&v| v > 0)
-            .ok_or_else(|| bad(format!("stream {field} `{s}` is not a size")))
+            .filter(|v| (1..=native::MAX_SIDE).contains(v))
+            .ok_or_else(|| bad(format!("stream {field} `{s}` is not a size (1 to {})", native::MAX_SIDE)))
     };
     let (width, height) = (size(w, "width")?, size(h, "height")?);
     let packets = ffprobe(path, "packet=pts_time")?;
