@@ -1,19 +1,22 @@
 #![allow(clippy::unwrap_used, clippy::expect_used)] // test code: a panic is the failure report
 //! Matches one pair `repeats` times: the target of the callgrind instruction counts in BENCHMARKS.md.
-//! Usage: one_pair <slam|colon|slam-dis|colon-dis> LEFT RIGHT [repeats]
+//! Usage: one_pair <slam|colon|slam-dis|colon-dis|colon-lr|colon-dis-lr> LEFT RIGHT [repeats]
 use bdis_stereo::{Algorithm, DisparityMap, GrayImage, Matcher, Params};
 
 fn main() {
     let args: Vec<String> = std::env::args().collect();
     if args.len() < 4 {
-        eprintln!("usage: one_pair <slam|colon|slam-dis|colon-dis> LEFT RIGHT [repeats]");
+        eprintln!("usage: one_pair <slam|colon|slam-dis|colon-dis|colon-lr|colon-dis-lr> LEFT RIGHT [repeats]");
         std::process::exit(2);
     }
     let params = match args[1].as_str() {
-        "slam" => Params::default(),
-        "colon" => Params::colon(),
-        "slam-dis" => Params { algorithm: Algorithm::Dis, ..Params::default() },
-        "colon-dis" => Params { algorithm: Algorithm::Dis, ..Params::colon() },
+        // As published (no left–right check: the C++ comparison); `-lr`: with the check, as the service runs.
+        "slam" => Params::default().as_published(),
+        "colon" => Params::colon().as_published(),
+        "slam-dis" => Params { algorithm: Algorithm::Dis, ..Params::default() }.as_published(),
+        "colon-dis" => Params { algorithm: Algorithm::Dis, ..Params::colon() }.as_published(),
+        "colon-lr" => Params::colon(),
+        "colon-dis-lr" => Params { algorithm: Algorithm::Dis, ..Params::colon() },
         other => panic!("unknown preset {other}"),
     };
     let l = image::open(&args[2]).unwrap().to_luma8();

@@ -16,8 +16,11 @@ fn gray(path: &std::path::Path) -> (Vec<u8>, Vec<bool>, usize, usize) {
 
 fn main() {
     let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data/bdis/31");
-    for algorithm in [Algorithm::Bdis, Algorithm::Dis] {
-        let mut m = Matcher::new(Params { algorithm, ..Params::colon() }).unwrap();
+    // Each as published (lr_check 0) and with the left–right check the service runs.
+    for (algorithm, lr_check) in
+        [(Algorithm::Bdis, 0.0), (Algorithm::Bdis, 1.0), (Algorithm::Dis, 0.0), (Algorithm::Dis, 1.0)]
+    {
+        let mut m = Matcher::new(Params { algorithm, lr_check, ..Params::colon() }).unwrap();
         let mut score = StereoScore::new();
         let t = std::time::Instant::now();
         for n in 1..=16 {
@@ -29,7 +32,11 @@ fn main() {
             let gt = bdis_core::formats::pfm::read_disparity(&root.join(format!("depth/{n}.pfm"))).unwrap();
             score.add(&out.disparity, &gt.data, &region, 260.0);
         }
-        println!("{algorithm:?}: {:?} in {:.1} ms/pair", score.summary(), t.elapsed().as_secs_f64() * 1000.0 / 16.0);
+        println!(
+            "{algorithm:?} (lr_check {lr_check}): {:?} in {:.1} ms/pair",
+            score.summary(),
+            t.elapsed().as_secs_f64() * 1000.0 / 16.0
+        );
     }
 }
 

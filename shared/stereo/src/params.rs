@@ -41,6 +41,12 @@ pub struct Params {
     pub min_prob: f64,
     /// Also compute a per-pixel disparity variance.
     pub variance: bool,
+    /// Left–right consistency (not in the original): a pixel is kept only when matching the mirrored pair the
+    /// other way finds the same disparity within this many pixels of the finest searched level (`lv_l`); 0 turns
+    /// it off. On by default: it halves the matcher's speed, and buys a map without gross errors whatever the
+    /// algorithm (plain DIS has no confidence at all; BDIS's still lets ~1 % of far-off depths through, which
+    /// stay in the map as "occluded" points). Measured in BENCHMARKS.md, "Left–right check".
+    pub lr_check: f64,
 }
 
 impl Default for Params {
@@ -80,7 +86,20 @@ impl Params {
             unit_disturb: s.unit_disturb,
             min_prob: s.min_prob,
             variance: s.bool_var,
+            lr_check: 1.0,
         }
+    }
+
+    /// The left–right tolerance in image pixels (one finest-level pixel is 2^lv_l image pixels), or `None` when
+    /// the check is off.
+    pub fn lr_tolerance_px(&self) -> Option<f32> {
+        (self.lr_check > 0.0).then(|| (self.lr_check * f64::from(1u32 << self.lv_l)) as f32)
+    }
+
+    /// The same parameters without the left–right check: the matcher as the original has it, for comparisons
+    /// with its published figures.
+    pub fn as_published(self) -> Self {
+        Self { lr_check: 0.0, ..self }
     }
 
     /// The authors' parameters for the synthetic colon sets (patch 8, overlap 0.40, δ = 1).
@@ -125,6 +144,9 @@ impl Params {
         if !(self.min_prob.is_finite() && (0.0..1.0).contains(&self.min_prob)) {
             return Err(bad("min_prob", format!("must be in [0, 1), found {}", self.min_prob)));
         }
+        if !(self.lr_check.is_finite() && self.lr_check >= 0.0) {
+            return Err(bad("lr_check", format!("must be a finite number ≥ 0 (0 = off), found {}", self.lr_check)));
+        }
         for (name, v) in [("mindprate", self.mindprate), ("mindrrate", self.mindrrate), ("minimgerr", self.minimgerr)] {
             if !(v.is_finite() && v >= 0.0) {
                 return Err(bad(name, format!("must be a finite number ≥ 0, found {v}")));
@@ -153,6 +175,18 @@ mod tests {
         assert_eq!(e.to_string(), "BDISparam.lv_f: must be ≥ lv_l (2), found 1");
         assert!(Params { min_prob: f64::NAN, ..Params::default() }.validate().is_err());
         assert!(Params::default().validate().is_ok() && Params::colon().validate().is_ok());
+        let e = Params { lr_check: -1.0, ..Params::default() }.validate().unwrap_err();
+        assert_eq!(e.to_string(), "BDISparam.lr_check: must be a finite number ≥ 0 (0 = off), found -1");
+    }
+
+    #[test]
+    fn the_left_right_check_is_on_unless_turned_off_and_scales_with_the_finest_level() {
+        let p = Params::default();
+        assert_eq!(p.lr_tolerance_px(), Some(2.0), "one pixel of level 1 is two image pixels");
+        assert_eq!(Params { lv_l: 2, ..p }.lr_tolerance_px(), Some(4.0));
+        assert_eq!(Params { lr_check: 0.5, ..p }.lr_tolerance_px(), Some(1.0));
+        assert_eq!(p.as_published().lr_tolerance_px(), None);
+        assert_eq!(Params { algorithm: Algorithm::Dis, ..Params::colon() }.lr_tolerance_px(), Some(2.0));
     }
 }
 
@@ -175,11 +209,12 @@ impl Params {
             "unit_disturb" => "unit_disturb",
             "min_prob" => "min_prob",
             "bool_var" => "bool_var",
+            "lr_check" => "lr_check",
             other => {
                 return Err(ParamError {
                     name: "?",
                     message: format!(
-                        "unknown parameter `{other}` (known: lv_f lv_l maxiter miniter mindprate mindrrate minimgerr patchsz poverl ratio_patch_valid num_window unit_disturb min_prob bool_var)"
+                        "unknown parameter `{other}` (known: lv_f lv_l maxiter miniter mindprate mindrrate minimgerr patchsz poverl ratio_patch_valid num_window unit_disturb min_prob bool_var lr_check)"
                     ),
                 });
             }
@@ -206,6 +241,7 @@ impl Params {
             "poverl" => self.overlap = number,
             "ratio_patch_valid" => self.ratio_patch_valid = number,
             "unit_disturb" => self.unit_disturb = number,
+            "lr_check" => self.lr_check = number,
             _ => self.min_prob = number,
         }
         Ok(())

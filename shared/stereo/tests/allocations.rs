@@ -17,6 +17,8 @@ fn a_warmed_up_pair_allocates_nothing() {
         Params::colon(),
         Params { algorithm: Algorithm::Dis, ..Params::default() },
         Params { variance: true, ..Params::colon() },
+        // Without the left–right check (the defaults above run it, with its second pass and mirrored images).
+        Params::colon().as_published(),
     ] {
         let mut matcher = Matcher::new(params).unwrap();
         let mut out = DisparityMap::default();

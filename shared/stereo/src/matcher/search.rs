@@ -10,21 +10,21 @@ impl Matcher {
         ((1.0 / s as f64) / total) as f32
     }
 
-    /// §3–6.1 for every patch of level `s`.
-    pub(super) fn search_level(&mut self, s: usize) {
+    /// §3–6.1 for every patch of level `s`: from zero disparity everywhere (`from_zero`: the coarsest level, or
+    /// one below a level that kept nothing), else from the coarser level's answer where it has one.
+    pub(super) fn search_level(&mut self, s: usize, from_zero: bool) {
         let sp = self.params.stride() as usize;
         let (lw, lh) = (self.levels[s].w, self.levels[s].h);
         let (nw, nh) = (lw.div_ceil(sp), lh.div_ceil(sp));
         let ow = (lw - (nw - 1) * sp) / 2;
         let oh = (lh - (nh - 1) * sp) / 2;
-        let coarsest = s == self.params.lv_f as usize;
         let likelihood = self.level_likelihood(s);
         let bayesian = self.params.algorithm == Algorithm::Bdis;
         self.patches.clear();
         for j in 0..nh {
             for i in 0..nw {
                 let (qx, qy) = (i * sp + ow, j * sp + oh);
-                let (u0, prob0) = if coarsest {
+                let (u0, prob0) = if from_zero {
                     (0.0f32, 0.0f32)
                 } else {
                     let parent = &self.levels[s + 1];
@@ -32,13 +32,13 @@ impl Matcher {
                     (2.0 * parent.flow[k], parent.prob[k])
                 };
                 // §5: only patches whose parent found something are searched.
-                if !coarsest && (u0 == 0.0 || u0.is_nan() || prob0 <= 0.0) {
+                if !from_zero && (u0 == 0.0 || u0.is_nan() || prob0 <= 0.0) {
                     continue;
                 }
                 let result = self.search_patch(s, qx, qy, u0);
                 if result.b > 0.0 {
                     let prob = if bayesian {
-                        if coarsest { result.b * likelihood } else { result.b * likelihood + prob0 }
+                        if from_zero { result.b * likelihood } else { result.b * likelihood + prob0 }
                     } else {
                         1.0
                     };
