@@ -140,6 +140,11 @@ fn header_for_keyframe(base: DepthHeader, kh: &KeyframeHeader) -> DepthHeader {
 
 pub fn run(config: Config) -> Result<()> {
     let algorithm = config.matcher.params().algorithm;
+    // Said once at start, so a swap's log shows what validity its depth keyframes carry.
+    let matcher_name = match config.matcher.params().lr_tolerance_px() {
+        Some(px) => format!("{algorithm:?}, left–right checked to {px} px"),
+        None => format!("{algorithm:?}"),
+    };
     let ipc = Ipc::open(&config.name, &config.ipc_prefix)?;
     let depth = ipc.depth()?;
     let input_topic = match config.input {
@@ -167,7 +172,7 @@ pub fn run(config: Config) -> Result<()> {
             if standby {
                 let standby = bdis_ipc::control::Standby::open(&ipc)?;
                 telemetry.ready();
-                tracing::info!("stereo ({algorithm:?}, the tracker's keyframes) in standby");
+                tracing::info!("stereo ({matcher_name}, the tracker's keyframes) in standby");
                 match standby.wait(|| telemetry.keepalive())? {
                     None => {
                         tracing::info!("stop requested in standby");
@@ -184,12 +189,12 @@ pub fn run(config: Config) -> Result<()> {
                 }
             } else {
                 telemetry.ready();
-                tracing::info!("stereo ({algorithm:?}, the tracker's keyframes) ready");
+                tracing::info!("stereo ({matcher_name}, the tracker's keyframes) ready");
             }
             from_keyframes(&ipc, &subscriber, &mut output, &mut telemetry, base, resume_after)?
         }
         Input::Frames { every } => {
-            tracing::info!("stereo ({algorithm:?}, every {every} frames) ready");
+            tracing::info!("stereo ({matcher_name}, every {every} frames) ready");
             from_frames(&ipc, &mut output, &mut telemetry, base, every)?
         }
     };
