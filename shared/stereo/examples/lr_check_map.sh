@@ -10,7 +10,7 @@ set -euo pipefail
 seq=${1:?sequence folder}; out=${2:?output folder}
 bin=${BDIS_SLAM:-target/release/bdis-slam}
 mkdir -p "$out"
-"$bin" run --track --sequence "$seq" --settings "$seq/settings.yaml" --out "$out/bdis" > "$out/bdis.log"
+"$bin" run --track --sequence "$seq" --settings "$seq/settings.yaml" --out "$out/bdis" > "$out/bdis.log" 2>&1
 echo "variant,points,outliers,mean_mm,median_mm,coverage" > "$out/maps.csv"
 score() {
   "$bin" eval map --mesh "$seq/gt/mesh.ply" --map "$out/$1/map.ply" --align-est "$out/$1/keyframes.tum" \
@@ -30,6 +30,6 @@ marker = '"--input",\n    "keyframes",\n'
 assert marker in text, "the stereo service's arguments are not where expected in " + src
 open(dst, "w").write(text.replace(marker, marker + "".join(f'    "{a}",\n' for a in extra), 1))
 PY
-  "$bin" run "$out/$name.toml" --out "$out/$name" > "$out/$name.log"
+  "$bin" run "$out/$name.toml" --out "$out/$name" > "$out/$name.log" 2>&1
   score "$name"
 done
