@@ -13,8 +13,8 @@ pub struct SynthArgs {
     scene: String,
     /// Camera path. Colon: `forward` (through the tube, wobble and roll) or `revisit` (in, then back out over the
     /// same wall). Abdomen: `hover`, `sweep` (sideways), `revisit` (out and back), `pan` (swinging ±17° at up to
-    /// 120°/s while drifting sideways), `oblique` (looking across the wall: a far background). Default: forward /
-    /// sweep.
+    /// 120°/s while drifting sideways), `oblique` (looking across the wall: a far background), `circle` (round a
+    /// 40 mm circle, back to the start after a lap: 377 frames at 20 mm/s and 30 fps). Default: forward / sweep.
     #[arg(long)]
     trajectory: Option<String>,
     /// How the speed varies: `steady`, `jerk` (a third of the way in, three frames at 10× the speed) or `stop` (a

@@ -7,6 +7,9 @@ use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
 use crate::render::{Hit, Surface};
 use crate::{TissueTexture, value_noise};
 
+/// Radius of the `circle` trajectory's path over the wall.
+pub const CIRCLE_RADIUS_MM: f64 = 40.0;
+
 #[derive(Debug, Clone)]
 pub struct Abdomen {
     pub distance_mm: f64,
@@ -119,6 +122,21 @@ impl Abdomen {
             pose.translation.vector += Vector3::new(0.0, 1.5 * (t_s * 1.7).sin(), 0.7);
         }
         pose
+    }
+
+    /// Circling: a hover that moves round a circle of [`CIRCLE_RADIUS_MM`] at `speed_mm_s` (one lap in 12.6 s at
+    /// 20 mm/s), so it comes back to where it started after leaving it. The circle is wider than the view
+    /// (about 70 mm across at this stand-off with a 320-px, f = 260 camera), so opposite sides share no tissue and
+    /// the start is seen again only at the end of a lap: a loop to close, not a scene that never leaves the view.
+    pub fn circle_pose(&self, t_s: f64, speed_mm_s: f64) -> Isometry3<f64> {
+        let angle = speed_mm_s * t_s / CIRCLE_RADIUS_MM;
+        self.looking_down(
+            CIRCLE_RADIUS_MM * angle.cos(),
+            CIRCLE_RADIUS_MM * angle.sin(),
+            55.0 + 2.0 * (t_s * 0.4).sin(),
+            0.04 * (t_s * 0.7).sin(),
+            0.04 * (t_s * 0.5).cos(),
+        )
     }
 
     /// The wall as a grid mesh over [−extent, extent]² every `step` mm; vertices lie exactly on the surface.

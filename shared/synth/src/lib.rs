@@ -317,7 +317,8 @@ impl Motion {
 pub struct SceneRequest {
     /// `colon` or `abdomen`.
     pub scene: String,
-    /// Colon: `forward`, `revisit`; abdomen: `hover`, `sweep`, `revisit`, `pan`, `oblique`. `None`: forward / sweep.
+    /// Colon: `forward`, `revisit`; abdomen: `hover`, `sweep`, `revisit`, `pan`, `oblique`, `circle`. `None`:
+    /// forward / sweep.
     pub trajectory: Option<String>,
     pub frames: usize,
     pub fps: f64,
@@ -358,7 +359,7 @@ impl SceneRequest {
         }
         let paths: &[&str] = match self.scene.as_str() {
             "colon" => &["forward", "revisit"],
-            "abdomen" => &["hover", "sweep", "revisit", "pan", "oblique"],
+            "abdomen" => &["hover", "sweep", "revisit", "pan", "oblique", "circle"],
             other => return invalid(format!("`{other}` is not a scene (colon, abdomen)")),
         };
         if !(0.0..=5.0).contains(&self.optics_blur_px) {
@@ -420,7 +421,10 @@ pub fn write_scene(
                 progress,
             )
         }
-        ("abdomen", None | Some("hover") | Some("sweep") | Some("revisit") | Some("pan") | Some("oblique")) => {
+        (
+            "abdomen",
+            None | Some("hover") | Some("sweep") | Some("revisit") | Some("pan") | Some("oblique") | Some("circle"),
+        ) => {
             let abdomen = abdomen::Abdomen { seed, texture: TissueTexture { seed }, ..abdomen::Abdomen::default() };
             let a = abdomen.clone();
             let path = move |t: f64| {
@@ -430,10 +434,14 @@ pub fn write_scene(
                     Some("revisit") => a.revisit_pose(t, path_total_s, speed),
                     Some("pan") => a.pan_pose(t, speed),
                     Some("oblique") => a.oblique_pose(t, speed),
+                    Some("circle") => a.circle_pose(t, speed),
                     _ => a.sweep_pose(t, speed),
                 }
             };
-            let mesh = abdomen.mesh(60.0 + speed.abs() * path_total_s, 0.5);
+            // The circle stays within its radius of the centre; the other paths move along x.
+            let travel =
+                if trajectory == Some("circle") { abdomen::CIRCLE_RADIUS_MM } else { speed.abs() * path_total_s };
+            let mesh = abdomen.mesh(60.0 + travel, 0.5);
             // A laparoscope's light is stronger and the wall farther away than in a colon.
             let shading =
                 render::Shading { exposure_distance_mm: 65.0, lens, optics_blur_px, ..render::Shading::default() };
