@@ -36,6 +36,9 @@ pub struct KeyFrame {
     pub bad: bool,
     /// Set when culled: the pose relative to the parent at that moment (to rebuild trajectories).
     pub camera_from_parent: Option<Isometry3<f64>>,
+    /// Median stereo depth of its keypoints (NaN without any): how far it looks, for finding the keyframes a
+    /// later frame looks at again (map reuse).
+    pub median_depth: f64,
 }
 
 impl KeyFrame {
@@ -58,7 +61,13 @@ impl KeyFrame {
             children: BTreeSet::new(),
             bad: false,
             camera_from_parent: None,
+            median_depth: median_depth(&frame.depth),
         }
+    }
+
+    /// The point it looks at: on its optical axis at its median depth (world coordinates).
+    pub fn look_at(&self) -> Point3<f64> {
+        self.camera_from_world.inverse() * Point3::new(0.0, 0.0, self.median_depth)
     }
 
     pub fn centre(&self) -> Point3<f64> {
@@ -447,6 +456,17 @@ impl Map {
     }
 }
 
+/// Median of the positive depths (−1 marks none); NaN when there is none.
+fn median_depth(depth: &[f32]) -> f64 {
+    let mut valid: Vec<f32> = depth.iter().copied().filter(|d| *d > 0.0).collect();
+    if valid.is_empty() {
+        return f64::NAN;
+    }
+    let mid = valid.len() / 2;
+    let (_, median, _) = valid.select_nth_unstable_by(mid, f32::total_cmp);
+    f64::from(*median)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -470,6 +490,7 @@ mod tests {
             children: BTreeSet::new(),
             bad,
             camera_from_parent: bad.then(Isometry3::identity),
+            median_depth: f64::NAN,
         }
     }
 

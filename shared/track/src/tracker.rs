@@ -110,6 +110,8 @@ pub struct Tracker {
     kf_votes: Vec<u32>,
     kf_stamp: Vec<u64>,
     voters: Vec<KfId>,
+    /// Keyframes that look where the current frame looks without sharing a point with it: (closeness, id).
+    in_view: Vec<(f64, KfId)>,
     searcher: Searcher,
     optimizer: PoseOptimizer,
     opt_points: Vec<Point3<f64>>,
@@ -171,6 +173,7 @@ impl Tracker {
             kf_votes: Vec::with_capacity(1 << 12),
             kf_stamp: Vec::with_capacity(1 << 12),
             voters: Vec::with_capacity(1 << 10),
+            in_view: Vec::with_capacity(1 << 12),
             searcher: Searcher::with_capacity(2 * settings.orb.n_features as usize),
             optimizer: PoseOptimizer::with_capacity(1 << 12),
             opt_points: Vec::with_capacity(1 << 12),

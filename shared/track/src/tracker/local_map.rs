@@ -3,6 +3,9 @@
 
 use super::*;
 
+/// ORB-SLAM2's bound on the local keyframes (§5.6).
+const MAX_LOCAL_KEYFRAMES: usize = 80;
+
 impl Tracker {
     /// §5.6.
     pub(super) fn track_local_map(&mut self, result: &mut FrameResult) -> bool {
@@ -101,7 +104,7 @@ impl Tracker {
         // Neighbours of the voters (the intended behaviour: adding a parent does not end the walk, §10.1 #7).
         let voters = local.len();
         for idx in 0..voters {
-            if local.len() > 80 {
+            if local.len() > MAX_LOCAL_KEYFRAMES {
                 break;
             }
             let kf = &map.keyframes[local[idx]];
@@ -116,6 +119,7 @@ impl Tracker {
                 }
             }
         }
+        self.add_keyframes_in_view(stamp);
         let votes = &self.kf_votes;
         if let Some(&best) = self
             .voters
@@ -127,6 +131,40 @@ impl Tracker {
         }
         for &k in &self.voters {
             self.kf_votes[k] = 0;
+        }
+    }
+
+    /// Map reuse: keyframes that look at what this frame looks at but share no point with it yet (the scope has
+    /// come back to tissue mapped earlier) join the local keyframes, so their points are searched and a revisit
+    /// adds observations to the old points instead of making new ones beside them. A keyframe qualifies when
+    /// the point it looks at (its optical axis at its median depth) projects into this frame and its centre is
+    /// within its median depth of this frame's: ratios of the scene's depth, no unit. The closest come first,
+    /// up to ORB-SLAM2's 80 local keyframes; the frustum and viewing-angle test then decides point by point.
+    fn add_keyframes_in_view(&mut self, stamp: u64) {
+        let Some(pose) = self.current.camera_from_world else { return };
+        let centre = pose.inverse() * Point3::origin();
+        self.in_view.clear();
+        for kf in &self.map.keyframes {
+            if kf.bad || self.kf_stamp[kf.id] == stamp || !kf.median_depth.is_finite() {
+                continue;
+            }
+            let closeness = (kf.centre() - centre).norm() / kf.median_depth;
+            if closeness > 1.0 {
+                continue;
+            }
+            let seen = pose * kf.look_at();
+            if seen.z > 0.0 && {
+                let (u, v) = self.cam.project(&seen);
+                self.cam.in_image(u, v)
+            } {
+                self.in_view.push((closeness, kf.id));
+            }
+        }
+        self.in_view.sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+        let room = MAX_LOCAL_KEYFRAMES.saturating_sub(self.local_kfs.len());
+        for &(_, k) in self.in_view.iter().take(room) {
+            self.kf_stamp[k] = stamp;
+            self.local_kfs.push(k);
         }
     }
 

@@ -10,11 +10,6 @@ pub fn colon_flight(frames: usize) -> Vec<(Vec<u8>, Vec<u8>)> {
     let rig = RectifiedCamera { width: 320, height: 240, fx: 260.0, fy: 260.0, cx: 160.0, cy: 120.0, bf: 260.0 * 5.0 };
     let colon = bdis_synth::colon::Colon::default();
     let shading = bdis_synth::render::Shading::default();
-    let grey = |img: &image::RgbImage| -> Vec<u8> {
-        img.pixels()
-            .map(|p| ((u32::from(p[0]) * 4899 + u32::from(p[1]) * 9617 + u32::from(p[2]) * 1868 + 8192) >> 14) as u8)
-            .collect()
-    };
     (0..frames)
         .map(|i| {
             let pose = colon.forward_pose(i as f64 / 30.0, 20.0);
@@ -24,7 +19,14 @@ pub fn colon_flight(frames: usize) -> Vec<(Vec<u8>, Vec<u8>)> {
         .collect()
 }
 
-/// A tracker for [`colon_flight`] (pixel centres at half-pixel offsets, as the settings the renderer writes).
+/// A rendered image greyed as acquisition does (BT.601).
+pub fn grey(img: &image::RgbImage) -> Vec<u8> {
+    img.pixels()
+        .map(|p| ((u32::from(p[0]) * 4899 + u32::from(p[1]) * 9617 + u32::from(p[2]) * 1868 + 8192) >> 14) as u8)
+        .collect()
+}
+
+/// A tracker for [`colon_flight`] and the other 320×240 renders with f = 260 (pixel centres at half-pixel offsets, as the settings the renderer writes).
 pub fn colon_tracker() -> Tracker {
     let cam = RectifiedCamera { fx: 260.0, fy: 260.0, cx: 159.5, cy: 119.5, bf: 1300.0, width: 320, height: 240 };
     let orb = bdis_orb::OrbParams { n_features: 1000, ini_th_fast: 20, min_th_fast: 7, ..Default::default() };
