@@ -328,7 +328,7 @@ impl Matcher {
         }
         let (w, h) = (left.width, left.height);
         self.prepare(w, h)?;
-        let lr_check = (self.params.lr_check > 0.0).then_some(self.params.lr_check as f32);
+        let lr_check = self.params.lr_tolerance_level_px();
         if lr_check.is_some() {
             self.match_mirrored(left, right);
         }

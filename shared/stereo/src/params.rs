@@ -90,10 +90,14 @@ impl Params {
         }
     }
 
-    /// The left–right tolerance in image pixels (one finest-level pixel is 2^lv_l image pixels), or `None` when
-    /// the check is off.
+    /// The left–right tolerance in finest-level pixels, or `None` when the check is off.
+    pub fn lr_tolerance_level_px(&self) -> Option<f32> {
+        (self.lr_check > 0.0).then_some(self.lr_check as f32)
+    }
+
+    /// The same in image pixels (one finest-level pixel is 2^lv_l image pixels).
     pub fn lr_tolerance_px(&self) -> Option<f32> {
-        (self.lr_check > 0.0).then(|| (self.lr_check * f64::from(1u32 << self.lv_l)) as f32)
+        self.lr_tolerance_level_px().map(|t| t * (1u32 << self.lv_l) as f32)
     }
 
     /// The same parameters without the left–right check: the matcher as the original has it, for comparisons
