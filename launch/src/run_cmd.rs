@@ -56,6 +56,11 @@ pub struct RunArgs {
     /// see `bdis-mosaic --help`).
     #[arg(long = "map-param", value_name = "NAME=VALUE", requires = "track")]
     map_params: Vec<String>,
+    /// With --track: no loop closing (by default the tracker recognises tissue mapped long ago, corrects its map
+    /// by a pose graph, and the dense map follows every moved keyframe; off, revisits are tied in by map reuse
+    /// alone). For comparing the two: see BENCHMARKS.md.
+    #[arg(long, requires = "track")]
+    no_loop_closing: bool,
     /// Run folder to write (default: runs/<UTC time>-<name>).
     #[arg(long)]
     out: Option<PathBuf>,
@@ -163,6 +168,11 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
             };
             let mut plan =
                 plan_for_sequence(input, args.pacing, args.checksums, args.stereo_every, args.track, &args.map_params)?;
+            if args.no_loop_closing
+                && let Some(tracking) = plan.services.iter_mut().find(|s| s.binary == "bdis-tracking")
+            {
+                tracking.args.extend(["--loop-closing".to_string(), "off".to_string()]);
+            }
             if let Some(acquisition) = plan.services.iter_mut().find(|s| s.binary == "bdis-acquisition") {
                 if args.start > 0 {
                     acquisition.args.extend(["--start".to_string(), args.start.to_string()]);

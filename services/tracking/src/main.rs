@@ -4,6 +4,7 @@
 //! consumer of its outputs: their topics overflow safely. On the end of the stream it writes the trajectory
 //! (TUM and KITTI) and the keyframe trajectory into the run folder.
 
+mod counts;
 mod journal;
 mod node;
 mod quality_log;
@@ -37,6 +38,11 @@ struct Args {
     /// (ORB-SLAM2's FAST positions as they are).
     #[arg(long, default_value = "aligned", value_parser = ["aligned", "whole-pixel"])]
     measurements: String,
+    /// Loop closing (`on`): a keyframe that recognises tissue mapped long ago (outside its covisibility
+    /// neighbourhood) is checked in 3-D, the map is corrected by a pose graph on a worker thread, and every
+    /// keyframe moved goes out as a correction. `off`: revisits are tied in by map reuse alone.
+    #[arg(long, default_value = "on", value_parser = ["on", "off"])]
+    loop_closing: String,
     /// Continue after a crashed predecessor: its journal (`tracking.journal` in the run folder) gives the frames
     /// it tracked, the keyframe ids it published and the world frame; a new map continues the same trajectory.
     #[arg(long)]
@@ -74,6 +80,7 @@ fn run(args: Args) -> Result<()> {
         tracker.set_ba_mode(bdis_track::mapper::BaMode::Inline);
     }
     tracker.set_refinement(args.measurements == "aligned");
+    tracker.set_loop_closing(args.loop_closing == "on");
     let out_dir = args.out.clone().unwrap_or_else(|| PathBuf::from("."));
     // What earlier instances of this run published (a restart after a crash), and this instance's own journal.
     let journal_path = out_dir.join("tracking.journal");

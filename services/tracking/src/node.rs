@@ -5,6 +5,7 @@
 
 use std::path::{Path, PathBuf};
 
+use crate::counts::Counts;
 use anyhow::{Context, Result, bail};
 use bdis_core::RectifiedCamera;
 use bdis_core::formats::summary::TrackingSummary;
@@ -163,24 +164,6 @@ impl Outputs {
     }
 }
 
-/// Per-run counts and CPU times for tracking.json.
-#[derive(Debug, Default)]
-struct Counts {
-    frames: u64,
-    keyframes: u64,
-    lost: u64,
-    uncertain: u64,
-    doubts: std::collections::BTreeMap<&'static str, u64>,
-    appearance_frames: u64,
-    priors_rejected: u64,
-    /// CPU of the frames posed by appearance, ms.
-    appearance_ms: Vec<f64>,
-    relocalised: u64,
-    /// Per-frame CPU (frames without a new keyframe) and per-keyframe CPU (tracking plus local mapping), ms.
-    frame_ms: Vec<f64>,
-    keyframe_ms: Vec<f64>,
-}
-
 pub fn run(config: Config) -> Result<()> {
     let Config { mut tracker, earlier, world, journal, camera, n_features, settings, out_dir, name, ipc_prefix } =
         config;
@@ -298,6 +281,7 @@ pub fn run(config: Config) -> Result<()> {
             drop(sample);
             if let Some(report) = &result.mapper {
                 out.corrections(&tracker, report)?;
+                counts.loop_report(report);
             }
             let world_from_camera = result.camera_from_world.map(|p| out.world.to_world(&p.inverse()));
             let t_publish_ns = monotonic_ns();
@@ -426,6 +410,9 @@ fn write_summary(
         frame_cpu_ms_p99: percentile(&mut counts.frame_ms, 0.99),
         keyframe_cpu_ms_p50: percentile(&mut counts.keyframe_ms, 0.5),
         keyframe_cpu_ms_p99: percentile(&mut counts.keyframe_ms, 0.99),
+        loops_closed: tracker.loops_closed().iter().map(|&(a, b)| (world.kf_id(a), world.kf_id(b))).collect(),
+        loop_detection_ms_p50: percentile(&mut counts.loop_detection_ms, 0.5),
+        pose_graph_ms: counts.pose_graph_ms.clone(),
     };
     summary.write(&dir.join("tracking.json"))?;
     Ok(())

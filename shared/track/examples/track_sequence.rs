@@ -4,6 +4,7 @@
 //!
 //! cargo run --release -p bdis-track --example track_sequence -- <dir> <out.tum> [max frames] [--whole-pixel]
 //!     [--settings F] [--verbose] [--dump-map F]
+//!     [--no-loop-closing]
 //!
 //! `--dump-map F` writes the finished map's keyframes and observations for `observation_truth.py` (beside this).
 #![allow(clippy::unwrap_used, clippy::expect_used)]
@@ -52,9 +53,11 @@ fn main() {
     };
     let mut tracker = Tracker::new(cam, ts).unwrap();
     tracker.set_refinement(!a.iter().any(|x| x == "--whole-pixel"));
+    tracker.set_loop_closing(!a.iter().any(|x| x == "--no-loop-closing"));
     let mut cpu = Vec::new();
     let mut kf_ms = Vec::new();
     let mut steps = [0.0f64; 5];
+    let (mut detect_ms, mut wait_ms) = (Vec::new(), Vec::new());
     for (i, &t) in times.iter().enumerate().take(max) {
         let (l, _, _) = grey(&lefts[i]);
         let (r, _, _) = grey(&rights[i]);
@@ -70,6 +73,24 @@ fn main() {
             kf_ms.push(ms);
         } else {
             cpu.push(ms);
+        }
+        if let Some(m) = &res.mapper {
+            detect_ms.push(m.loop_detect_ms);
+            wait_ms.push(m.loop_apply_ms);
+        }
+        if let Some(m) = &res.mapper
+            && (m.loop_closed.is_some() || m.pose_graph.is_some())
+        {
+            eprintln!(
+                "frame {i}: loop {:?} (fused {}, moved {}), pose graph {:?} ({:.1} ms on the worker), detection {:.1} ms, applied in {:.1} ms",
+                m.loop_closed,
+                m.fused,
+                m.moved.len(),
+                m.pose_graph,
+                m.pose_graph_ms,
+                m.loop_detect_ms,
+                m.loop_apply_ms
+            );
         }
         if verbose || i % 20 == 0 || res.state != bdis_track::TrackingState::Ok {
             let q = &res.quality;
@@ -95,6 +116,20 @@ fn main() {
         }
     }
     tracker.finish();
+    eprintln!("loops closed: {:?}", tracker.loops_closed());
+    for (name, v) in
+        [("place recognition (worker)", &mut detect_ms), ("loop result taken (tracking thread)", &mut wait_ms)]
+    {
+        v.sort_by(f64::total_cmp);
+        if !v.is_empty() {
+            eprintln!(
+                "{name} per keyframe: median {:.1} ms, p90 {:.1} ms, max {:.1} ms",
+                v[v.len() / 2],
+                v[v.len() * 9 / 10],
+                v[v.len() - 1]
+            );
+        }
+    }
     eprintln!("refined measurements: σ {:.3} of their octave's", tracker.map().refined_sigma);
     cpu.sort_by(f64::total_cmp);
     kf_ms.sort_by(f64::total_cmp);

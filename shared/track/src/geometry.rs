@@ -3,7 +3,7 @@
 //! Poses here are `camera_from_world` (T_cw, the tracker's working convention: it maps world points into the
 //! camera); trajectories leave the crate as `world_from_camera` (bdis_core::geometry::Pose).
 
-use nalgebra::{Isometry3, Matrix3, Translation3, UnitQuaternion, Vector3, Vector6};
+use nalgebra::{Isometry3, Matrix3, Point3, Translation3, UnitQuaternion, Vector3, Vector6};
 
 /// `camera_from_world` of the left camera.
 pub type CameraFromWorld = Isometry3<f64>;
@@ -39,6 +39,47 @@ pub fn update(xi: &Vector6<f64>, t: &Isometry3<f64>) -> Isometry3<f64> {
 }
 
 pub use bdis_core::calib::RectifiedCamera;
+
+/// Three indices below `n` from the tracker's deterministic generator (a 64-bit LCG); `None` when two coincide
+/// (the draw is spent, as RANSAC counts it).
+pub fn draw_three(state: &mut u64, n: usize) -> Option<[usize; 3]> {
+    let mut pick = [0usize; 3];
+    for slot in pick.iter_mut() {
+        *state = state.wrapping_mul(6_364_136_223_846_793_005).wrapping_add(1_442_695_040_888_963_407);
+        *slot = (*state >> 33) as usize % n;
+    }
+    (pick[0] != pick[1] && pick[1] != pick[2] && pick[0] != pick[2]).then_some(pick)
+}
+
+/// The rigid motion `dst_from_src` that best maps `src` onto `dst` (Horn/Umeyama without scale); `None` for
+/// degenerate (collinear) sets.
+pub fn rigid_fit(src: &[Point3<f64>], dst: &[Point3<f64>]) -> Option<Isometry3<f64>> {
+    let n = src.len() as f64;
+    let (cs, cd) = (
+        src.iter().fold(nalgebra::Vector3::zeros(), |a, p| a + p.coords) / n,
+        dst.iter().fold(nalgebra::Vector3::zeros(), |a, p| a + p.coords) / n,
+    );
+    let mut cov = Matrix3::zeros();
+    for (s, d) in src.iter().zip(dst) {
+        cov += (d.coords - cd) * (s.coords - cs).transpose();
+    }
+    let svd = cov.svd(true, true);
+    let (u, v_t) = (svd.u?, svd.v_t?);
+    let sv = svd.singular_values;
+    if sv[1] < 1e-9 * sv[0].max(1e-30) {
+        return None;
+    }
+    let mut s = Matrix3::identity();
+    if (u * v_t).determinant() < 0.0 {
+        s[(2, 2)] = -1.0;
+    }
+    let r = u * s * v_t;
+    // U·S·Vᵀ is a rotation by construction: converted directly. (`UnitQuaternion::from_matrix` iterates from
+    // the identity until it converges, and for some rotations it never does: a hang seen in this fit.)
+    let rotation = UnitQuaternion::from_rotation_matrix(&nalgebra::Rotation3::from_matrix_unchecked(r));
+    let t = cd - rotation * cs;
+    Some(Isometry3::from_parts(Translation3::from(t), rotation))
+}
 
 #[cfg(test)]
 mod tests {
@@ -84,5 +125,36 @@ mod tests {
         let z = cam.project_stereo(&p);
         assert!((z.x - 100.5).abs() < 1e-12 && (z.y - 300.25).abs() < 1e-12);
         assert!((z.x - z.z - 2600.0 / 42.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn rigid_fit_recovers_a_rigid_motion_exactly() {
+        let motion = Isometry3::new(Vector3::new(0.3, -1.2, 4.0), Vector3::new(0.2, -0.4, 0.9));
+        let src: Vec<Point3<f64>> =
+            [(0.0, 0.0, 1.0), (1.0, 0.5, 2.0), (-0.7, 2.0, 3.0), (0.4, -1.0, 5.0), (2.0, 2.0, 2.5)]
+                .into_iter()
+                .map(|(x, y, z)| Point3::new(x, y, z))
+                .collect();
+        let dst: Vec<Point3<f64>> = src.iter().map(|p| motion * p).collect();
+        let fit = rigid_fit(&src, &dst).unwrap();
+        assert!((fit.translation.vector - motion.translation.vector).norm() < 1e-9);
+        assert!(fit.rotation.angle_to(&motion.rotation) < 1e-9);
+    }
+
+    #[test]
+    fn rigid_fit_never_returns_a_reflection() {
+        // Points mirrored through a plane: the best rotation is still a rotation (det +1).
+        let src: Vec<Point3<f64>> = [(1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0), (1.0, 1.0, 1.0)]
+            .map(|(x, y, z)| Point3::new(x, y, z))
+            .into();
+        let dst: Vec<Point3<f64>> = src.iter().map(|p| Point3::new(-p.x, p.y, p.z)).collect();
+        let fit = rigid_fit(&src, &dst).unwrap();
+        assert!((fit.rotation.to_rotation_matrix().matrix().determinant() - 1.0).abs() < 1e-9);
+    }
+
+    #[test]
+    fn rigid_fit_refuses_collinear_points() {
+        let src: Vec<Point3<f64>> = (0..5).map(|i| Point3::new(f64::from(i), 2.0 * f64::from(i), 0.0)).collect();
+        assert!(rigid_fit(&src, &src).is_none());
     }
 }

@@ -5,6 +5,7 @@ pub mod frame;
 pub mod geometry;
 pub mod ids;
 pub mod journal;
+pub mod loop_closing;
 pub mod map;
 pub mod mapper;
 pub mod optim;

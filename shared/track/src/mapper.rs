@@ -8,9 +8,11 @@ use local_ba::{apply_local_ba, snapshot_local_ba};
 
 use crate::frame::Scales;
 use crate::geometry::{CameraFromWorld, RectifiedCamera, skew};
+use crate::loop_closing::{LoopCloser, apply_graph, close_loop};
 use crate::map::{KfId, Map, PointId};
 use crate::optim::{BaEdge, BaProblem, CHI2_MONO, CHI2_STEREO, Observation};
 use crate::search::TH_LOW;
+use crate::search::fuse_point;
 use bdis_orb::hamming;
 use nalgebra::{Matrix3, Matrix4, Point3, Vector3};
 use std::collections::{BTreeMap, BTreeSet};
@@ -30,6 +32,18 @@ pub struct MapperReport {
     /// Wall time of the steps, ms: observations and point culling, new points, fusion, waiting for and applying
     /// the previous keyframe's bundle adjustment (all of it when it runs inline), snapshot and keyframe culling.
     pub step_ms: [f64; 5],
+    /// A loop closed at this keyframe: (the keyframe that recognised the place, the old keyframe).
+    pub loop_closed: Option<(KfId, KfId)>,
+    /// The loop's correction against the pose's uncertainty (χ², 6 DoF): below 12.6 it was noise, and the two
+    /// sides were fused without moving anything.
+    pub loop_drift_chi2: f64,
+    /// A pose graph applied at this keyframe (the loop's correction spread over the map).
+    pub pose_graph: Option<crate::loop_closing::GraphReport>,
+    /// Worker time of the previous keyframe's loop job, ms: recognition and verification, pose-graph solve.
+    pub loop_detect_ms: f64,
+    pub pose_graph_ms: f64,
+    /// Wall time on this thread of taking the loop result and applying it (waiting included), ms.
+    pub loop_apply_ms: f64,
 }
 
 /// Where local bundle adjustment runs.
@@ -79,16 +93,78 @@ impl Drop for BaWorker {
     }
 }
 
-#[derive(Debug, Default)]
+#[derive(Debug)]
 pub struct LocalMapper {
     mode: BaMode,
     worker: Option<BaWorker>,
     recent: Vec<PointId>,
+    /// Loop closing (§8), in the same mode as bundle adjustment; `None` when switched off.
+    loops: Option<LoopCloser>,
+}
+
+impl Default for LocalMapper {
+    fn default() -> Self {
+        Self::new(BaMode::default())
+    }
 }
 
 impl LocalMapper {
     pub fn new(mode: BaMode) -> Self {
-        Self { mode, ..Self::default() }
+        Self { mode, worker: None, recent: Vec::new(), loops: Some(LoopCloser::new(mode == BaMode::Inline)) }
+    }
+
+    /// Switches loop closing on (the default) or off; set before the first keyframe.
+    pub fn set_loop_closing(&mut self, on: bool) {
+        self.loops = on.then(|| LoopCloser::new(self.mode == BaMode::Inline));
+    }
+
+    /// The loops closed so far: (keyframe that recognised the place, old keyframe).
+    pub fn loops_closed(&self) -> &[(KfId, KfId)] {
+        self.loops.as_ref().map_or(&[], |l| l.loops.as_slice())
+    }
+
+    /// Takes the loop job sent at the previous keyframe and applies it: a solved pose graph is written back; a
+    /// verified place is checked against the map and, when it holds, the loop is closed and its pose graph
+    /// returned for the worker.
+    fn take_loop_result(
+        &mut self,
+        map: &mut Map,
+        cam: &RectifiedCamera,
+        scales: &Scales,
+        report: &mut MapperReport,
+    ) -> Option<crate::loop_closing::GraphJob> {
+        let loops = self.loops.as_mut()?;
+        let outcome = loops.collect()?;
+        report.loop_detect_ms = outcome.detect_ms;
+        report.pose_graph_ms = outcome.graph_ms;
+        if let Some(job) = outcome.graph {
+            report.moved.extend(apply_graph(map, &job, scales));
+            loops.graph_done();
+            report.pose_graph = Some(job.report);
+        }
+        let (kf, found) = outcome.found?;
+        let closed = close_loop(map, cam, scales, kf, &found)?;
+        report.fused += closed.fused;
+        report.moved.extend(closed.moved);
+        loops.closed(kf, found.candidate);
+        report.loop_closed = Some((kf, found.candidate));
+        report.loop_drift_chi2 = closed.drift_chi2;
+        closed.graph
+    }
+
+    /// At the end of a run: the loop job in flight is taken and applied, and a loop it found is closed with its
+    /// pose graph solved here, so the final map has every correction.
+    pub fn finish_loops(&mut self, map: &mut Map, cam: &RectifiedCamera, scales: &Scales, report: &mut MapperReport) {
+        if let Some(mut job) = self.take_loop_result(map, cam, scales, report) {
+            job.report = job.graph.optimise(crate::loop_closing::POSE_GRAPH_ITERATIONS);
+            report.moved.extend(apply_graph(map, &job, scales));
+            report.moved.sort_unstable();
+            report.moved.dedup();
+            if let Some(l) = self.loops.as_mut() {
+                l.graph_done();
+            }
+            report.pose_graph = Some(job.report);
+        }
     }
 
     /// Hands a snapshot to the worker (spawned on first use), or solves and applies it here.
@@ -153,6 +229,11 @@ impl LocalMapper {
         self.process_new_keyframe(map, kf, scales);
         report.culled_points = self.cull_recent_points(map, kf);
         lap(&mut report, 0);
+        // The loop job of the previous keyframe, after this one is linked (so a correction moves it with its
+        // parent).
+        let loop_start = std::time::Instant::now();
+        let graph = self.take_loop_result(map, cam, scales, &mut report);
+        report.loop_apply_ms = loop_start.elapsed().as_secs_f64() * 1e3;
         report.new_points = self.create_new_points(map, kf, cam, scales);
         lap(&mut report, 1);
         report.fused = search_in_neighbours(map, kf, cam, scales);
@@ -162,6 +243,9 @@ impl LocalMapper {
             self.submit_ba(job, map, scales, &mut report);
         }
         report.culled_keyframes = cull_keyframes(map, kf, cam, th_depth);
+        if let Some(loops) = self.loops.as_mut() {
+            loops.send_keyframe(map, kf, cam, scales, graph);
+        }
         lap(&mut report, 4);
         report
     }
@@ -362,67 +446,6 @@ fn triangulate_pair(
         return None;
     }
     Some(x)
-}
-
-/// Fuses point `p` into keyframe `kf` (§4 Fuse, th = 3). Returns whether it was fused or added.
-fn fuse_point(map: &mut Map, cam: &RectifiedCamera, scales: &Scales, kf: KfId, p: PointId) -> bool {
-    let point = &map.points[p];
-    if point.bad || point.observations.contains_key(&kf) {
-        return false;
-    }
-    if !map.point_visible_in(cam, p, kf) {
-        return false;
-    }
-    let k = &map.keyframes[kf];
-    let t = k.camera_from_world;
-    let pc = t * point.position;
-    let (u, v) = cam.project(&pc);
-    let u_r = u - cam.bf / pc.z;
-    let dist = (point.position - k.centre()).norm();
-    let level = scales.predict_level(dist, point.max_dist);
-    let r = 3.0 * scales.scale[level];
-    let mut found = Vec::new();
-    k.grid.features_in_area(
-        &k.keypoints,
-        (u as f32, v as f32),
-        r as f32,
-        level.saturating_sub(1) as u8..=level as u8,
-        &mut found,
-    );
-    let mut best = (u32::MAX, usize::MAX);
-    for &j in &found {
-        let kp = &k.keypoints[j];
-        let inv_s2 = scales.inv_sigma2[usize::from(kp.octave)];
-        let (eu, ev) = (u - f64::from(kp.x), v - f64::from(kp.y));
-        let e2 = if k.is_stereo(j) {
-            let er = u_r - f64::from(k.u_right[j]);
-            (eu * eu + ev * ev + er * er) * inv_s2 > 7.8
-        } else {
-            (eu * eu + ev * ev) * inv_s2 > CHI2_MONO
-        };
-        if e2 {
-            continue;
-        }
-        let d = hamming(&point.descriptor, &k.descriptors[j]);
-        if d < best.0 {
-            best = (d, j);
-        }
-    }
-    if best.0 > TH_LOW {
-        return false;
-    }
-    match map.keyframes[kf].points[best.1] {
-        Some(q) if !map.points[q].bad => {
-            // The point with more observations survives.
-            if map.points[q].n_obs > map.points[p].n_obs {
-                map.replace_point(p, q);
-            } else {
-                map.replace_point(q, p);
-            }
-        }
-        _ => map.add_observation(p, kf, best.1),
-    }
-    true
 }
 
 /// §6.4.

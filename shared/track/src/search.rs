@@ -4,6 +4,7 @@
 use crate::frame::{Frame, Scales};
 use crate::geometry::{CameraFromWorld, RectifiedCamera};
 use crate::map::{KfId, Map, PointId};
+use crate::optim::CHI2_MONO;
 use bdis_orb::{RotationBins, RotationHistogram, hamming};
 use std::collections::BTreeSet;
 
@@ -262,5 +263,66 @@ pub fn frustum_check(
     let level = scales.predict_level(dist, point.max_dist);
     point.cache =
         crate::map::TrackCache { in_view: true, u, v, u_right: u - cam.bf / pc.z, level, view_cos, ..point.cache };
+    true
+}
+
+/// Fuses point `p` into keyframe `kf` (§4 Fuse, th = 3). Returns whether it was fused or added.
+pub fn fuse_point(map: &mut Map, cam: &RectifiedCamera, scales: &Scales, kf: KfId, p: PointId) -> bool {
+    let point = &map.points[p];
+    if point.bad || point.observations.contains_key(&kf) {
+        return false;
+    }
+    if !map.point_visible_in(cam, p, kf) {
+        return false;
+    }
+    let k = &map.keyframes[kf];
+    let t = k.camera_from_world;
+    let pc = t * point.position;
+    let (u, v) = cam.project(&pc);
+    let u_r = u - cam.bf / pc.z;
+    let dist = (point.position - k.centre()).norm();
+    let level = scales.predict_level(dist, point.max_dist);
+    let r = 3.0 * scales.scale[level];
+    let mut found = Vec::new();
+    k.grid.features_in_area(
+        &k.keypoints,
+        (u as f32, v as f32),
+        r as f32,
+        level.saturating_sub(1) as u8..=level as u8,
+        &mut found,
+    );
+    let mut best = (u32::MAX, usize::MAX);
+    for &j in &found {
+        let kp = &k.keypoints[j];
+        let inv_s2 = scales.inv_sigma2[usize::from(kp.octave)];
+        let (eu, ev) = (u - f64::from(kp.x), v - f64::from(kp.y));
+        let e2 = if k.is_stereo(j) {
+            let er = u_r - f64::from(k.u_right[j]);
+            (eu * eu + ev * ev + er * er) * inv_s2 > 7.8
+        } else {
+            (eu * eu + ev * ev) * inv_s2 > CHI2_MONO
+        };
+        if e2 {
+            continue;
+        }
+        let d = hamming(&point.descriptor, &k.descriptors[j]);
+        if d < best.0 {
+            best = (d, j);
+        }
+    }
+    if best.0 > TH_LOW {
+        return false;
+    }
+    match map.keyframes[kf].points[best.1] {
+        Some(q) if !map.points[q].bad => {
+            // The point with more observations survives.
+            if map.points[q].n_obs > map.points[p].n_obs {
+                map.replace_point(p, q);
+            } else {
+                map.replace_point(q, p);
+            }
+        }
+        _ => map.add_observation(p, kf, best.1),
+    }
     true
 }

@@ -12,9 +12,10 @@ mod motion;
 mod quality;
 mod relocalise;
 
+use crate::geometry::draw_three;
+pub use crate::geometry::rigid_fit;
 pub use appearance::AppearanceFix;
 pub use quality::{Doubt, PoseMethod, TrackingQuality};
-pub use relocalise::rigid_fit;
 
 use crate::frame::{Frame, FrameBuilder, Scales};
 use crate::geometry::{CameraFromWorld, RectifiedCamera};
@@ -24,7 +25,7 @@ use crate::optim::{Observation, PoseOptimizer};
 use crate::refine::{Aligner, Anchor, Unrefined};
 use crate::search::{Searcher, TH_HIGH, TH_LOW, frustum_check};
 use bdis_orb::{OrbError, OrbParams, hamming};
-use nalgebra::{Isometry3, Matrix3, Point3, Translation3, UnitQuaternion};
+use nalgebra::{Isometry3, Point3};
 use std::collections::BTreeSet;
 
 /// Frames after a relocalisation during which no keyframe is made.
@@ -132,6 +133,13 @@ pub struct Tracker {
     new_point_anchors: Vec<Option<(Anchor, bool)>>,
     residual_scratch: Vec<f64>,
     appearance: appearance::AppearanceScratch,
+    /// Loop closing on: map reuse then stops at the loop horizon (beyond it, a revisit is a loop to close).
+    loop_closing: bool,
+    /// Keyframes within the loop horizon of the reference keyframe, by stamp, and for which reference and map
+    /// size the stamps were made.
+    near_stamp: Vec<u64>,
+    near_for: Option<(KfId, usize)>,
+    near_frontier: Vec<KfId>,
 }
 
 impl Tracker {
@@ -140,6 +148,7 @@ impl Tracker {
     /// keyframe). Set before the first frame.
     pub fn set_ba_mode(&mut self, mode: crate::mapper::BaMode) {
         self.mapper = LocalMapper::new(mode);
+        self.mapper.set_loop_closing(self.loop_closing);
     }
 
     /// Whether matched keypoints are moved to sub-pixel positions by patch alignment before local-map pose
@@ -190,6 +199,10 @@ impl Tracker {
             new_point_anchors: Vec::with_capacity(1 << 12),
             residual_scratch: Vec::with_capacity(1 << 12),
             appearance: appearance::AppearanceScratch::with_capacity(settings.orb.n_features as usize),
+            loop_closing: true,
+            near_stamp: Vec::with_capacity(1 << 12),
+            near_for: None,
+            near_frontier: Vec::with_capacity(1 << 10),
         })
     }
 
@@ -384,7 +397,21 @@ impl Tracker {
     pub fn finish(&mut self) -> MapperReport {
         let mut report = MapperReport::default();
         self.mapper.finish_ba(&mut self.map, &self.scales, &mut report);
+        self.mapper.finish_loops(&mut self.map, &self.cam, &self.scales, &mut report);
         report
+    }
+
+    /// Loop closing on (the default) or off (ORB-SLAM2-STEREO.md §8). Set before the first frame. Off, a revisit
+    /// is tied in by map reuse alone; on, map reuse stops at the loop horizon and farther revisits are closed as
+    /// loops (see BENCHMARKS.md for what each gives).
+    pub fn set_loop_closing(&mut self, on: bool) {
+        self.loop_closing = on;
+        self.mapper.set_loop_closing(on);
+    }
+
+    /// The loops closed so far: (keyframe that recognised the place, old keyframe).
+    pub fn loops_closed(&self) -> &[(KfId, KfId)] {
+        self.mapper.loops_closed()
     }
 
     /// The trajectory so far: (t_ns, world_from_camera, lost) per frame, from each frame's reference keyframe as

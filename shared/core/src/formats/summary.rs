@@ -44,6 +44,14 @@ pub struct TrackingSummary {
     pub frame_cpu_ms_p99: Option<f64>,
     pub keyframe_cpu_ms_p50: Option<f64>,
     pub keyframe_cpu_ms_p99: Option<f64>,
+    /// Loops closed: (keyframe that recognised the place, the old keyframe), in the run's keyframe ids.
+    #[serde(default)]
+    pub loops_closed: Vec<(u64, u64)>,
+    /// Worker time of place recognition per keyframe and of each pose-graph solve, ms.
+    #[serde(default)]
+    pub loop_detection_ms_p50: Option<f64>,
+    #[serde(default)]
+    pub pose_graph_ms: Vec<f64>,
 }
 
 impl TrackingSummary {

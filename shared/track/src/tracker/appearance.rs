@@ -126,7 +126,7 @@ impl Tracker {
         let mut iteration = 0;
         while iteration < needed {
             iteration += 1;
-            let Some(pick) = super::relocalise::draw_three(&mut self.ransac_state, n) else { continue };
+            let Some(pick) = draw_three(&mut self.ransac_state, n) else { continue };
             let src = pick.map(|k| s.matches[k].world);
             let dst = pick.map(|k| s.matches[k].camera);
             let Some(t) = rigid_fit(&src, &dst) else { continue };

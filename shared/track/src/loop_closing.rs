@@ -1,0 +1,369 @@
+//! Loop closing (ORB-SLAM2-STEREO.md §8): when the scope comes back to tissue mapped long ago, the keyframe is
+//! recognised by appearance, the match is checked in 3-D, the current neighbourhood is moved onto the old map
+//! and its duplicated points fused, and a pose graph spreads the correction over the keyframes in between.
+//!
+//! Threads: recognition, verification and the pose-graph solve run on a worker thread (`loop-closing`) from
+//! copies; the map's owner sends one job per keyframe and takes its result at the next keyframe (waiting if
+//! it is not done), so every run applies the same corrections at the same keyframes: runs are deterministic.
+//! The steps that read and write the map (guided matching, moving the neighbourhood, fusion, building the
+//! graph, applying the solve) run on the owner's thread at that keyframe boundary; they are cheap next to the
+//! search and the solve.
+//!
+//! What counts as a loop: a keyframe outside the current keyframe's covisibility neighbourhood of
+//! [`LOOP_HORIZON_HOPS`] hops. Inside it, local tracking and bundle adjustment already tie the two together
+//! (map reuse finds their points); outside, only a long chain of keyframes does, and its drift is what the
+//! pose graph removes. The candidates are the keyframes the new one looks at again by its tracked pose
+//! ([`revisited`]; why not an appearance search over the map: see `place`).
+
+mod correct;
+pub mod place;
+pub mod pose_graph;
+
+pub use correct::{ClosedLoop, GraphJob, apply_graph, close_loop};
+pub use place::{PlaceEntry, PlaceMatch, PlaceStore};
+pub use pose_graph::{GraphEdge, GraphReport, PoseGraph, log_se3};
+
+use crate::frame::Scales;
+use crate::geometry::RectifiedCamera;
+use crate::map::{KfId, Map};
+use std::collections::{BTreeMap, BTreeSet};
+
+/// Covisibility hops (over the strong links) within which a keyframe is the current one's neighbourhood, not a
+/// loop: two hops is ORB-SLAM2's local map (the keyframes sharing points, and their best covisibles).
+pub const LOOP_HORIZON_HOPS: usize = 2;
+/// Candidates checked per keyframe, nearest first (relocalisation's 5).
+pub const MAX_CANDIDATES: usize = 5;
+/// Consecutive keyframes whose candidates must agree before a loop is checked (ORB-SLAM2's 3, §8.1).
+pub const CONSISTENCY_KEYFRAMES: u32 = 3;
+/// Keyframes in the map before loops are looked for, and between two loops (ORB-SLAM2's 10, §8.1).
+pub const MIN_KEYFRAMES_BETWEEN_LOOPS: usize = 10;
+/// Levenberg–Marquardt iterations of the pose graph (ORB-SLAM2's 20, §8.4).
+pub const POSE_GRAPH_ITERATIONS: usize = 20;
+
+/// The keyframes within `hops` strong-covisibility links of `kf` (itself included), good ones only.
+pub fn neighbourhood(map: &Map, kf: KfId, hops: usize) -> BTreeSet<KfId> {
+    let mut near = BTreeSet::from([kf]);
+    let mut frontier = vec![kf];
+    for _ in 0..hops {
+        let mut next = Vec::new();
+        for k in frontier {
+            for (n, _) in &map.keyframes[k].ordered {
+                if !map.keyframes[*n].bad && near.insert(*n) {
+                    next.push(*n);
+                }
+            }
+        }
+        frontier = next;
+    }
+    near
+}
+
+/// The old keyframes keyframe `kf` looks at again, beyond its neighbourhood `near`, nearest first (at most
+/// [`MAX_CANDIDATES`]): the map-reuse test (the point an old keyframe looks at projects into this one, and its
+/// centre is within its median depth of this one's: ratios of the scene's depth, no unit).
+pub fn revisited(map: &Map, cam: &RectifiedCamera, kf: KfId, near: &BTreeSet<KfId>) -> Vec<KfId> {
+    let k = &map.keyframes[kf];
+    let centre = k.centre();
+    let mut found: Vec<(f64, KfId)> = map
+        .good_keyframes()
+        .filter(|o| !near.contains(&o.id) && o.id != kf && o.median_depth.is_finite())
+        .filter_map(|o| {
+            let closeness = (o.centre() - centre).norm() / o.median_depth;
+            let seen = k.camera_from_world * o.look_at();
+            let inside = seen.z > 0.0 && {
+                let (u, v) = cam.project(&seen);
+                cam.in_image(u, v)
+            };
+            (closeness <= 1.0 && inside).then_some((closeness, o.id))
+        })
+        .collect();
+    found.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+    found.into_iter().take(MAX_CANDIDATES).map(|(_, k)| k).collect()
+}
+
+/// One keyframe for the worker: its place entry, and what to exclude and compare with.
+#[derive(Debug, Clone)]
+pub struct LoopQuery {
+    pub kf: KfId,
+    pub entry: PlaceEntry,
+    /// The old keyframes it looks at again ([`revisited`]): the loop candidates.
+    pub candidates: Vec<KfId>,
+    /// Its strong covisibles (a candidate's group, for the consistency test, is itself and these).
+    pub covisibles: Vec<KfId>,
+    /// Keyframes culled since the last query (dropped from the index).
+    pub culled: Vec<KfId>,
+    /// Look for a loop (off while a correction is in progress and just after one).
+    pub detect: bool,
+}
+
+/// One job: a keyframe to recognise and index, and perhaps a pose graph to solve.
+#[derive(Debug, Default)]
+pub struct LoopJob {
+    pub query: Option<LoopQuery>,
+    pub graph: Option<GraphJob>,
+}
+
+/// What the worker gives back.
+#[derive(Debug, Default)]
+pub struct LoopOutcome {
+    /// (query keyframe, verified match).
+    pub found: Option<(KfId, PlaceMatch)>,
+    pub graph: Option<GraphJob>,
+    pub detect_ms: f64,
+    pub graph_ms: f64,
+}
+
+/// The worker's state: the keyframes' places and the candidates' consistency (§8.1).
+#[derive(Debug)]
+pub struct LoopDetector {
+    cam: RectifiedCamera,
+    scales: Scales,
+    index: PlaceStore,
+    /// Per keyframe: its strong covisibles when it was indexed, and those that listed it (its group).
+    links: Vec<BTreeSet<KfId>>,
+    /// The previous keyframe's candidate groups with their consistency.
+    groups: Vec<(BTreeSet<KfId>, u32)>,
+}
+
+impl LoopDetector {
+    pub fn new(cam: RectifiedCamera, scales: Scales) -> Self {
+        Self { cam, scales, index: PlaceStore::new(), links: Vec::new(), groups: Vec::new() }
+    }
+
+    /// Runs a job: the query first (recognition before indexing, so a keyframe never finds itself), then the
+    /// pose graph.
+    pub fn run(&mut self, job: LoopJob) -> LoopOutcome {
+        let mut outcome = LoopOutcome::default();
+        if let Some(query) = job.query {
+            let start = std::time::Instant::now();
+            outcome.found = self.detect(&query).map(|m| (query.kf, m));
+            self.insert(query);
+            outcome.detect_ms = start.elapsed().as_secs_f64() * 1e3;
+        }
+        if let Some(mut graph) = job.graph {
+            let start = std::time::Instant::now();
+            graph.report = graph.graph.optimise(POSE_GRAPH_ITERATIONS);
+            outcome.graph_ms = start.elapsed().as_secs_f64() * 1e3;
+            outcome.graph = Some(graph);
+        }
+        outcome
+    }
+
+    fn insert(&mut self, query: LoopQuery) {
+        for k in query.culled {
+            self.index.remove(k);
+        }
+        if self.links.len() <= query.kf {
+            self.links.resize(query.kf + 1, BTreeSet::new());
+        }
+        for &c in &query.covisibles {
+            if c < self.links.len() {
+                self.links[c].insert(query.kf);
+            }
+            self.links[query.kf].insert(c);
+        }
+        self.index.insert(query.kf, query.entry);
+    }
+
+    /// §8.1–§8.2: the candidates whose groups were candidates for [`CONSISTENCY_KEYFRAMES`] keyframes in a row
+    /// are checked geometrically, nearest first; the first that passes is the loop.
+    fn detect(&mut self, query: &LoopQuery) -> Option<PlaceMatch> {
+        if !query.detect {
+            self.groups.clear();
+            return None;
+        }
+        let mut groups: Vec<(BTreeSet<KfId>, u32)> = Vec::new();
+        let mut consistent: Vec<KfId> = Vec::new();
+        for &c in &query.candidates {
+            if self.index.entry(c).is_none() {
+                continue;
+            }
+            let mut group = self.links.get(c).cloned().unwrap_or_default();
+            group.insert(c);
+            let previous =
+                self.groups.iter().filter(|(g, _)| !g.is_disjoint(&group)).map(|(_, n)| n + 1).max().unwrap_or(0);
+            if previous >= CONSISTENCY_KEYFRAMES - 1 {
+                consistent.push(c);
+            }
+            groups.push((group, previous));
+        }
+        self.groups = groups;
+        for c in consistent {
+            if let Some(m) = self.index.verify(&self.cam, &self.scales, &query.entry, c) {
+                self.groups.clear();
+                return Some(m);
+            }
+        }
+        None
+    }
+}
+
+/// The worker thread: runs jobs it receives, in order.
+#[derive(Debug)]
+struct LoopWorker {
+    jobs: Option<std::sync::mpsc::Sender<LoopJob>>,
+    results: std::sync::mpsc::Receiver<LoopOutcome>,
+    thread: Option<std::thread::JoinHandle<()>>,
+}
+
+impl LoopWorker {
+    fn spawn(mut detector: LoopDetector) -> Option<Self> {
+        let (job_tx, job_rx) = std::sync::mpsc::channel::<LoopJob>();
+        let (result_tx, result_rx) = std::sync::mpsc::channel::<LoopOutcome>();
+        let thread = std::thread::Builder::new()
+            .name("loop-closing".into())
+            .spawn(move || {
+                for job in job_rx {
+                    if result_tx.send(detector.run(job)).is_err() {
+                        break;
+                    }
+                }
+            })
+            .ok()?;
+        Some(Self { jobs: Some(job_tx), results: result_rx, thread: Some(thread) })
+    }
+}
+
+impl Drop for LoopWorker {
+    fn drop(&mut self) {
+        self.jobs = None;
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
+}
+
+/// Where the loop-closing work runs, like local bundle adjustment's.
+#[derive(Debug)]
+enum Runner {
+    Worker(LoopWorker),
+    Inline(Box<LoopDetector>),
+}
+
+/// The map owner's side of loop closing: sends a job per keyframe, takes results at the next one.
+#[derive(Debug)]
+pub struct LoopCloser {
+    runner: Option<Runner>,
+    inline: bool,
+    in_flight: bool,
+    /// Inline mode's result, waiting to be taken at the next keyframe as the worker's would be.
+    ready: Option<LoopOutcome>,
+    /// Keyframes the last query's index had not yet dropped.
+    culled_sent: BTreeSet<KfId>,
+    /// The keyframe of the last loop closed, and whether its pose graph is being solved.
+    last_loop_kf: Option<KfId>,
+    graph_pending: bool,
+    /// Loops closed so far: (query keyframe, candidate).
+    pub loops: Vec<(KfId, KfId)>,
+}
+
+impl LoopCloser {
+    pub fn new(inline: bool) -> Self {
+        Self {
+            runner: None,
+            inline,
+            in_flight: false,
+            ready: None,
+            culled_sent: BTreeSet::new(),
+            last_loop_kf: None,
+            graph_pending: false,
+            loops: Vec::new(),
+        }
+    }
+
+    fn submit(&mut self, job: LoopJob, cam: &RectifiedCamera, scales: &Scales) {
+        if self.runner.is_none() {
+            let detector = LoopDetector::new(*cam, scales.clone());
+            self.runner = if self.inline {
+                Some(Runner::Inline(Box::new(detector)))
+            } else {
+                LoopWorker::spawn(detector).map(Runner::Worker)
+            };
+        }
+        match &mut self.runner {
+            Some(Runner::Worker(w)) => {
+                if let Some(tx) = &w.jobs {
+                    match tx.send(job) {
+                        Ok(()) => self.in_flight = true,
+                        // The worker is gone: this keyframe goes unindexed (it cannot panic on valid input).
+                        Err(_) => self.runner = None,
+                    }
+                }
+            }
+            Some(Runner::Inline(d)) => self.ready = Some(d.run(job)),
+            None => {}
+        }
+    }
+
+    /// The result of the job sent at the previous keyframe (waiting for it).
+    pub fn collect(&mut self) -> Option<LoopOutcome> {
+        if let Some(r) = self.ready.take() {
+            return Some(r);
+        }
+        if !self.in_flight {
+            return None;
+        }
+        self.in_flight = false;
+        match &self.runner {
+            Some(Runner::Worker(w)) => w.results.recv().ok(),
+            _ => None,
+        }
+    }
+
+    /// Sends keyframe `kf` (after local mapping has linked it) and the pose graph of a loop just closed.
+    pub fn send_keyframe(
+        &mut self,
+        map: &Map,
+        kf: KfId,
+        cam: &RectifiedCamera,
+        scales: &Scales,
+        graph: Option<GraphJob>,
+    ) {
+        let k = &map.keyframes[kf];
+        if k.bad {
+            return;
+        }
+        let entry = PlaceEntry {
+            descriptors: k.descriptors.clone(),
+            keypoints: k.keypoints.iter().map(|p| (p.x, p.y, p.octave)).collect(),
+            camera_points: (0..k.keypoints.len())
+                .map(|i| {
+                    (k.depth[i] > 0.0).then(|| {
+                        let p = &k.keypoints[i];
+                        cam.unproject(f64::from(p.x), f64::from(p.y), f64::from(k.depth[i]))
+                    })
+                })
+                .collect(),
+        };
+        let culled: Vec<KfId> =
+            map.keyframes.iter().filter(|x| x.bad && !self.culled_sent.contains(&x.id)).map(|x| x.id).collect();
+        self.culled_sent.extend(culled.iter().copied());
+        self.graph_pending |= graph.is_some();
+        let quiet = self.last_loop_kf.is_some_and(|l| kf < l + MIN_KEYFRAMES_BETWEEN_LOOPS);
+        let detect = !self.graph_pending && !quiet && map.n_good_keyframes() > MIN_KEYFRAMES_BETWEEN_LOOPS;
+        let near = neighbourhood(map, kf, LOOP_HORIZON_HOPS);
+        let query = LoopQuery {
+            kf,
+            entry,
+            candidates: if detect { revisited(map, cam, kf, &near) } else { Vec::new() },
+            covisibles: k.ordered.iter().map(|(c, _)| *c).collect(),
+            culled,
+            detect,
+        };
+        self.submit(LoopJob { query: Some(query), graph }, cam, scales);
+    }
+
+    /// A loop was closed at keyframe `kf` against `candidate`.
+    pub fn closed(&mut self, kf: KfId, candidate: KfId) {
+        self.last_loop_kf = Some(kf);
+        self.loops.push((kf, candidate));
+    }
+
+    /// A pose graph came back (applied by the caller).
+    pub fn graph_done(&mut self) {
+        self.graph_pending = false;
+    }
+}
+
+/// Keyframes with their poses before a correction, for the edges that must keep the odometry's relative poses.
+pub type PoseSnapshot = BTreeMap<KfId, crate::geometry::CameraFromWorld>;
