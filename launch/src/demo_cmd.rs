@@ -129,6 +129,7 @@ pub fn demo(args: DemoArgs) -> Result<ExitCode> {
             Some((&trajectory, &gt_poses)),
             5.0,
             1.0,
+            2.0,
         ) {
             Ok(s) => println!(
                 "  map         vs the renderer's mesh: mean {:.3} mm, median {:.3} mm, {:.1} % outliers (> 5 mm)",

@@ -54,6 +54,10 @@ pub struct MapArgs {
     /// A mesh triangle counts as covered when a map point lies within this of its centroid.
     #[arg(long, default_value_t = 1.0)]
     coverage_mm: f64,
+    /// A second layer counts up to this far in front of or behind a point (issue #17's "one surface": two
+    /// passes over the same tissue should not leave two surfaces).
+    #[arg(long, default_value_t = 2.0)]
+    layer_gap_mm: f64,
     /// Bring the map into the ground truth's frame first: the SE(3) alignment of this estimated trajectory
     /// (TUM) onto --align-gt, as the ATE computes it.
     #[arg(long, requires = "align_gt")]
@@ -130,12 +134,12 @@ pub fn eval(command: EvalCommand) -> Result<()> {
         }
         EvalCommand::Map(a) => {
             let align = a.align_est.as_deref().zip(a.align_gt.as_deref());
-            let score = score_map_file(&a.mesh, &a.map, align, a.outlier_mm, a.coverage_mm)?;
+            let score = score_map_file(&a.mesh, &a.map, align, a.outlier_mm, a.coverage_mm, a.layer_gap_mm)?;
             if a.json {
                 println!("{}", serde_json::to_string_pretty(&score)?);
             } else {
                 println!(
-                    "map: {} points, {} outliers (> {} mm, {:.1} %); inliers: mean {:.4} mm, median {:.4} mm, RMSE {:.4} mm; coverage {:.1} % (within {} mm)",
+                    "map: {} points, {} outliers (> {} mm, {:.1} %); inliers: mean {:.4} mm, median {:.4} mm, RMSE {:.4} mm; coverage {:.1} % (within {} mm); second layer {:.2} % (within {} mm)",
                     score.points,
                     score.outliers,
                     score.outlier_threshold,
@@ -144,7 +148,9 @@ pub fn eval(command: EvalCommand) -> Result<()> {
                     score.inliers.median,
                     score.inliers.rmse,
                     100.0 * score.coverage,
-                    score.coverage_radius
+                    score.coverage_radius,
+                    100.0 * score.second_layer,
+                    score.second_layer_gap
                 );
             }
         }
@@ -218,6 +224,7 @@ pub fn score_map_file(
     align: Option<(&Path, &Path)>,
     outlier_mm: f64,
     coverage_mm: f64,
+    layer_gap_mm: f64,
 ) -> Result<bdis_eval::map::MapScore> {
     let mesh =
         bdis_eval::map::Mesh::from_cloud(&ply::read(mesh_path)?).with_context(|| mesh_path.display().to_string())?;
@@ -232,7 +239,8 @@ pub fn score_map_file(
         }
     }
     let index = bdis_eval::map::MeshIndex::new(mesh)?;
-    bdis_eval::map::score_map(&points, &index, outlier_mm, coverage_mm).with_context(|| map_path.display().to_string())
+    bdis_eval::map::score_map(&points, &index, outlier_mm, coverage_mm, layer_gap_mm)
+        .with_context(|| map_path.display().to_string())
 }
 
 fn check_size(gt: pfm::PfmImage, est: &pfm::PfmImage, path: &Path) -> Result<pfm::PfmImage> {

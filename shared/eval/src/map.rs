@@ -156,11 +156,18 @@ impl MeshIndex {
 
     /// Distance from `p` to the mesh.
     pub fn distance(&self, p: &Point3<f64>) -> f64 {
+        let (foot, _) = self.closest(p);
+        (foot - p).norm()
+    }
+
+    /// The closest point to `p` on the mesh and the unit normal of its triangle (as the triangle's corners wind).
+    pub fn closest(&self, p: &Point3<f64>) -> (Point3<f64>, Vector3<f64>) {
         let box_dist2 = |n: &Node| {
             let d = (n.min - p.coords).sup(&(p.coords - n.max)).sup(&Vector3::zeros());
             d.norm_squared()
         };
         let mut best = f64::INFINITY;
+        let mut best_at = (*p, Vector3::z());
         let mut stack = vec![0usize];
         while let Some(n) = stack.pop() {
             let node = &self.nodes[n];
@@ -170,7 +177,13 @@ impl MeshIndex {
             if node.count > 0 {
                 for &t in &self.order[node.start..node.start + node.count] {
                     let [a, b, c] = self.mesh.corners(t);
-                    best = best.min((closest_point_on_triangle(p, &a, &b, &c) - p).norm_squared());
+                    let foot = closest_point_on_triangle(p, &a, &b, &c);
+                    let d2 = (foot - p).norm_squared();
+                    if d2 < best {
+                        best = d2;
+                        let normal = (b - a).cross(&(c - a)).try_normalize(1e-300).unwrap_or(Vector3::z());
+                        best_at = (foot, normal);
+                    }
                 }
             } else {
                 // Nearer child last, so it is searched first.
@@ -182,7 +195,7 @@ impl MeshIndex {
                 }
             }
         }
-        best.sqrt()
+        best_at
     }
 }
 
@@ -198,14 +211,122 @@ pub struct MapScore {
     /// Share of the mesh area (by triangle) with a map point within `coverage_radius` of the triangle's centroid.
     pub coverage: f64,
     pub coverage_radius: f64,
+    /// Share of the inliers with a second layer: see [`second_layer_fraction`].
+    #[serde(default)]
+    pub second_layer: f64,
+    #[serde(default)]
+    pub second_layer_gap: f64,
 }
 
-/// Scores map `points` against the mesh.
+/// Where two passes over the same tissue left two surfaces instead of one: the share of inlier points (within
+/// `outlier_threshold` of the mesh) that have a second layer — among the points whose feet on the mesh are
+/// within `radius` of theirs, at least a quarter (and 2) lie more than the map's own thickness and at most
+/// `max_gap` in front of or behind them, along the mesh's normal. The thickness is 3 robust σ of the inliers'
+/// signed distances (1.4826 · MAD), so noise is not a layer; `radius` is twice the median spacing of the feet
+/// (a neighbourhood of a few points whatever the map's density). Both come from the map, in its unit.
+pub fn second_layer_fraction(points: &[Point3<f64>], index: &MeshIndex, outlier_threshold: f64, max_gap: f64) -> f64 {
+    // Foot on the mesh and signed offset along its normal, per inlier.
+    let mut feet: Vec<(Point3<f64>, f64)> = Vec::with_capacity(points.len());
+    for p in points {
+        let (foot, normal) = index.closest(p);
+        let offset = (p - foot).dot(&normal);
+        if offset.abs() <= outlier_threshold {
+            feet.push((foot, offset));
+        }
+    }
+    if feet.len() < 3 {
+        return 0.0;
+    }
+    let mut offsets: Vec<f64> = feet.iter().map(|f| f.1).collect();
+    let median = |v: &mut Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        v[v.len() / 2]
+    };
+    let centre = median(&mut offsets);
+    let mut deviations: Vec<f64> = offsets.iter().map(|o| (o - centre).abs()).collect();
+    let thickness = 3.0 * 1.4826 * median(&mut deviations);
+    // Spacing: the median distance from a foot to its nearest other foot, by a hash grid (cell = a first guess
+    // from the bounding box and the count, refined once).
+    let grid_of = |cell: f64| {
+        let mut grid: HashMap<(i64, i64, i64), Vec<u32>> = HashMap::new();
+        for (i, (f, _)) in feet.iter().enumerate() {
+            grid.entry(key(&f.coords, cell)).or_default().push(i as u32);
+        }
+        grid
+    };
+    let (lo, hi) =
+        feet.iter().fold((Vector3::repeat(f64::INFINITY), Vector3::repeat(f64::NEG_INFINITY)), |(lo, hi), (f, _)| {
+            (lo.inf(&f.coords), hi.sup(&f.coords))
+        });
+    let extent = hi - lo;
+    // Feet lie on a surface: area ≈ the two largest extents' product.
+    let mut e = [extent.x, extent.y, extent.z];
+    e.sort_by(f64::total_cmp);
+    let guess = (e[1] * e[2] / feet.len() as f64).sqrt().max(1e-12);
+    let grid = grid_of(guess);
+    let mut nearest: Vec<f64> = feet
+        .iter()
+        .enumerate()
+        .map(|(i, (f, _))| {
+            neighbours(&grid, f, guess, 1)
+                .filter(|&j| j != i)
+                .map(|j| (feet[j].0 - f).norm())
+                .fold(f64::INFINITY, f64::min)
+        })
+        .filter(|d| d.is_finite())
+        .collect();
+    if nearest.is_empty() {
+        return 0.0;
+    }
+    let radius = 2.0 * median(&mut nearest);
+    let grid = grid_of(radius);
+    let mut layered = 0usize;
+    for (i, (f, offset)) in feet.iter().enumerate() {
+        let (mut near, mut apart) = (0usize, 0usize);
+        for j in neighbours(&grid, f, radius, 1) {
+            if j == i || (feet[j].0 - f).norm() > radius {
+                continue;
+            }
+            near += 1;
+            let gap = (feet[j].1 - offset).abs();
+            if gap > thickness && gap <= max_gap {
+                apart += 1;
+            }
+        }
+        if apart >= 2 && 4 * apart >= near {
+            layered += 1;
+        }
+    }
+    layered as f64 / feet.len() as f64
+}
+
+fn key(v: &Vector3<f64>, cell: f64) -> (i64, i64, i64) {
+    ((v.x / cell).floor() as i64, (v.y / cell).floor() as i64, (v.z / cell).floor() as i64)
+}
+
+/// Indices of the feet in the cells within `reach` cells of `f`'s.
+fn neighbours<'a>(
+    grid: &'a HashMap<(i64, i64, i64), Vec<u32>>,
+    f: &Point3<f64>,
+    cell: f64,
+    reach: i64,
+) -> impl Iterator<Item = usize> + 'a {
+    let (cx, cy, cz) = key(&f.coords, cell);
+    (-reach..=reach).flat_map(move |dx| {
+        (-reach..=reach).flat_map(move |dy| {
+            (-reach..=reach)
+                .flat_map(move |dz| grid.get(&(cx + dx, cy + dy, cz + dz)).into_iter().flatten().map(|&j| j as usize))
+        })
+    })
+}
+
+/// Scores map `points` against the mesh; `layer_gap`: the farthest a second layer counts ([`second_layer_fraction`]).
 pub fn score_map(
     points: &[Point3<f64>],
     index: &MeshIndex,
     outlier_threshold: f64,
     coverage_radius: f64,
+    layer_gap: f64,
 ) -> Result<MapScore, MapError> {
     if points.is_empty() {
         return Err(MapError::NoPoints);
@@ -261,6 +382,8 @@ pub fn score_map(
         inliers: Stats::of(&mut inliers),
         coverage: if total > 0.0 { covered / total } else { 0.0 },
         coverage_radius,
+        second_layer: second_layer_fraction(points, index, outlier_threshold, layer_gap),
+        second_layer_gap: layer_gap,
     })
 }
 
@@ -337,14 +460,39 @@ mod tests {
                 Point3::new(x, y, z)
             })
             .collect();
-        let s = score_map(&points, &index, 5.0, 2.0).unwrap();
+        let s = score_map(&points, &index, 5.0, 2.0, 2.0).unwrap();
         assert_eq!(s.outliers, 500);
         assert!((s.outlier_fraction - 0.05).abs() < 1e-12);
         assert!((s.inliers.mean - sigma).abs() < 1e-9 && (s.inliers.median - sigma).abs() < 1e-9);
         assert!(s.coverage > 0.99, "the points cover the whole plane: {}", s.coverage);
         // Half the plane covered → half the coverage.
         let half: Vec<Point3<f64>> = points.iter().copied().filter(|p| p.x < 50.0).collect();
-        let s = score_map(&half, &index, 5.0, 2.0).unwrap();
+        let s = score_map(&half, &index, 5.0, 2.0, 2.0).unwrap();
         assert!((s.coverage - 0.5).abs() < 0.05, "{}", s.coverage);
+    }
+
+    /// A noisy single surface has no second layer; a strip seen twice, 1 mm apart, has one there (both of its
+    /// layers' points count); a copy 3 mm away is beyond the 2 mm asked about.
+    #[test]
+    fn a_second_pass_one_millimetre_off_is_a_second_layer() {
+        let index = MeshIndex::new(plane(20)).unwrap();
+        let noise = |i: usize| ((i * 7919 % 1000) as f64 / 1000.0 - 0.5) * 0.2;
+        let surface: Vec<Point3<f64>> = (0..40_000)
+            .map(|i| Point3::new((i % 200) as f64 * 0.5 + 0.25, (i / 200) as f64 * 0.5 + 0.25, noise(i)))
+            .collect();
+        let single = second_layer_fraction(&surface, &index, 5.0, 2.0);
+        assert!(single < 0.01, "one noisy surface: {single}");
+        // The strip x < 20 mm seen again 1 mm above (a fifth of the plane).
+        let again = |lift: f64| {
+            let mut p = surface.clone();
+            p.extend(surface.iter().filter(|q| q.x < 20.0).map(|q| Point3::new(q.x + 0.1, q.y + 0.1, q.z + lift)));
+            p
+        };
+        let twice = again(1.0);
+        let expected = 2.0 * 8_000.0 / twice.len() as f64;
+        let layered = second_layer_fraction(&twice, &index, 5.0, 2.0);
+        assert!((layered - expected).abs() < 0.03, "{layered} against {expected}");
+        let far = second_layer_fraction(&again(3.0), &index, 5.0, 2.0);
+        assert!(far < 0.01, "a copy 3 mm away is no second layer within 2 mm: {far}");
     }
 }
