@@ -118,6 +118,11 @@ impl LocalMapper {
         self.loops = on.then(|| LoopCloser::new(self.mode == BaMode::Inline));
     }
 
+    /// Whether loop closing is on (the one place this is kept).
+    pub fn loop_closing(&self) -> bool {
+        self.loops.is_some()
+    }
+
     /// The loops closed so far: (keyframe that recognised the place, old keyframe).
     pub fn loops_closed(&self) -> &[(KfId, KfId)] {
         self.loops.as_ref().map_or(&[], |l| l.loops.as_slice())

@@ -133,8 +133,6 @@ pub struct Tracker {
     new_point_anchors: Vec<Option<(Anchor, bool)>>,
     residual_scratch: Vec<f64>,
     appearance: appearance::AppearanceScratch,
-    /// Loop closing on: map reuse then stops at the loop horizon (beyond it, a revisit is a loop to close).
-    loop_closing: bool,
     /// Keyframes within the loop horizon of the reference keyframe, by stamp, and for which reference and map
     /// size the stamps were made.
     near_stamp: Vec<u64>,
@@ -147,8 +145,9 @@ impl Tracker {
     /// or inline in the caller's thread (applied at once: a single-core target, or measuring its cost per
     /// keyframe). Set before the first frame.
     pub fn set_ba_mode(&mut self, mode: crate::mapper::BaMode) {
+        let loop_closing = self.mapper.loop_closing();
         self.mapper = LocalMapper::new(mode);
-        self.mapper.set_loop_closing(self.loop_closing);
+        self.mapper.set_loop_closing(loop_closing);
     }
 
     /// Whether matched keypoints are moved to sub-pixel positions by patch alignment before local-map pose
@@ -199,7 +198,6 @@ impl Tracker {
             new_point_anchors: Vec::with_capacity(1 << 12),
             residual_scratch: Vec::with_capacity(1 << 12),
             appearance: appearance::AppearanceScratch::with_capacity(settings.orb.n_features as usize),
-            loop_closing: true,
             near_stamp: Vec::with_capacity(1 << 12),
             near_for: None,
             near_frontier: Vec::with_capacity(1 << 10),
@@ -405,7 +403,6 @@ impl Tracker {
     /// is tied in by map reuse alone; on, map reuse stops at the loop horizon and farther revisits are closed as
     /// loops (see BENCHMARKS.md for what each gives).
     pub fn set_loop_closing(&mut self, on: bool) {
-        self.loop_closing = on;
         self.mapper.set_loop_closing(on);
     }
 

@@ -177,7 +177,8 @@ impl Tracker {
     /// With loop closing on: stamps the keyframes within the loop horizon of the reference keyframe (when the
     /// reference or the map changed) and returns the stamp; `None` with loop closing off.
     fn loop_horizon_stamp(&mut self) -> Option<u64> {
-        if !self.loop_closing {
+        // With loop closing on, map reuse stops at the loop horizon (beyond it, a revisit is a loop to close).
+        if !self.mapper.loop_closing() {
             return None;
         }
         let reference = self.reference_kf?;
