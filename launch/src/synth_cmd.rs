@@ -53,6 +53,11 @@ pub struct SynthArgs {
     /// (0.5 is a sharp HD endoscope). 0: none
     #[arg(long, default_value_t = 0.0)]
     optics_blur_px: f64,
+    /// Instruments in the view: two laparoscopic graspers from the borders over the abdomen, a working-channel
+    /// tool in the colon; metal, moving on their own, in the images and gt/depth but not gt/mesh.ply, with each
+    /// frame's mask in gt/masks/ (what `run --masks` reads)
+    #[arg(long)]
+    instruments: bool,
     /// Texture and shape seed: the same seed gives byte-identical files.
     #[arg(long, default_value_t = 2026)]
     seed: u64,
@@ -96,6 +101,7 @@ pub fn synth(args: SynthArgs) -> Result<()> {
         seed: args.seed,
         raw: args.raw.clone(),
         optics_blur_px: args.optics_blur_px,
+        instruments: args.instruments,
     };
     if args.interlaced {
         render_with_progress(&args.out.join("fields"), &rig, &request)?;

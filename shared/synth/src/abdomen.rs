@@ -7,6 +7,9 @@ use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
 use crate::render::{Hit, Surface};
 use crate::{TissueTexture, value_noise};
 
+/// How far above the wall's mean level the scope hovers on most paths.
+pub const STANDOFF_MM: f64 = 55.0;
+
 /// Radius of the `circle` trajectory's path over the wall.
 pub const CIRCLE_RADIUS_MM: f64 = 40.0;
 
@@ -77,7 +80,7 @@ impl Abdomen {
         self.looking_down(
             4.0 * (t_s * 0.6).sin(),
             3.0 * (t_s * 0.45).cos(),
-            55.0 + 3.0 * (t_s * 0.3).sin(),
+            STANDOFF_MM + 3.0 * (t_s * 0.3).sin(),
             0.05 * (t_s * 0.7).sin(),
             0.04 * (t_s * 0.5).cos(),
         )
@@ -85,7 +88,13 @@ impl Abdomen {
 
     /// Sweeping sideways across the wall at `speed_mm_s`.
     pub fn sweep_pose(&self, t_s: f64, speed_mm_s: f64) -> Isometry3<f64> {
-        self.looking_down(-40.0 + speed_mm_s * t_s, 5.0 * (t_s * 0.8).sin(), 55.0, 0.03 * (t_s * 1.1).sin(), 0.05)
+        self.looking_down(
+            -40.0 + speed_mm_s * t_s,
+            5.0 * (t_s * 0.8).sin(),
+            STANDOFF_MM,
+            0.03 * (t_s * 1.1).sin(),
+            0.05,
+        )
     }
 
     /// Panning: the scope swings from side to side (±17° about its vertical axis, 1.1 Hz: up to 120°/s, 4° a
@@ -95,7 +104,7 @@ impl Abdomen {
         self.looking_down(
             -20.0 + speed_mm_s * t_s,
             3.0 * (t_s * 0.8).sin(),
-            55.0,
+            STANDOFF_MM,
             0.03,
             amplitude * (omega * t_s).sin(),
         )
@@ -133,7 +142,7 @@ impl Abdomen {
         self.looking_down(
             CIRCLE_RADIUS_MM * angle.cos(),
             CIRCLE_RADIUS_MM * angle.sin(),
-            55.0 + 2.0 * (t_s * 0.4).sin(),
+            STANDOFF_MM + 2.0 * (t_s * 0.4).sin(),
             0.04 * (t_s * 0.7).sin(),
             0.04 * (t_s * 0.5).cos(),
         )

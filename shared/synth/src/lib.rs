@@ -6,6 +6,7 @@
 
 pub mod abdomen;
 pub mod colon;
+pub mod instruments;
 pub mod interlace;
 pub mod render;
 
@@ -332,6 +333,9 @@ pub struct SceneRequest {
     pub raw: Option<String>,
     /// σ (px) of the optics' blur ([`render::Shading::optics_blur_px`]); 0: none.
     pub optics_blur_px: f64,
+    /// Instruments in the view (two laparoscopic graspers over the abdomen, a working-channel tool in the
+    /// colon), with a ground-truth mask per frame in `gt/masks/`.
+    pub instruments: bool,
 }
 
 impl Default for SceneRequest {
@@ -346,6 +350,7 @@ impl Default for SceneRequest {
             seed: 2026,
             raw: None,
             optics_blur_px: 0.0,
+            instruments: false,
         }
     }
 }
@@ -409,13 +414,19 @@ pub fn write_scene(
             };
             let far = speed.abs() * if revisit { 0.5 * path_total_s } else { path_total_s };
             let mesh = colon.mesh(-20.0, far + 150.0, 0.5, 180);
+            let shading = render::Shading { lens, optics_blur_px, ..render::Shading::default() };
+            let tools = request.instruments.then(|| {
+                let kind = instruments::InstrumentKind::WorkingChannel;
+                instruments::Instruments::new(kind, colon.radius_mm, shading.exposure_distance_mm)
+            });
             render::write_sequence(
                 dir,
                 rig,
                 &colon,
+                tools.as_ref(),
                 &path,
                 mesh,
-                &render::Shading { lens, optics_blur_px, ..render::Shading::default() },
+                &shading,
                 request.frames,
                 request.fps,
                 progress,
@@ -445,7 +456,23 @@ pub fn write_scene(
             // A laparoscope's light is stronger and the wall farther away than in a colon.
             let shading =
                 render::Shading { exposure_distance_mm: 65.0, lens, optics_blur_px, ..render::Shading::default() };
-            render::write_sequence(dir, rig, &abdomen, &path, mesh, &shading, request.frames, request.fps, progress)
+            // The graspers work at the depth the scope hovers at over the wall.
+            let tools = request.instruments.then(|| {
+                let kind = instruments::InstrumentKind::Laparoscopic;
+                instruments::Instruments::new(kind, abdomen::STANDOFF_MM, shading.exposure_distance_mm)
+            });
+            render::write_sequence(
+                dir,
+                rig,
+                &abdomen,
+                tools.as_ref(),
+                &path,
+                mesh,
+                &shading,
+                request.frames,
+                request.fps,
+                progress,
+            )
         }
         _ => Err(SynthError::Request {
             detail: format!("`{}` with {:?} cannot be rendered", request.scene, request.trajectory),

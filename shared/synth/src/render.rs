@@ -152,6 +152,8 @@ pub struct RenderedPair {
     pub right: image::RgbImage,
     /// z-depth of the left camera per pixel (mm); +inf where no wall is within range.
     pub depth: Vec<f32>,
+    /// 255 where the left view's pixel centre sees an instrument, else 0 (row-major, one byte per pixel).
+    pub instrument_mask: Vec<u8>,
 }
 
 fn hash_noise(seed: u64, frame: u64, k: u64) -> f64 {
@@ -171,11 +173,26 @@ pub fn render(
     world_from_left: &Isometry3<f64>,
     frame: u64,
 ) -> RenderedPair {
+    render_scene(surface, &[], rig, shading, world_from_left, frame)
+}
+
+/// [`render`] with instruments in front of the tissue ([`crate::instruments`]): metal, lit by the same light,
+/// in the images and the depth, and marked in the left view's mask.
+pub fn render_scene(
+    surface: &dyn Surface,
+    instruments: &[crate::instruments::Part],
+    rig: &RectifiedCamera,
+    shading: &Shading,
+    world_from_left: &Isometry3<f64>,
+    frame: u64,
+) -> RenderedPair {
     let (w, h) = (rig.width, rig.height);
     let mut left = image::RgbImage::new(w, h);
     let mut right = image::RgbImage::new(w, h);
     let mut depth = vec![f32::INFINITY; (w * h) as usize];
     let mut right_depth = vec![f32::INFINITY; (w * h) as usize];
+    let mut instrument_mask = vec![0u8; (w * h) as usize];
+    let mut right_mask = vec![0u8; (w * h) as usize];
     let world_from_right = world_from_left * Translation3::new(rig.baseline(), 0.0, 0.0);
     let light = world_from_left * Point3::new(0.5 * rig.baseline(), 0.0, 0.0);
     let half_diag2 = (rig.cx * rig.cx + rig.cy * rig.cy).max(1.0);
@@ -183,24 +200,34 @@ pub fn render(
     let exposure = 0.8 * shading.exposure_distance_mm.powi(2);
 
     // Radiance (0..255 per channel, before noise) and z-depth of the ray through image point (u, v).
-    let shade = |pose: &Isometry3<f64>, view: u64, u: f64, v: f64| -> Option<([f64; 3], f64)> {
+    // Also whether the ray met an instrument.
+    let shade = |pose: &Isometry3<f64>, view: u64, u: f64, v: f64| -> Option<([f64; 3], f64, bool)> {
         let dir_cam = match &shading.lens {
             None => Vector3::new((u - rig.cx) / rig.fx, (v - rig.cy) / rig.fy, 1.0),
             Some(lens) => lens.ray(view, u, v)?,
         };
         let dir = (pose.rotation * dir_cam).normalize();
-        let hit = surface.hit(&(pose * Point3::origin()), &dir, max_t)?;
-        // One pixel's footprint on the surface (ignoring obliqueness).
-        let footprint_mm = hit.t / rig.fx;
-        let albedo = surface.albedo(hit.uv, footprint_mm).map(|c| f64::from(c) / 255.0);
+        let origin = pose * Point3::origin();
+        let tissue = surface.hit(&origin, &dir, max_t);
+        let tool = crate::instruments::hit(instruments, &origin, &dir, tissue.map_or(max_t, |hit| hit.t));
+        // Point, normal, albedo and the material's highlight.
+        let (t, point, normal, albedo, specular, shininess) = match (tool, tissue) {
+            (Some(tool), _) => (tool.t, tool.point, tool.normal, [tool.albedo; 3], tool.specular, tool.shininess),
+            (None, Some(hit)) => {
+                // One pixel's footprint on the surface (ignoring obliqueness).
+                let footprint_mm = hit.t / rig.fx;
+                let albedo = surface.albedo(hit.uv, footprint_mm).map(|c| f64::from(c) / 255.0);
+                (hit.t, hit.point, hit.normal, albedo, shading.specular, shading.shininess)
+            }
+            (None, None) => return None,
+        };
         let (diffuse, spec) = if shading.lighting {
-            let to_light = light - hit.point;
+            let to_light = light - point;
             let d2 = to_light.norm_squared();
             let l = to_light / d2.sqrt();
             let half = (l - dir).normalize();
-            let n_l = hit.normal.dot(&l).max(0.0);
-            let spec =
-                if n_l > 0.0 { shading.specular * hit.normal.dot(&half).max(0.0).powf(shading.shininess) } else { 0.0 };
+            let n_l = normal.dot(&l).max(0.0);
+            let spec = if n_l > 0.0 { specular * normal.dot(&half).max(0.0).powf(shininess) } else { 0.0 };
             let r2 = ((u - rig.cx).powi(2) + (v - rig.cy).powi(2)) / half_diag2;
             let vignette = 1.0 - shading.vignetting * r2;
             ((shading.ambient + exposure * n_l / d2) * vignette, exposure * spec / d2 * vignette)
@@ -208,24 +235,27 @@ pub fn render(
             (1.0, 0.0)
         };
         // z-depth (of the rectified camera) = t · (camera-z of the unit ray).
-        Some(([0, 1, 2].map(|c| 255.0 * (albedo[c] * diffuse + spec)), hit.t * dir_cam.z / dir_cam.norm()))
+        Some(([0, 1, 2].map(|c| 255.0 * (albedo[c] * diffuse + spec)), t * dir_cam.z / dir_cam.norm(), tool.is_some()))
     };
     // Radiance per pixel and channel, before the optics' blur and the sensor's noise; NaN where no ray met a
     // wall (black, and without noise unless the optics blur light into it).
     let mut left_radiance = vec![f64::NAN; 3 * (w * h) as usize];
     let mut right_radiance = vec![f64::NAN; 3 * (w * h) as usize];
     // One ray through each pixel centre; rows are split between two threads (two cores on these machines).
-    let render_rows = |pose: &Isometry3<f64>, rows: &mut [f64], depth_rows: &mut [f32], y0: u32, view: u64| {
-        for (row_i, row) in rows.chunks_mut(3 * w as usize).enumerate() {
-            let y = y0 + row_i as u32;
-            for x in 0..w {
-                if let Some((radiance, z)) = shade(pose, view, f64::from(x) + 0.5, f64::from(y) + 0.5) {
-                    depth_rows[row_i * w as usize + x as usize] = z as f32;
-                    row[3 * x as usize..3 * x as usize + 3].copy_from_slice(&radiance);
+    let render_rows =
+        |pose: &Isometry3<f64>, rows: &mut [f64], depth_rows: &mut [f32], mask_rows: &mut [u8], y0: u32, view: u64| {
+            for (row_i, row) in rows.chunks_mut(3 * w as usize).enumerate() {
+                let y = y0 + row_i as u32;
+                for x in 0..w {
+                    if let Some((radiance, z, tool)) = shade(pose, view, f64::from(x) + 0.5, f64::from(y) + 0.5) {
+                        let at = row_i * w as usize + x as usize;
+                        depth_rows[at] = z as f32;
+                        mask_rows[at] = if tool { 255 } else { 0 };
+                        row[3 * x as usize..3 * x as usize + 3].copy_from_slice(&radiance);
+                    }
                 }
             }
-        }
-    };
+        };
     let split = (h / 2) as usize * 3 * w as usize;
     let dsplit = (h / 2) as usize * w as usize;
     let world_from_right = &world_from_right;
@@ -234,13 +264,15 @@ pub fn render(
         let (d_top, d_bottom) = depth.split_at_mut(dsplit);
         let (r_top, r_bottom) = right_radiance.split_at_mut(split);
         let (rd_top, rd_bottom) = right_depth.split_at_mut(dsplit);
+        let (m_top, m_bottom) = instrument_mask.split_at_mut(dsplit);
+        let (rm_top, rm_bottom) = right_mask.split_at_mut(dsplit);
         let render = &render_rows;
         s.spawn(move || {
-            render(world_from_left, l_top, d_top, 0, 1);
-            render(world_from_right, r_top, rd_top, 0, 2);
+            render(world_from_left, l_top, d_top, m_top, 0, 1);
+            render(world_from_right, r_top, rd_top, rm_top, 0, 2);
         });
-        render(world_from_left, l_bottom, d_bottom, h / 2, 1);
-        render(world_from_right, r_bottom, rd_bottom, h / 2, 2);
+        render(world_from_left, l_bottom, d_bottom, m_bottom, h / 2, 1);
+        render(world_from_right, r_bottom, rd_bottom, rm_bottom, h / 2, 2);
     });
     // A little anti-aliasing where it matters: pixels on a depth edge (a fold's rim, a blob's flank against the
     // background) get the mean of four sub-pixel rays. The texture is band-limited, so elsewhere one ray is
@@ -264,7 +296,7 @@ pub fn render(
                 }
                 let mut sum = [0.0; 3];
                 for (dx, dy) in [(0.25, 0.25), (0.75, 0.25), (0.25, 0.75), (0.75, 0.75)] {
-                    if let Some((radiance, _)) = shade(pose, view, f64::from(x) + dx, f64::from(y) + dy) {
+                    if let Some((radiance, _, _)) = shade(pose, view, f64::from(x) + dx, f64::from(y) + dy) {
                         for c in 0..3 {
                             sum[c] += radiance[c] / 4.0;
                         }
@@ -296,7 +328,7 @@ pub fn render(
             }
         }
     }
-    RenderedPair { left, right, depth }
+    RenderedPair { left, right, depth, instrument_mask }
 }
 
 /// Blurs an interleaved RGB image in place by a Gaussian of `sigma_px` (separable, kernel out to 3σ, edges
@@ -340,12 +372,14 @@ pub struct WrittenSequence {
 /// Writes a camera path over a surface as a plain sequence (`left/`, `right/`, `times.txt`, `settings.yaml`) with
 /// its ground truth in `gt/`: `poses.tum` (world_from_camera of the left camera), `depth/<n>.pfm` (z, mm, +inf
 /// where no wall), `disparity/<n>.pfm` (px), `mesh.ply` (the wall along the flight). `progress(i)` after each
-/// frame.
+/// frame. With `instruments`, they are rendered in front of the tissue (not in the mesh) and each frame's mask
+/// of them is written to `gt/masks/<n>.png` (left view, 255 = instrument), the layout `--masks` reads.
 #[allow(clippy::too_many_arguments)]
 pub fn write_sequence(
     dir: &std::path::Path,
     rig: &RectifiedCamera,
     surface: &dyn Surface,
+    instruments: Option<&crate::instruments::Instruments>,
     path: &dyn Fn(f64) -> Isometry3<f64>,
     mesh: (Vec<[f32; 3]>, Vec<[u32; 3]>),
     shading: &Shading,
@@ -361,6 +395,9 @@ pub fn write_sequence(
     for sub in ["left", "right", "gt/depth", "gt/disparity"] {
         std::fs::create_dir_all(dir.join(sub)).map_err(|e| fail(&dir.join(sub), &e))?;
     }
+    if instruments.is_some() {
+        std::fs::create_dir_all(dir.join("gt/masks")).map_err(|e| fail(&dir.join("gt/masks"), &e))?;
+    }
     let bf = rig.bf;
     let mut poses = Vec::with_capacity(frames);
     let mut times = String::new();
@@ -368,12 +405,20 @@ pub fn write_sequence(
     for i in 0..frames {
         let t = i as f64 / fps;
         let pose = path(t);
-        let pair = render(surface, rig, shading, &pose, i as u64);
+        let parts = instruments.map(|tools| tools.parts_at(t, &pose)).unwrap_or_default();
+        let pair = render_scene(surface, &parts, rig, shading, &pose, i as u64);
         for (side, img) in [("left", &pair.left), ("right", &pair.right)] {
             let path = dir.join(format!("{side}/{}.png", i + 1));
             img.save(&path).map_err(|e| fail(&path, &e))?;
         }
         let (w, h) = (rig.width as usize, rig.height as usize);
+        if instruments.is_some() {
+            let mask_path = dir.join(format!("gt/masks/{}.png", i + 1));
+            image::GrayImage::from_raw(rig.width, rig.height, pair.instrument_mask)
+                .ok_or_else(|| fail(&mask_path, &"mask size"))?
+                .save(&mask_path)
+                .map_err(|e| fail(&mask_path, &e))?;
+        }
         let depth_path = dir.join(format!("gt/depth/{}.pfm", i + 1));
         pfm::write(&depth_path, w, h, 1, &pair.depth).map_err(|e| fail(&depth_path, &e))?;
         // A raw pair has no disparity: its rows do not line up until it is rectified.

@@ -235,3 +235,52 @@ fn the_optics_blur_softens_the_image_keeps_its_light_and_leaves_depth_alone() {
     let request = bdis_synth::SceneRequest { optics_blur_px: -1.0, ..Default::default() };
     assert!(request.validate().unwrap_err().to_string().contains("optics blur"));
 }
+
+#[test]
+fn instruments_are_in_the_images_depth_and_mask_but_not_the_tissue() {
+    use bdis_synth::instruments::{InstrumentKind, Instruments};
+    let rig = rig();
+    let abdomen = Abdomen::default();
+    let shading = Shading { exposure_distance_mm: 65.0, ..Shading::default() };
+    let tools = Instruments::new(InstrumentKind::Laparoscopic, bdis_synth::abdomen::STANDOFF_MM, 65.0);
+    let pose = abdomen.hover_pose(0.4);
+    let plain = render(&abdomen, &rig, &shading, &pose, 3);
+    let with = bdis_synth::render::render_scene(&abdomen, &tools.parts_at(0.4, &pose), &rig, &shading, &pose, 3);
+    let masked: Vec<usize> = (0..with.instrument_mask.len()).filter(|&i| with.instrument_mask[i] == 255).collect();
+    let share = masked.len() as f64 / with.instrument_mask.len() as f64;
+    // Two graspers cover about a fifth of a laparoscopic view, as in the footage the issue was checked on.
+    assert!((0.08..0.35).contains(&share), "instruments cover {share}");
+    assert!(plain.instrument_mask.iter().all(|&m| m == 0));
+    let (mut nearer, mut chroma) = (0usize, 0.0);
+    for &i in &masked {
+        // The depth is the instrument's, well in front of the tissue; elsewhere nothing changed.
+        nearer += usize::from(with.depth[i] < 0.8 * plain.depth[i]);
+        let p = with.left.as_raw()[3 * i..3 * i + 3].iter().map(|&c| f64::from(c)).collect::<Vec<_>>();
+        chroma += p.iter().cloned().fold(0.0, f64::max) - p.iter().cloned().fold(255.0, f64::min);
+    }
+    assert!(nearer as f64 > 0.98 * masked.len() as f64, "{nearer} of {} nearer", masked.len());
+    let unmasked = (0..with.depth.len()).filter(|&i| with.instrument_mask[i] == 0);
+    let changed = unmasked.filter(|&i| with.depth[i].to_bits() != plain.depth[i].to_bits()).count();
+    assert_eq!(changed, 0, "depth away from the instruments is the tissue's");
+    // Metal is grey (up to the sensor noise of 2 levels per channel); the tissue is red.
+    assert!(chroma / (masked.len() as f64) < 8.0, "mean chroma on the instruments {}", chroma / masked.len() as f64);
+
+    // Written: a mask per frame, and the tissue's mesh without them.
+    let base = std::env::temp_dir().join(format!("bdis-synth-tools-{}", std::process::id()));
+    let request = bdis_synth::SceneRequest {
+        scene: "abdomen".into(),
+        trajectory: Some("hover".into()),
+        frames: 2,
+        instruments: true,
+        ..Default::default()
+    };
+    let small = RectifiedCamera { width: 64, height: 48, fx: 52.0, fy: 52.0, cx: 32.0, cy: 24.0, bf: 52.0 * 5.0 };
+    bdis_synth::write_scene(&base, &small, &request, |_| {}).unwrap();
+    let mask = image::open(base.join("gt/masks/2.png")).unwrap().into_luma8();
+    assert_eq!(mask.dimensions(), (64, 48));
+    assert!(mask.pixels().any(|p| p.0[0] == 255) && mask.pixels().any(|p| p.0[0] == 0));
+    let mesh = bdis_core::formats::ply::read(&base.join("gt/mesh.ply")).unwrap();
+    let deepest_tool = |p: &[f32; 3]| p[2] < (abdomen.distance_mm - bdis_synth::abdomen::STANDOFF_MM + 37.0) as f32;
+    assert!(!mesh.positions.iter().any(deepest_tool), "the mesh is the wall only");
+    std::fs::remove_dir_all(&base).unwrap();
+}
