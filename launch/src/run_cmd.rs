@@ -33,6 +33,11 @@ pub struct RunArgs {
     /// interpolated (`bob`). --settings describe the woven frames.
     #[arg(long, value_name = "MODE", requires = "settings")]
     interlaced: Option<bdis_source::FieldMode>,
+    /// Per-frame instrument masks for --sequence (PNG, non-zero = instrument; named like the left images, or
+    /// `1.png`… for a video), e.g. from a tool segmentation network or `synth --instruments`' gt/masks: they go
+    /// with each frame through shared memory, and the tracker takes no feature and the stereo no depth there.
+    #[arg(long, value_name = "DIR", requires = "sequence")]
+    masks: Option<PathBuf>,
     /// Skip the first N frames of --sequence (a video is decoded from frame N, exactly).
     #[arg(long, default_value_t = 0, value_name = "N", requires = "sequence")]
     start: usize,
@@ -182,6 +187,11 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
                 }
                 if let Some(calibration) = &rectify_in_acquisition {
                     acquisition.args.extend(["--calibration".to_string(), calibration.display().to_string()]);
+                }
+                if let Some(masks) = &args.masks {
+                    let masks = std::fs::canonicalize(masks)
+                        .with_context(|| format!("--masks {}: no such folder", masks.display()))?;
+                    acquisition.args.extend(["--masks".to_string(), masks.display().to_string()]);
                 }
             }
             (plan, PathBuf::from("launch.toml"))

@@ -53,6 +53,12 @@ struct Args {
     /// or the top field with the other rows interpolated (`bob`: same size and camera).
     #[arg(long, value_name = "MODE", conflicts_with = "calibration")]
     interlaced: Option<bdis_source::FieldMode>,
+    /// Per-frame masks of instruments (or anything else to keep out of the pose and the map), e.g. from a tool
+    /// segmentation network: one PNG per frame, non-zero = keep out, of the published frames' size, named like
+    /// the left images (`left/000123.jpg` → `DIR/000123.png`; for a video `DIR/1.png` is the first frame).
+    /// They travel with each frame in shared memory; the tracker takes no feature and the stereo no depth there
+    #[arg(long, value_name = "DIR")]
+    masks: Option<PathBuf>,
     /// Skip the first N frames (a video is decoded from frame N, exactly).
     #[arg(long, default_value_t = 0, value_name = "N")]
     start: usize,
@@ -123,8 +129,18 @@ fn run(args: Args) -> Result<()> {
         input::adopt_settings(&mut input, path, (width, height))?;
     }
     let sequence = &input.sequence;
-    let layout = FrameLayout::packed(width, height)
+    let images = FrameLayout::packed(width, height)
         .with_context(|| format!("{}: {width}×{height} images are too large", sequence.root.display()))?;
+    let masks = match &args.masks {
+        Some(dir) => Some(bdis_source::MaskFolder::open(dir, sequence, width, height)?),
+        None => None,
+    };
+    let layout = match masks {
+        Some(_) => images.with_mask_plane().with_context(|| {
+            format!("{}: {width}×{height} images and a mask are too large", sequence.root.display())
+        })?,
+        None => images,
+    };
     let frame_count = args.max_frames.map_or(sequence.len(), |m| m.min(sequence.len()));
     if args.check {
         input::print_check(sequence);
@@ -134,6 +150,7 @@ fn run(args: Args) -> Result<()> {
     node::run(node::Config {
         rectifier,
         fields: args.interlaced,
+        masks,
         schedule_fps: input.fps.unwrap_or(30.0),
         input,
         layout,
@@ -146,6 +163,9 @@ fn run(args: Args) -> Result<()> {
 
 /// A live source: paced by its devices, so no --pacing.
 fn run_live(args: Args, spec: bdis_source::LiveSpec) -> Result<()> {
+    if args.masks.is_some() {
+        anyhow::bail!("`{}`: --masks names masks per file; a live source has none (leave out --masks)", spec.text);
+    }
     if args.pacing != Pacing::OnDemand {
         anyhow::bail!("`{}`: a live source is paced by its devices; leave out --pacing", spec.text);
     }

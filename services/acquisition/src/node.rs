@@ -22,6 +22,8 @@ pub struct Config {
     pub rectifier: Option<bdis_source::Rectifier>,
     /// One field of each interlaced frame (or the frame bobbed), instead of the woven frame.
     pub fields: Option<bdis_source::FieldMode>,
+    /// The user's masks, one per frame, written into each frame's mask plane (`layout` has one then).
+    pub masks: Option<bdis_source::MaskFolder>,
     pub layout: FrameLayout,
     /// Frames to publish (the sequence, or fewer with `--max-frames`).
     pub frame_count: usize,
@@ -41,7 +43,8 @@ enum End {
 }
 
 pub fn run(config: Config) -> Result<()> {
-    let Config { input, rectifier, fields, layout, frame_count, pacing, schedule_fps, name, ipc_prefix } = config;
+    let Config { input, rectifier, fields, mut masks, layout, frame_count, pacing, schedule_fps, name, ipc_prefix } =
+        config;
     let sequence = &input.sequence;
     let frame_bytes = layout.payload_len();
     let mut ports = crate::ports::Ports::open(&name, &ipc_prefix, frame_bytes)?;
@@ -150,7 +153,11 @@ pub fn run(config: Config) -> Result<()> {
                 break;
             }
         };
-        match reader.read_into(entry, &layout, sample.payload_mut()) {
+        // The reader writes the three images (their layout is the packed one either way); the mask plane after
+        // them is the user's mask.
+        let images = FrameLayout { mask_offset: None, ..layout };
+        let (image_bytes, mask_bytes) = sample.payload_mut().split_at_mut(images.payload_len());
+        match reader.read_into(entry, &images, image_bytes) {
             Ok(()) => {}
             Err(e) if e.is_frame_lost() => {
                 tracing::warn!("{e}");
@@ -164,7 +171,14 @@ pub fn run(config: Config) -> Result<()> {
                 break;
             }
         }
-        // SAFETY: read_into wrote every byte of the packed layout, which is the whole loaned slice.
+        if let Some(masks) = &mut masks
+            && let Err(e) = masks.read_into(index, mask_bytes)
+        {
+            end = End::Failed(anyhow::Error::new(e).context(format!("the mask of frame {index}")));
+            break;
+        }
+        // SAFETY: read_into wrote every byte of the images' packed layout and the masks every byte of the mask
+        // plane (present exactly when there are masks): the whole loaned slice.
         let sample = unsafe { sample.assume_init() };
         let header = FrameHeader {
             frame_seq: index as u64,
@@ -233,6 +247,7 @@ mod tests {
         let config = Config {
             rectifier: None,
             fields: None,
+            masks: None,
             layout: FrameLayout::packed(w, h).unwrap(),
             frame_count: input.sequence.len(),
             input,

@@ -232,9 +232,11 @@ fn take_depth(
         counters.overlapping.push(report.overlapping_keyframes);
         counters.highest_kf_id = counters.highest_kf_id.max(Some(header.meta.kf_id));
         tracing::info!(
-            "keyframe {}: +{} points, {} replaced, {} kept behind, {} keyframes overlapped, {:.2} ms; map {} points",
+            "keyframe {}: +{} points ({} seen through before), {} replaced, {} kept behind, {} keyframes overlapped, \
+             {:.2} ms; map {} points",
             header.meta.kf_id,
             report.added,
+            report.seen_through,
             report.removed,
             report.kept_occluded,
             report.overlapping_keyframes,

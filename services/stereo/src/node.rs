@@ -40,6 +40,8 @@ pub struct Config {
 struct DepthOutput {
     matcher: Matcher,
     out: DisparityMap,
+    /// The left image with its masked pixels made 0 (no data to the matcher), reused.
+    masked_left: Vec<u8>,
     publisher: iceoryx2::port::publisher::Publisher<ipc::Service, [u8], DepthHeader>,
     events: iceoryx2::port::notifier::Notifier<ipc::Service>,
     width: u32,
@@ -64,14 +66,43 @@ impl DepthOutput {
             );
         }
         let (w, h) = (header.width as usize, header.height as usize);
-        // The matcher reads the grey images in place, in shared memory.
+        // The matcher reads the grey images in place, in shared memory. With a mask, the left image's masked
+        // pixels are made 0, which the matcher reads as no data (as the black border of an endoscope image):
+        // a patch's cost is then taken over the tissue alone, so the instrument's depth neither is matched nor
+        // spreads over the tissue beside it (patches straddling its silhouette would otherwise carry it a patch
+        // wide), and the left–right check drops tissue the instrument hides in the right view.
+        let left = match view.mask {
+            Some(mask) => {
+                let stride = header.gray_stride as usize;
+                self.masked_left.clear();
+                for y in 0..h {
+                    let (row, keep_out) = (&view.left_gray[y * stride..y * stride + w], &mask[y * stride..]);
+                    self.masked_left.extend(row.iter().zip(keep_out).map(|(&g, &m)| if m != 0 { 0 } else { g }));
+                }
+                &self.masked_left[..]
+            }
+            None => view.left_gray,
+        };
         self.matcher
             .compute_into(
-                GrayImage { width: w, height: h, data: view.left_gray },
+                GrayImage { width: w, height: h, data: left },
                 GrayImage { width: w, height: h, data: view.right_gray },
                 &mut self.out,
             )
             .with_context(|| format!("frame {}", header.frame_seq))?;
+        // What the keyframe's mask covers (instruments) gives no depth, so the map lifts no point from it.
+        if let Some(mask) = view.mask {
+            let stride = header.gray_stride as usize;
+            for (y, row) in self.out.disparity.chunks_exact_mut(w).enumerate() {
+                let confidence = &mut self.out.confidence[y * w..(y + 1) * w];
+                for (x, &m) in mask[y * stride..y * stride + w].iter().enumerate() {
+                    if m != 0 {
+                        row[x] = f32::NAN;
+                        confidence[x] = 0.0;
+                    }
+                }
+            }
+        }
         let n = w * h;
         let bytes = DepthHeader::payload_len(self.width, self.height);
         let mut loan = self.publisher.loan_slice_uninit(bytes).context("loan a depth keyframe")?;
@@ -155,6 +186,7 @@ pub fn run(config: Config) -> Result<()> {
     let mut output = DepthOutput {
         matcher: config.matcher,
         out: DisparityMap::default(),
+        masked_left: Vec::new(),
         publisher: ipc.depth_publisher(&depth, DepthHeader::payload_len(config.camera.width, config.camera.height))?,
         events: ipc.notifier(&ipc.events(Topic::Depth)?)?,
         width: config.camera.width,

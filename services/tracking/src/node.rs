@@ -14,8 +14,8 @@ use bdis_ipc::telemetry::MessageTiming;
 use bdis_ipc::track::{doubt, pose_method, pose_to_array, tracking_state};
 use bdis_ipc::validate::{self, Admit, StreamGuard};
 use bdis_ipc::{
-    FrameHeader, Ipc, KeyframeHeader, KeyframeMeta, KeyframePose, PoseRecord, StereoIntrinsics, TelemetryPublisher,
-    Topic, event_id, monotonic_ns,
+    FrameHeader, FrameView, Ipc, KeyframeHeader, KeyframeMeta, KeyframePose, PoseRecord, StereoIntrinsics,
+    TelemetryPublisher, Topic, event_id, monotonic_ns,
 };
 use bdis_node::{Ended, Flow};
 use bdis_track::mapper::MapperReport;
@@ -89,30 +89,58 @@ struct Outputs {
     /// The generation of the last correction sent.
     generation: u64,
     camera: RectifiedCamera,
-    /// Bytes of one packed frame of the run's size: what a keyframe sample carries.
-    frame_bytes: usize,
+    /// A keyframe's payload: the packed images of the run's size and a mask plane.
+    keyframe_layout: bdis_ipc::FrameLayout,
 }
 
 impl Outputs {
-    /// A new keyframe with its images (copied from the frame, which goes back to acquisition).
-    fn keyframe(&mut self, tracker: &Tracker, kf: usize, header: &FrameHeader, payload: &[u8]) -> Result<()> {
+    /// A new keyframe with its images and its mask, if the frame has one (copied from the frame, which goes
+    /// back to acquisition), packed whatever the frame's layout.
+    fn keyframe(&mut self, tracker: &Tracker, kf: usize, view: &FrameView) -> Result<()> {
+        let header = view.header;
         let pose = self.world.to_world(&tracker.map().keyframes[kf].camera_from_world.inverse());
         let kf_id = self.world.kf_id(kf);
         // Journalled before it goes out: a crash in between leaves a gap in the ids, never a reused id.
         self.journal.write(|line| journal::keyframe_line(line, kf_id, header.t_source_ns, &pose));
-        let mut loan = self.keyframes.loan_slice_uninit(self.frame_bytes).context("loan a keyframe sample")?;
-        if bdis_node::copy_into(loan.payload_mut(), payload) != self.frame_bytes {
-            bail!("frame {}: {} payload bytes, a keyframe needs {}", header.frame_seq, payload.len(), self.frame_bytes);
+        let layout = self.keyframe_layout;
+        let bytes = layout.payload_len();
+        let mut loan = self.keyframes.loan_slice_uninit(bytes).context("loan a keyframe sample")?;
+        let payload = loan.payload_mut();
+        let n = layout.width as usize * layout.height as usize;
+        let mask_offset = layout.mask_offset.unwrap_or_default() as usize;
+        let mut written = 0;
+        for (offset, len, image) in [
+            (layout.left_gray_offset as usize, n, view.left_gray),
+            (layout.right_gray_offset as usize, n, view.right_gray),
+            (layout.left_rgb_offset as usize, 3 * n, view.left_rgb),
+        ] {
+            written += bdis_node::copy_into(&mut payload[offset..offset + len], image);
         }
-        // SAFETY: all frame_bytes bytes of the loan were written (counted just above).
+        match view.mask {
+            Some(mask) => written += bdis_node::copy_into(&mut payload[mask_offset..mask_offset + n], mask),
+            None => {
+                payload[mask_offset..mask_offset + n].iter_mut().for_each(|b| {
+                    b.write(0);
+                });
+                written += n;
+            }
+        }
+        if written != bytes {
+            bail!("frame {}: wrote {written} of a keyframe's {bytes} bytes", header.frame_seq);
+        }
+        // SAFETY: all bytes of the loan were written (counted just above).
         let mut sample = unsafe { loan.assume_init() };
-        *sample.user_header_mut() = KeyframeHeader {
+        let mut frame = FrameHeader {
+            t_publish_ns: monotonic_ns(),
             // ANSWERS_JOIN is acquisition's word to its own consumers; it does not travel on.
-            frame: FrameHeader {
-                t_publish_ns: monotonic_ns(),
-                flags: header.flags & !FrameHeader::ANSWERS_JOIN,
-                ..*header
-            },
+            flags: header.flags & !FrameHeader::ANSWERS_JOIN,
+            ..*header
+        };
+        // The keyframe's own layout; the mask plane counts only when the frame had a mask.
+        let carried = if view.mask.is_some() { layout } else { bdis_ipc::FrameLayout { mask_offset: None, ..layout } };
+        carried.write_into(&mut frame);
+        *sample.user_header_mut() = KeyframeHeader {
+            frame,
             meta: KeyframeMeta {
                 kf_id,
                 world_from_camera: pose_to_array(&pose),
@@ -173,14 +201,14 @@ pub fn run(config: Config) -> Result<()> {
     let subscriber = ipc.frame_subscriber(&frames)?;
     let frame_events = ipc.listener(&ipc.events(Topic::Frames)?)?;
     let credits = ipc.notifier(&ipc.frames_consumed()?)?;
-    let frame_bytes = bdis_ipc::FrameLayout::packed(width, height)
-        .with_context(|| format!("{width}×{height}: no frame layout"))?
-        .payload_len();
+    let keyframe_layout = bdis_ipc::FrameLayout::packed(width, height)
+        .and_then(bdis_ipc::FrameLayout::with_mask_plane)
+        .with_context(|| format!("{width}×{height}: no frame layout"))?;
     let keyframes = ipc.keyframes()?;
     let mut out = Outputs {
         poses: ipc.poses()?.publisher_builder().create().context("create the poses publisher")?,
         pose_events: ipc.notifier(&ipc.events(Topic::Poses)?)?,
-        keyframes: ipc.keyframe_publisher(&keyframes, frame_bytes)?,
+        keyframes: ipc.keyframe_publisher(&keyframes, keyframe_layout.payload_len())?,
         keyframe_events: ipc.notifier(&ipc.events(Topic::Keyframes)?)?,
         corrections: ipc.corrections()?.publisher_builder().create().context("create the corrections publisher")?,
         correction_events: ipc.notifier(&ipc.events(Topic::Corrections)?)?,
@@ -188,7 +216,7 @@ pub fn run(config: Config) -> Result<()> {
         journal,
         generation: earlier.generation,
         camera,
-        frame_bytes,
+        keyframe_layout,
     };
     // Its declared output is the keyframes topic: that is what the dense stereo consumes (poses and corrections
     // have no process downstream yet).
@@ -267,7 +295,7 @@ pub fn run(config: Config) -> Result<()> {
             // The tracking thread's CPU (bundle adjustment runs on a worker thread and is not part of it).
             let cpu_start = bdis_ipc::clock::thread_cpu_ns();
             let result = tracker
-                .track(header.t_source_ns, view.left_gray, view.right_gray)
+                .track_masked(header.t_source_ns, view.left_gray, view.right_gray, view.mask)
                 .with_context(|| format!("frame {}", header.frame_seq))?;
             let cpu_ns = bdis_ipc::clock::thread_cpu_ns().saturating_sub(cpu_start);
             // A restarted tracker's new map is placed where its predecessor's motion says this frame is.
@@ -275,7 +303,7 @@ pub fn run(config: Config) -> Result<()> {
                 out.world.anchor(&earlier, header.frame_seq, &camera_from_map.inverse());
             }
             if let Some(kf) = result.new_keyframe {
-                out.keyframe(&tracker, kf, &header, sample.payload())?;
+                out.keyframe(&tracker, kf, &view)?;
                 counts.keyframes += 1;
             }
             drop(sample);
@@ -534,7 +562,11 @@ mod tests {
             pose_of(i as u64, &mut received_poses);
             while let Some(k) = keyframe_subscriber.receive().unwrap() {
                 let header = *k.user_header();
-                assert_eq!(k.payload(), &payloads[header.frame.frame_seq as usize][..], "the keyframe's images");
+                // The frame's images, then an empty mask plane the keyframe does not flag (the frame had none).
+                let images = &payloads[header.frame.frame_seq as usize][..];
+                assert_eq!(&k.payload()[..images.len()], images, "the keyframe's images");
+                assert!(k.payload()[images.len()..].iter().all(|&b| b == 0));
+                assert_eq!(header.frame.flags & FrameHeader::HAS_MASK, 0);
                 received_keyframes.push(header.meta);
             }
         }

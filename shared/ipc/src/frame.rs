@@ -1,13 +1,14 @@
-//! The stereo frame contract: a `[u8]` payload holding left grey, right grey and left RGB images, described by a
-//! versioned `#[repr(C)]` user header. One type serves every resolution (a fixed-size struct per resolution would
+//! The stereo frame contract: a `[u8]` payload holding left grey, right grey and left RGB images, and optionally
+//! a mask of the left view (instruments: no features, no map points), described by a versioned `#[repr(C)]` user
+//! header. One type serves every resolution (a fixed-size struct per resolution would
 //! be a new iceoryx2 type, and a resolution change an `IncompatibleTypes` error).
 
 use iceoryx2::prelude::*;
 
-/// Header of every frame sample (`bdis.v1.FrameHeader`).
+/// Header of every frame sample (`bdis.v2.FrameHeader`; v2 gave v1's reserved word to the mask plane).
 #[repr(C)]
 #[derive(Debug, Default, Clone, Copy, PartialEq, Eq, ZeroCopySend)]
-#[type_name("bdis.v1.FrameHeader")]
+#[type_name("bdis.v2.FrameHeader")]
 pub struct FrameHeader {
     /// 0, 1, 2, … within one stream: a consumer sees a gap as a lost frame.
     pub frame_seq: u64,
@@ -31,7 +32,9 @@ pub struct FrameHeader {
     pub flags: u32,
     /// Index of the frame in its source (the image number for folder layouts).
     pub source_index: u32,
-    pub reserved: u32,
+    /// With [`FrameHeader::HAS_MASK`]: where the left view's mask lies (one byte per pixel, rows of
+    /// `gray_stride` bytes; non-zero = an instrument or anything else to keep out of the pose and the map).
+    pub mask_offset: u32,
 }
 
 impl FrameHeader {
@@ -40,6 +43,8 @@ impl FrameHeader {
     /// The first frame acquisition sent after a consumer announced itself (`event_id::JOINED`), and the first
     /// frame of a stream. Frames that reach a consumer before it are not its own: see [`JoinGate`].
     pub const ANSWERS_JOIN: u32 = 2;
+    /// The payload holds a mask of the left view at `mask_offset`.
+    pub const HAS_MASK: u32 = 4;
 
     pub fn is_end_of_stream(&self) -> bool {
         self.flags & Self::END_OF_STREAM != 0
@@ -79,7 +84,7 @@ impl JoinGate {
     }
 }
 
-/// Where the three images lie in a frame payload.
+/// Where the three images (and the mask, if any) lie in a frame payload.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct FrameLayout {
     pub width: u32,
@@ -89,6 +94,8 @@ pub struct FrameLayout {
     pub left_rgb_offset: u32,
     pub gray_stride: u32,
     pub rgb_stride: u32,
+    /// The left view's mask (rows of `gray_stride` bytes), if the payload has one.
+    pub mask_offset: Option<u32>,
 }
 
 impl FrameLayout {
@@ -107,16 +114,32 @@ impl FrameLayout {
             left_rgb_offset: (2 * gray) as u32,
             gray_stride: width,
             rgb_stride: width * 3,
+            mask_offset: None,
         })
     }
 
-    /// Payload bytes the layout needs.
-    pub fn payload_len(&self) -> usize {
+    /// This layout with a mask plane after everything else (the three images keep their places, so a reader
+    /// that writes them is unchanged). `None` past 4 GiB.
+    pub fn with_mask_plane(self) -> Option<Self> {
+        let mask_offset = u32::try_from(self.images_len()).ok()?;
+        let end = u64::from(mask_offset) + u64::from(self.gray_stride) * u64::from(self.height);
+        (end <= u64::from(u32::MAX)).then_some(Self { mask_offset: Some(mask_offset), ..self })
+    }
+
+    /// Bytes of the three images (the payload without the mask plane).
+    pub fn images_len(&self) -> usize {
         let h = self.height as usize;
         let gray_end = |off: u32| off as usize + self.gray_stride as usize * h;
         gray_end(self.left_gray_offset)
             .max(gray_end(self.right_gray_offset))
             .max(self.left_rgb_offset as usize + self.rgb_stride as usize * h)
+    }
+
+    /// Payload bytes the layout needs.
+    pub fn payload_len(&self) -> usize {
+        let mask_end =
+            self.mask_offset.map_or(0, |off| off as usize + self.gray_stride as usize * self.height as usize);
+        self.images_len().max(mask_end)
     }
 
     pub fn write_into(&self, header: &mut FrameHeader) {
@@ -127,6 +150,9 @@ impl FrameLayout {
         header.left_rgb_offset = self.left_rgb_offset;
         header.gray_stride = self.gray_stride;
         header.rgb_stride = self.rgb_stride;
+        header.mask_offset = self.mask_offset.unwrap_or(0);
+        header.flags = (header.flags & !FrameHeader::HAS_MASK)
+            | if self.mask_offset.is_some() { FrameHeader::HAS_MASK } else { 0 };
     }
 
     pub fn of(header: &FrameHeader) -> Self {
@@ -138,6 +164,7 @@ impl FrameLayout {
             left_rgb_offset: header.left_rgb_offset,
             gray_stride: header.gray_stride,
             rgb_stride: header.rgb_stride,
+            mask_offset: (header.flags & FrameHeader::HAS_MASK != 0).then_some(header.mask_offset),
         }
     }
 }
@@ -151,13 +178,15 @@ pub enum FrameLayoutError {
     BadLayout { frame_seq: u64, width: u32, height: u32, gray_stride: u32, rgb_stride: u32 },
 }
 
-/// The three images of a frame, borrowed in place from the payload (no copy).
+/// The three images of a frame (and its mask), borrowed in place from the payload (no copy).
 #[derive(Debug, Clone, Copy)]
 pub struct FrameView<'a> {
     pub header: &'a FrameHeader,
     pub left_gray: &'a [u8],
     pub right_gray: &'a [u8],
     pub left_rgb: &'a [u8],
+    /// The left view's mask, rows of `gray_stride` bytes, non-zero = keep out.
+    pub mask: Option<&'a [u8]>,
 }
 
 impl<'a> FrameView<'a> {
@@ -193,6 +222,7 @@ impl<'a> FrameView<'a> {
             right_gray: gray(layout.right_gray_offset),
             left_rgb: &payload
                 [layout.left_rgb_offset as usize..layout.left_rgb_offset as usize + layout.rgb_stride as usize * h],
+            mask: layout.mask_offset.map(gray),
         })
     }
 }
@@ -212,12 +242,32 @@ mod tests {
         assert_eq!(view.left_gray, &payload[0..8]);
         assert_eq!(view.right_gray, &payload[8..16]);
         assert_eq!(view.left_rgb, &payload[16..40]);
+        assert!(view.mask.is_none());
         let e = FrameView::new(&header, &payload[..39]).unwrap_err();
         assert_eq!(e, FrameLayoutError::PayloadTooShort { frame_seq: 7, needed: 40, actual: 39 });
         header.gray_stride = 3;
         assert!(matches!(FrameView::new(&header, &payload), Err(FrameLayoutError::BadLayout { .. })));
         assert!(FrameLayout::packed(0, 5).is_none());
         assert!(FrameLayout::packed(70_000, 70_000).is_none());
+    }
+
+    #[test]
+    fn a_mask_plane_follows_the_images_and_travels_in_the_header() {
+        let layout = FrameLayout::packed(4, 2).unwrap().with_mask_plane().unwrap();
+        assert_eq!((layout.images_len(), layout.payload_len()), (40, 48));
+        let mut header = FrameHeader { frame_seq: 7, flags: FrameHeader::ANSWERS_JOIN, ..Default::default() };
+        layout.write_into(&mut header);
+        assert_eq!(header.flags, FrameHeader::ANSWERS_JOIN | FrameHeader::HAS_MASK);
+        assert_eq!(FrameLayout::of(&header), layout);
+        let payload: Vec<u8> = (0..48).collect();
+        let view = FrameView::new(&header, &payload).unwrap();
+        assert_eq!(view.left_rgb, &payload[16..40]);
+        assert_eq!(view.mask, Some(&payload[40..48]));
+        assert!(FrameView::new(&header, &payload[..47]).is_err(), "a mask past the payload is refused");
+        // Writing a maskless layout clears the flag.
+        FrameLayout::packed(4, 2).unwrap().write_into(&mut header);
+        assert_eq!(header.flags, FrameHeader::ANSWERS_JOIN);
+        assert!(FrameView::new(&header, &payload).unwrap().mask.is_none());
     }
 
     #[test]

@@ -123,11 +123,11 @@ pub struct KeyframeMeta {
     pub corrections_generation: u64,
 }
 
-/// Header of a keyframe sample (`bdis.v2.KeyframeHeader`): the frame's header (layout of the three images in
+/// Header of a keyframe sample (`bdis.v3.KeyframeHeader`: v3 carries `bdis.v2.FrameHeader`): the frame's header (layout of the three images in
 /// the payload, exactly as on the frames topic), then what the keyframe is.
 #[repr(C)]
 #[derive(Debug, Default, Clone, Copy, PartialEq, ZeroCopySend)]
-#[type_name("bdis.v2.KeyframeHeader")]
+#[type_name("bdis.v3.KeyframeHeader")]
 pub struct KeyframeHeader {
     pub frame: FrameHeader,
     pub meta: KeyframeMeta,

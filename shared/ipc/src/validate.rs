@@ -95,7 +95,12 @@ impl Rejection {
 
 /// Refuses a header whose spans (offset, bytes; `None` = more than 2^64) reach past the payload. The sizes are
 /// a header's claims, so everything is computed in checked 64-bit arithmetic.
-fn spans_fit(spans: [(u32, Option<u64>); 3], payload: &[u8], id: u64, what: &str) -> Result<(), Rejection> {
+fn spans_fit<const N: usize>(
+    spans: [(u32, Option<u64>); N],
+    payload: &[u8],
+    id: u64,
+    what: &str,
+) -> Result<(), Rejection> {
     let needed = spans
         .into_iter()
         .try_fold(0u64, |m, (offset, len)| len.and_then(|l| u64::from(offset).checked_add(l)).map(|e| m.max(e)));
@@ -114,7 +119,7 @@ fn spans_fit(spans: [(u32, Option<u64>); 3], payload: &[u8], id: u64, what: &str
 }
 
 /// A frame (frames topic, or the frame part of a keyframe): its layout against the payload. The returned view
-/// borrows the three images in place.
+/// borrows the three images (and the mask) in place.
 pub fn frame<'a>(header: &'a FrameHeader, payload: &'a [u8]) -> Result<FrameView<'a>, Rejection> {
     let id = header.frame_seq;
     let l = FrameLayout::of(header);
@@ -128,8 +133,9 @@ pub fn frame<'a>(header: &'a FrameHeader, payload: &'a [u8]) -> Result<FrameView
     let h = u64::from(l.height);
     let gray = u64::from(l.gray_stride).checked_mul(h);
     let rgb = u64::from(l.rgb_stride).checked_mul(h);
+    let mask = l.mask_offset.map_or((0, Some(0)), |offset| (offset, gray));
     spans_fit(
-        [(l.left_gray_offset, gray), (l.right_gray_offset, gray), (l.left_rgb_offset, rgb)],
+        [(l.left_gray_offset, gray), (l.right_gray_offset, gray), (l.left_rgb_offset, rgb), mask],
         payload,
         id,
         "frame",

@@ -15,6 +15,7 @@
 //! Optional (the paper's future work): instead of plain replacement, an agreeing earlier point is folded into the
 //! new point of the same grid cell, weighted by confidence ([`Fusion::Weighted`]).
 
+mod carve;
 mod render;
 mod store;
 mod summary;
@@ -99,6 +100,11 @@ pub struct MosaicParams {
     /// With [`Fusion::Weighted`], a point's accumulated weight stops growing here, so the map keeps following
     /// newer views.
     pub max_weight: f32,
+    /// A new point is dropped when an earlier keyframe that looked at its place saw a surface behind it, farther
+    /// by more than this much disparity (px, in that keyframe's view: a depth margin that grows with depth² as
+    /// the depth's own uncertainty does). Such a point is transient — an instrument, smoke, depth smeared across
+    /// a silhouette — or wrong. 0 = off.
+    pub carve_disparity_px: f32,
 }
 
 impl Default for MosaicParams {
@@ -113,13 +119,14 @@ impl Default for MosaicParams {
             keep_closer_ratio: 0.8,
             fusion: Fusion::Replace,
             max_weight: 8.0,
+            carve_disparity_px: 3.0,
         }
     }
 }
 
 impl MosaicParams {
     /// The names `--map-param NAME=VALUE` accepts.
-    pub const NAMES: [&str; 9] = [
+    pub const NAMES: [&str; 10] = [
         "depth_gap_px",
         "min_colour",
         "min_confidence",
@@ -129,6 +136,7 @@ impl MosaicParams {
         "keep_closer_ratio",
         "fusion",
         "max_weight",
+        "carve_disparity_px",
     ];
 
     /// Sets one parameter from text (`fusion` is `replace` or `weighted`).
@@ -154,6 +162,7 @@ impl MosaicParams {
             "disparity_tolerance_px" => self.disparity_tolerance_px = non_negative(name, num(name, value)?)?,
             "keep_closer_ratio" => self.keep_closer_ratio = non_negative(name, num(name, value)?)? as f32,
             "max_weight" => self.max_weight = non_negative(name, num(name, value)?)? as f32,
+            "carve_disparity_px" => self.carve_disparity_px = non_negative(name, num(name, value)?)? as f32,
             "fusion" => {
                 self.fusion = match value.trim() {
                     "replace" => Fusion::Replace,
@@ -244,6 +253,8 @@ pub struct InsertReport {
     pub overlapping_keyframes: usize,
     /// Earlier points tested against the new view.
     pub tested: usize,
+    /// New points dropped because an earlier keyframe saw through them (see `carve_disparity_px`).
+    pub seen_through: usize,
 }
 
 /// The whole map: keyframe clouds by id, and the newest pose correction of every keyframe seen so far (a
@@ -260,6 +271,10 @@ pub struct Mosaic {
     fuse_weighted_z: Vec<f32>,
     /// Grid cells of the new view where an earlier, closer point was kept: no new point there.
     covered: Vec<bool>,
+    /// What each keyframe saw (its depth on its grid), to test later keyframes' points against.
+    seen: BTreeMap<u64, carve::SeenDepth>,
+    /// Reused per keyframe: the earlier keyframes the new view overlaps.
+    overlapping: Vec<u64>,
 }
 
 pub(crate) fn check_pose(kf_id: u64, pose: &Isometry3<f64>) -> Result<(), MosaicError> {
@@ -281,6 +296,8 @@ impl Mosaic {
             fuse_weight: Vec::new(),
             fuse_weighted_z: Vec::new(),
             covered: Vec::new(),
+            seen: BTreeMap::new(),
+            overlapping: Vec::new(),
         }
     }
 
@@ -378,11 +395,13 @@ impl Mosaic {
         let camera_from_world = world_from_camera.inverse();
         let frustum = Frustum::new(&kf.intrinsics);
         let bf32 = bf as f32;
+        self.overlapping.clear();
         for old in self.keyframes.values_mut() {
             let Some((centre_world, radius)) = old.bounding_sphere_world() else { continue };
             if !frustum.may_contain(&(camera_from_world * centre_world), radius) {
                 continue;
             }
+            self.overlapping.push(old.kf_id);
             report.overlapping_keyframes += 1;
             report.tested += old.points.len();
             let new_from_old = camera_from_world * old.world_from_camera;
@@ -477,6 +496,23 @@ impl Mosaic {
                 });
             }
         }
+        // Free space: earlier views of the place that saw through a new point (the existing test above did the
+        // converse, this view seeing through earlier points).
+        if p.carve_disparity_px > 0.0 {
+            for kf_id in &self.overlapping {
+                if let (Some(seen), Some(old)) = (self.seen.get(kf_id), self.keyframes.get(kf_id)) {
+                    report.seen_through += seen.carve(
+                        &mut cloud.points,
+                        |pt| pt.xyz,
+                        &world_from_camera,
+                        &old.world_from_camera,
+                        &old.intrinsics,
+                        p.carve_disparity_px,
+                    );
+                }
+            }
+        }
+        self.seen.insert(kf.kf_id, carve::SeenDepth::sample(&self.depth_scratch, w, h, gap));
         report.added = cloud.points.len();
         cloud.update_bounds();
         // Kept even when empty (all dark, or all replaced later): the id stays known, so a keyframe sent again is

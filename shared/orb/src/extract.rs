@@ -272,15 +272,47 @@ impl OrbExtractor {
 
     /// Extracts features of a `width`×`height` grey image into `out` (its buffers are reused).
     pub fn extract(&mut self, image: &[u8], out: &mut Features) -> Result<(), OrbError> {
+        self.extract_masked(image, None, out)
+    }
+
+    /// [`OrbExtractor::extract`] keeping out of `keep_out` (one byte per pixel of the image, non-zero = an
+    /// instrument or anything else that must give no feature). A corner is dropped when its centre or its FAST
+    /// ring (3 level pixels out) lies on the mask — a corner on a silhouette belongs to what moves, not to the
+    /// tissue behind — before each level's features are distributed, so the level's budget goes to the rest.
+    pub fn extract_masked(
+        &mut self,
+        image: &[u8],
+        keep_out: Option<&[u8]>,
+        out: &mut Features,
+    ) -> Result<(), OrbError> {
         let (w, h) = (self.width, self.height);
         if image.len() < w * h {
             return Err(OrbError::Buffer { len: image.len(), w, h, needed: w * h });
+        }
+        if let Some(mask) = keep_out
+            && mask.len() < w * h
+        {
+            return Err(OrbError::Buffer { len: mask.len(), w, h, needed: w * h });
         }
         self.build_pyramid(&image[..w * h]);
         out.keypoints.clear();
         out.descriptors.clear();
         for l in 0..self.levels.len() {
             self.detect_level(l);
+            if let Some(mask) = keep_out {
+                let scale = self.scales[l] as f32;
+                let masked = |x: f32, y: f32| {
+                    let (x, y) = (level_to_image(x, scale).round(), level_to_image(y, scale).round());
+                    let (x, y) = (x.clamp(0.0, (w - 1) as f32) as usize, y.clamp(0.0, (h - 1) as f32) as usize);
+                    mask[y * w + x] != 0
+                };
+                self.corners.retain(|c| {
+                    let (x, y) = (f32::from(c.x), f32::from(c.y));
+                    ![(0.0, 0.0), (3.0, 0.0), (-3.0, 0.0), (0.0, 3.0), (0.0, -3.0)]
+                        .iter()
+                        .any(|&(dx, dy)| masked(x + dx, y + dy))
+                });
+            }
             self.distribute(l);
             blur_level(&self.levels[l], &mut self.blurred[l], &mut self.blur_tmp, &mut self.blur_acc);
             let scale = self.scales[l] as f32;

@@ -27,8 +27,8 @@ pub struct FrameDecoder {
 }
 
 /// A decoded image in one of our buffers.
-struct Decoded {
-    color: ColorType,
+pub(crate) struct Decoded {
+    pub(crate) color: ColorType,
 }
 
 /// Grey from RGB with the BT.601 weights in 14-bit fixed point (0.299, 0.587, 0.114), rounded.
@@ -46,7 +46,7 @@ pub(crate) fn rgb_of_yuv(y: u8, u: u8, v: u8) -> [u8; 3] {
     [clamp(c + 409 * e), clamp(c - 100 * d - 208 * e), clamp(c + 516 * d)]
 }
 
-fn decode_into(path: &Path, buf: &mut Vec<u8>, width: u32, height: u32) -> Result<Decoded, DecodeError> {
+pub(crate) fn decode_into(path: &Path, buf: &mut Vec<u8>, width: u32, height: u32) -> Result<Decoded, DecodeError> {
     let fail = |detail: String| DecodeError::Decode { path: path.to_path_buf(), detail };
     let decoder = image::ImageReader::open(path)
         .map_err(|e| fail(e.to_string()))?
@@ -81,7 +81,7 @@ fn decode_into(path: &Path, buf: &mut Vec<u8>, width: u32, height: u32) -> Resul
 
 /// Reads pixel `i` of a decoded buffer as 8-bit RGB (16-bit samples keep their high byte).
 #[inline]
-fn rgb_at(buf: &[u8], color: ColorType, i: usize) -> (u8, u8, u8) {
+pub(crate) fn rgb_at(buf: &[u8], color: ColorType, i: usize) -> (u8, u8, u8) {
     let hi16 = |k: usize| u16::from_ne_bytes([buf[2 * k], buf[2 * k + 1]]).to_be_bytes()[0];
     match color {
         ColorType::L8 => (buf[i], buf[i], buf[i]),

@@ -171,9 +171,17 @@ impl FrameBuilder {
         &self.scales
     }
 
-    /// Extracts and matches a grey pair into `frame` (its buffers reused).
-    pub fn build(&mut self, t_ns: u64, left: &[u8], right: &[u8], frame: &mut Frame) -> Result<(), OrbError> {
-        self.left.extract(left, &mut self.left_features)?;
+    /// Extracts and matches a grey pair into `frame` (its buffers reused). No left feature comes from
+    /// `keep_out` (one byte per left pixel, non-zero = instruments: see [`OrbExtractor::extract_masked`]).
+    pub fn build(
+        &mut self,
+        t_ns: u64,
+        left: &[u8],
+        right: &[u8],
+        keep_out: Option<&[u8]>,
+        frame: &mut Frame,
+    ) -> Result<(), OrbError> {
+        self.left.extract_masked(left, keep_out, &mut self.left_features)?;
         self.right.extract(right, &mut self.right_features)?;
         self.matcher.match_features(
             &self.left_features,

@@ -238,7 +238,19 @@ impl Tracker {
 
     /// Tracks one grey stereo pair.
     pub fn track(&mut self, t_ns: u64, left: &[u8], right: &[u8]) -> Result<FrameResult, TrackError> {
-        self.builder.build(t_ns, left, right, &mut self.current)?;
+        self.track_masked(t_ns, left, right, None)
+    }
+
+    /// Tracks one grey stereo pair with no feature from `keep_out` (one byte per left pixel, non-zero =
+    /// instruments): what moves on its own gives neither the pose nor map points.
+    pub fn track_masked(
+        &mut self,
+        t_ns: u64,
+        left: &[u8],
+        right: &[u8],
+        keep_out: Option<&[u8]>,
+    ) -> Result<FrameResult, TrackError> {
+        self.builder.build(t_ns, left, right, keep_out, &mut self.current)?;
         let mut result = FrameResult {
             frame_id: self.current.id,
             t_ns,

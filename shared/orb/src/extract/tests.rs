@@ -115,3 +115,27 @@ pub(super) fn the_table_free_pyramid_gather_equals_the_tap_table() {
         assert!((f64::from(a.data[y * dw + x]) - want).abs() < 1.0, "({x}, {y})");
     }
 }
+
+#[test]
+pub(super) fn a_keep_out_mask_moves_the_features_off_it_and_keeps_the_budget() {
+    let (w, h) = (320, 240);
+    let image = test_level(w, h).data;
+    let params = OrbParams { n_features: 500, ..OrbParams::default() };
+    let mut extractor = OrbExtractor::new(params, w, h).unwrap();
+    let mut free = Features::default();
+    extractor.extract(&image, &mut free).unwrap();
+    // The right third of the image is an instrument.
+    let mask: Vec<u8> = (0..w * h).map(|i| if i % w >= 2 * w / 3 { 255 } else { 0 }).collect();
+    let mut kept = Features::default();
+    extractor.extract_masked(&image, Some(&mask), &mut kept).unwrap();
+    let on_mask = |f: &Features| f.keypoints.iter().filter(|k| k.x >= (2 * w / 3) as f32 - 3.0).count();
+    assert!(on_mask(&free) > 100, "the test image has features there: {}", on_mask(&free));
+    // Nothing within the FAST ring of the mask (3 px at level 0; ≥ 3 px further out at coarser levels).
+    assert_eq!(on_mask(&kept), 0);
+    // The budget goes to the rest of the image rather than being lost.
+    let left_free = free.keypoints.len() - on_mask(&free);
+    assert!(kept.keypoints.len() > left_free + 50, "{} kept, {left_free} there without the mask", kept.keypoints.len());
+    assert_eq!(kept.keypoints.len(), kept.descriptors.len());
+    // A short mask is an error, not a panic.
+    assert!(extractor.extract_masked(&image, Some(&mask[..10]), &mut kept).is_err());
+}
