@@ -1,4 +1,4 @@
-//! `bdis-slam eval traj|map|stereo`: scores against ground truth, for people (a short report) and programs
+//! `bdis-slam eval traj|map|stereo|masks`: scores against ground truth, for people (a short report) and programs
 //! (`--json`).
 
 use std::path::{Path, PathBuf};
@@ -16,6 +16,9 @@ pub enum EvalCommand {
     Map(MapArgs),
     /// Dense stereo error: density, depth MAE / median, bad-1 / bad-2 px, against GT depth or disparity.
     Stereo(StereoEvalArgs),
+    /// Instrument masks: our own estimate (colour and shape, no network) on every left image of a sequence,
+    /// scored against true masks (precision, recall); optionally written out, for a look or for `run --masks`.
+    Masks(crate::eval_masks::MasksArgs),
 }
 
 #[derive(Debug, clap::Args)]
@@ -152,8 +155,16 @@ pub fn eval(command: EvalCommand) -> Result<()> {
                     100.0 * score.second_layer,
                     score.second_layer_gap
                 );
+                if let Some(in_front) = score.in_front {
+                    println!(
+                        "in front of the tissue (> {} mm, on the cameras' side: instruments, smoke): {:.2} %",
+                        score.outlier_threshold,
+                        100.0 * in_front
+                    );
+                }
             }
         }
+        EvalCommand::Masks(a) => crate::eval_masks::eval_masks(a)?,
         EvalCommand::Stereo(a) => {
             if !(a.bf.is_finite() && a.bf > 0.0) {
                 bail!("--bf: must be > 0, found {}", a.bf);
@@ -231,16 +242,22 @@ pub fn score_map_file(
     let map = ply::read(map_path)?;
     let mut points: Vec<Point3<f64>> =
         map.positions.iter().map(|p| Point3::new(f64::from(p[0]), f64::from(p[1]), f64::from(p[2]))).collect();
+    let mut cameras = Vec::new();
     if let Some((est, gt)) = align {
         let (est, gt) = (trajectory::read_tum(est)?, trajectory::read_tum(gt)?);
         let gt_from_est = bdis_eval::traj::align_se3(&gt, &est, 0.01).context("--align-est / --align-gt")?;
         for p in &mut points {
             *p = gt_from_est * *p;
         }
+        cameras.extend(gt.iter().map(|pose| Point3::from(pose.world_from_camera.translation.vector)));
     }
     let index = bdis_eval::map::MeshIndex::new(mesh)?;
-    bdis_eval::map::score_map(&points, &index, outlier_mm, coverage_mm, layer_gap_mm)
-        .with_context(|| map_path.display().to_string())
+    let mut score = bdis_eval::map::score_map(&points, &index, outlier_mm, coverage_mm, layer_gap_mm)
+        .with_context(|| map_path.display().to_string())?;
+    if !cameras.is_empty() {
+        score.in_front = Some(bdis_eval::map::in_front_fraction(&points, &index, &cameras, outlier_mm));
+    }
+    Ok(score)
 }
 
 fn check_size(gt: pfm::PfmImage, est: &pfm::PfmImage, path: &Path) -> Result<pfm::PfmImage> {

@@ -9,6 +9,7 @@ mod bench_cmd;
 mod calib_cmd;
 mod demo_cmd;
 mod eval_cmd;
+mod eval_masks;
 mod fields;
 mod map_cmd;
 mod plan;

@@ -38,6 +38,11 @@ pub struct RunArgs {
     /// with each frame through shared memory, and the tracker takes no feature and the stereo no depth there.
     #[arg(long, value_name = "DIR", requires = "sequence")]
     masks: Option<PathBuf>,
+    /// With --track, for frames without --masks: `estimate` (default) has the tracker find instruments itself
+    /// (grey regions entering from the border; nothing on footage that is not tissue-coloured) and keep them out
+    /// of the pose and the map; `off` takes every pixel.
+    #[arg(long, value_name = "MODE", value_parser = ["estimate", "off"], requires = "track")]
+    instrument_masks: Option<String>,
     /// Skip the first N frames of --sequence (a video is decoded from frame N, exactly).
     #[arg(long, default_value_t = 0, value_name = "N", requires = "sequence")]
     start: usize,
@@ -173,10 +178,13 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
             };
             let mut plan =
                 plan_for_sequence(input, args.pacing, args.checksums, args.stereo_every, args.track, &args.map_params)?;
-            if args.no_loop_closing
-                && let Some(tracking) = plan.services.iter_mut().find(|s| s.binary == "bdis-tracking")
-            {
-                tracking.args.extend(["--loop-closing".to_string(), "off".to_string()]);
+            if let Some(tracking) = plan.services.iter_mut().find(|s| s.binary == "bdis-tracking") {
+                if args.no_loop_closing {
+                    tracking.args.extend(["--loop-closing".to_string(), "off".to_string()]);
+                }
+                if let Some(mode) = &args.instrument_masks {
+                    tracking.args.extend(["--instrument-masks".to_string(), mode.clone()]);
+                }
             }
             if let Some(acquisition) = plan.services.iter_mut().find(|s| s.binary == "bdis-acquisition") {
                 if args.start > 0 {

@@ -43,6 +43,12 @@ struct Args {
     /// keyframe moved goes out as a correction. `off`: revisits are tied in by map reuse alone.
     #[arg(long, default_value = "on", value_parser = ["on", "off"])]
     loop_closing: String,
+    /// Instruments in frames that come without a mask: `estimate` finds them (grey regions from the image
+    /// border, see bdis_track::instruments; nothing on a view that is not tissue-coloured) and keeps them out of
+    /// the pose, and sends the estimate with each keyframe so the dense map leaves them out too. `off`: none.
+    /// A frame's own mask (`--masks` at acquisition) is always used.
+    #[arg(long, default_value = "estimate", value_parser = ["estimate", "off"])]
+    instrument_masks: String,
     /// Continue after a crashed predecessor: its journal (`tracking.journal` in the run folder) gives the frames
     /// it tracked, the keyframe ids it published and the world frame; a new map continues the same trajectory.
     #[arg(long)]
@@ -110,6 +116,8 @@ fn run(args: Args) -> Result<()> {
         journal,
         camera,
         n_features: settings.orb.n_features,
+        instruments: (args.instrument_masks == "estimate")
+            .then(|| bdis_track::instruments::InstrumentMasker::new(Default::default())),
         settings: args.settings,
         out_dir,
         name: args.name,

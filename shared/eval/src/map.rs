@@ -216,6 +216,34 @@ pub struct MapScore {
     pub second_layer: f64,
     #[serde(default)]
     pub second_layer_gap: f64,
+    /// Share of all points farther than `outlier_threshold` from the mesh on the cameras' side of it: floating
+    /// in front of the tissue, where instruments are (see [`in_front_fraction`]); `None` without cameras.
+    #[serde(default)]
+    pub in_front: Option<f64>,
+}
+
+/// The share of `points` farther than `threshold` from the mesh and in front of it: on the side of the nearest
+/// of `cameras` (positions in the mesh's frame). Instruments, smoke and matches smeared across a silhouette
+/// float there; a wrong match behind the surface does not count.
+pub fn in_front_fraction(points: &[Point3<f64>], index: &MeshIndex, cameras: &[Point3<f64>], threshold: f64) -> f64 {
+    if points.is_empty() || cameras.is_empty() {
+        return 0.0;
+    }
+    let in_front = points
+        .iter()
+        .filter(|p| {
+            let (foot, _) = index.closest(p);
+            if (*p - foot).norm() <= threshold {
+                return false;
+            }
+            let camera = cameras
+                .iter()
+                .min_by(|a, b| (*a - *p).norm_squared().total_cmp(&(*b - *p).norm_squared()))
+                .unwrap_or(&foot);
+            (*p - foot).dot(&(camera - foot)) > 0.0
+        })
+        .count();
+    in_front as f64 / points.len() as f64
 }
 
 /// Where two passes over the same tissue left two surfaces instead of one: the share of inlier points (within
@@ -384,6 +412,7 @@ pub fn score_map(
         coverage_radius,
         second_layer: second_layer_fraction(points, index, outlier_threshold, layer_gap),
         second_layer_gap: layer_gap,
+        in_front: None,
     })
 }
 

@@ -16,6 +16,7 @@
 //! new point of the same grid cell, weighted by confidence ([`Fusion::Weighted`]).
 
 mod carve;
+mod params;
 mod render;
 mod store;
 mod summary;
@@ -25,6 +26,7 @@ use std::collections::BTreeMap;
 use nalgebra::{Isometry3, Matrix3, Point3, Vector3};
 use serde::{Deserialize, Serialize};
 
+pub use params::{Fusion, MosaicParams};
 pub use render::{PreviewView, render_preview};
 pub use store::{MOSAIC_FORMAT, Outputs, decode, load, save, write_outputs};
 pub use summary::MosaicSummary;
@@ -58,133 +60,6 @@ pub struct DepthKeyframe<'a> {
     pub confidence: &'a [f32],
     /// RGB, 3 bytes per pixel.
     pub rgb: &'a [u8],
-}
-
-/// How an earlier point that agrees with the new surface is treated.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
-pub enum Fusion {
-    /// Algorithm 1: the newest keyframe's point replaces it.
-    #[default]
-    Replace,
-    /// Its depth (along the new ray) is averaged into the new point of the same grid cell, weighted by
-    /// confidence; the colour stays the newest (blending colours blurs texture, the paper's argument).
-    Weighted,
-}
-
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-pub struct MosaicParams {
-    /// Lift every `depth_gap_px`-th row and column (the original's `depth_gap`, 5 → 1/25 of the pixels).
-    pub depth_gap_px: usize,
-    /// Pixels whose three colour channels are all below this are skipped (dark, unlit: 40 in the original).
-    pub min_colour: u8,
-    /// Pixels whose BDIS confidence is below this are skipped. Measured on the synthetic colon and abdomen with
-    /// ground-truth depth: the depth outliers (> 5 mm) have confidence 0.25–0.3 (median 0.25, inliers 0.34–0.56),
-    /// and 0.3 removes 91 % (colon) and 85 % (abdomen) of them. This matters more than in one depth map: an
-    /// outlier far behind the surface passes every later depth test as "occluded" and stays.
-    pub min_confidence: f32,
-    /// Pixels whose disparity is below this are skipped: depth error grows as depth² / bf, so the far part of a
-    /// view is left to keyframes that come closer. The original had no limit on new points and culled within
-    /// 8 px of disparity.
-    pub min_disparity_px: f32,
-    /// Depth test: an earlier point is replaced when it lies less than `tolerance` behind the new surface, with
-    /// tolerance = `depth_tolerance_mm` + `disparity_tolerance_px` · (z_new² + z_old²) / bf (the depth
-    /// uncertainty of a disparity error in either view). Farther behind, it is occluded and stays.
-    pub depth_tolerance_mm: f64,
-    pub disparity_tolerance_px: f64,
-    /// An earlier point that agrees with the new surface is kept, and the new view adds no point in that grid
-    /// cell, when the earlier keyframe saw it from less than this fraction of the new view's depth: depth error
-    /// grows with depth², so the closer look is the better one (a scope backing out of the colon no longer
-    /// overwrites close views with distant ones). 0 = the newest view always wins (Algorithm 1).
-    pub keep_closer_ratio: f32,
-    pub fusion: Fusion,
-    /// With [`Fusion::Weighted`], a point's accumulated weight stops growing here, so the map keeps following
-    /// newer views.
-    pub max_weight: f32,
-    /// A new point is dropped when an earlier keyframe that looked at its place saw a surface behind it, farther
-    /// by more than this much disparity (px, in that keyframe's view: a depth margin that grows with depth² as
-    /// the depth's own uncertainty does). Such a point is transient — an instrument, smoke, depth smeared across
-    /// a silhouette — or wrong. 0 = off.
-    pub carve_disparity_px: f32,
-}
-
-impl Default for MosaicParams {
-    fn default() -> Self {
-        Self {
-            depth_gap_px: 5,
-            min_colour: 40,
-            min_confidence: 0.3,
-            min_disparity_px: 8.0,
-            depth_tolerance_mm: 0.5,
-            disparity_tolerance_px: 1.0,
-            keep_closer_ratio: 0.8,
-            fusion: Fusion::Replace,
-            max_weight: 8.0,
-            carve_disparity_px: 3.0,
-        }
-    }
-}
-
-impl MosaicParams {
-    /// The names `--map-param NAME=VALUE` accepts.
-    pub const NAMES: [&str; 10] = [
-        "depth_gap_px",
-        "min_colour",
-        "min_confidence",
-        "min_disparity_px",
-        "depth_tolerance_mm",
-        "disparity_tolerance_px",
-        "keep_closer_ratio",
-        "fusion",
-        "max_weight",
-        "carve_disparity_px",
-    ];
-
-    /// Sets one parameter from text (`fusion` is `replace` or `weighted`).
-    pub fn set(&mut self, name: &str, value: &str) -> Result<(), String> {
-        fn num<T: std::str::FromStr>(name: &str, value: &str) -> Result<T, String> {
-            value.trim().parse().map_err(|_| format!("{name}: `{value}` is not a number of the right kind"))
-        }
-        fn non_negative(name: &str, v: f64) -> Result<f64, String> {
-            if v.is_finite() && v >= 0.0 { Ok(v) } else { Err(format!("{name}: {v} must be finite and ≥ 0")) }
-        }
-        match name {
-            "depth_gap_px" => {
-                let v: usize = num(name, value)?;
-                if v == 0 {
-                    return Err("depth_gap_px: must be ≥ 1".into());
-                }
-                self.depth_gap_px = v;
-            }
-            "min_colour" => self.min_colour = num(name, value)?,
-            "min_confidence" => self.min_confidence = non_negative(name, num(name, value)?)? as f32,
-            "min_disparity_px" => self.min_disparity_px = non_negative(name, num(name, value)?)? as f32,
-            "depth_tolerance_mm" => self.depth_tolerance_mm = non_negative(name, num(name, value)?)?,
-            "disparity_tolerance_px" => self.disparity_tolerance_px = non_negative(name, num(name, value)?)?,
-            "keep_closer_ratio" => self.keep_closer_ratio = non_negative(name, num(name, value)?)? as f32,
-            "max_weight" => self.max_weight = non_negative(name, num(name, value)?)? as f32,
-            "carve_disparity_px" => self.carve_disparity_px = non_negative(name, num(name, value)?)? as f32,
-            "fusion" => {
-                self.fusion = match value.trim() {
-                    "replace" => Fusion::Replace,
-                    "weighted" => Fusion::Weighted,
-                    other => return Err(format!("fusion: `{other}` is not `replace` or `weighted`")),
-                }
-            }
-            other => return Err(format!("`{other}` is not a map parameter ({})", Self::NAMES.join(", "))),
-        }
-        Ok(())
-    }
-
-    /// Applies `NAME=VALUE` assignments in order.
-    pub fn apply_overrides(&mut self, assignments: &[String]) -> Result<(), String> {
-        for a in assignments {
-            let Some((name, value)) = a.split_once('=') else {
-                return Err(format!("`{a}`: expected NAME=VALUE"));
-            };
-            self.set(name.trim(), value)?;
-        }
-        Ok(())
-    }
 }
 
 /// A map point in its keyframe's camera frame (millimetres).

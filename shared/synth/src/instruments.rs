@@ -56,9 +56,9 @@ pub struct PartHit {
 // Brushed steel: grey in diffuse light, far brighter in its highlights. Albedos are relative to the shaft's,
 // which [`Instruments::new`] sets from the light (a tool sits nearer the light than the tissue: at the tissue's
 // albedo it would be white).
-const SHAFT: Metal = Metal { albedo: 1.0, specular: 0.9, shininess: 30.0 };
+const SHAFT: Metal = Metal { albedo: 1.0, specular: 0.3, shininess: 60.0 };
 const RING: Metal = Metal { albedo: 0.15, specular: 0.2, shininess: 20.0 };
-const JAW: Metal = Metal { albedo: 0.3, specular: 0.6, shininess: 25.0 };
+const JAW: Metal = Metal { albedo: 0.3, specular: 0.25, shininess: 40.0 };
 
 /// The instruments of a sequence: their motion in the camera's frame over time.
 #[derive(Debug, Clone)]
@@ -85,7 +85,7 @@ struct Tool {
 
 impl Instruments {
     /// The instruments of `kind` for a scene seen at `working_distance_mm` (the usual camera-to-tissue depth)
-    /// and lit as [`crate::render::Shading`] with `exposure_distance_mm`.
+    /// and lit with `exposure_distance_mm` (the renderer's shading).
     pub fn new(kind: InstrumentKind, working_distance_mm: f64, exposure_distance_mm: f64) -> Self {
         let w = working_distance_mm;
         let tools = match kind {

@@ -4,6 +4,7 @@
 pub mod frame;
 pub mod geometry;
 pub mod ids;
+pub mod instruments;
 pub mod journal;
 pub mod loop_closing;
 pub mod map;

@@ -263,8 +263,14 @@ impl Tracker {
             quality: TrackingQuality::default(),
         };
         if self.state == TrackingState::NotInitialized {
-            // ORB-SLAM2 waits for 500 features; with fewer requested, for half of them.
-            if self.current.len() > 500.min(self.settings.orb.n_features as usize / 2) {
+            // ORB-SLAM2 waits for 500 features; with fewer requested, for half of them; over the part of the
+            // image that may give features (a mask takes its share of the image away, not of the density).
+            let open = keep_out.map_or(1.0, |mask| {
+                let n = (self.cam.width * self.cam.height) as usize;
+                mask[..n.min(mask.len())].iter().filter(|&&m| m == 0).count() as f64 / n.max(1) as f64
+            });
+            let wanted = 500.min(self.settings.orb.n_features as usize / 2) as f64 * open;
+            if self.current.len() as f64 > wanted {
                 self.initialise(&mut result);
                 result.quality.method = PoseMethod::Initialisation;
             }

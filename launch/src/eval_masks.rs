@@ -1,0 +1,92 @@
+//! `bdis-slam eval masks`: our instrument-mask estimate on a sequence's left images, scored against true masks.
+
+use std::path::PathBuf;
+
+use anyhow::{Context, Result, bail};
+use bdis_track::instruments::{InstrumentMasker, InstrumentParams, MaskScore};
+
+#[derive(Debug, clap::Args)]
+pub struct MasksArgs {
+    /// Sequence folder (any image layout `bdis-slam run` reads).
+    #[arg(long)]
+    sequence: PathBuf,
+    /// True masks, named like the left images with `.png` (default: SEQUENCE/gt/masks, as `synth --instruments`
+    /// writes them). Without any, only the estimate's share of the image is reported.
+    #[arg(long)]
+    truth: Option<PathBuf>,
+    /// Write each estimated mask here (`<name>.png`, 255 = instrument).
+    #[arg(long)]
+    write: Option<PathBuf>,
+    /// Print JSON instead of a sentence.
+    #[arg(long)]
+    json: bool,
+}
+
+pub fn eval_masks(args: MasksArgs) -> Result<()> {
+    let sequence = bdis_source::Sequence::open(&args.sequence)?;
+    let truth_dir = args.truth.clone().unwrap_or_else(|| args.sequence.join("gt/masks"));
+    let scored = truth_dir.is_dir();
+    if args.truth.is_some() && !scored {
+        bail!("--truth {}: not a folder", truth_dir.display());
+    }
+    if let Some(dir) = &args.write {
+        std::fs::create_dir_all(dir).with_context(|| format!("{}: cannot create", dir.display()))?;
+    }
+    let mut masker = InstrumentMasker::new(InstrumentParams::default());
+    let mut score = MaskScore::default();
+    let (mut masked_share, mut frames_with_regions) = (0.0f64, 0usize);
+    let bar = bdis_slam::progress::bar(sequence.frames.len() as u64, "masks {bar:40} {pos}/{len} frames ({eta} left)");
+    for entry in &sequence.frames {
+        let left =
+            image::open(&entry.left).with_context(|| format!("{}: cannot decode", entry.left.display()))?.into_rgb8();
+        let (w, h) = (left.width() as usize, left.height() as usize);
+        let found = masker.estimate(left.as_raw(), w, h);
+        masked_share += f64::from(found.masked_share);
+        frames_with_regions += usize::from(found.regions > 0);
+        let name = entry.left.file_stem().map(|s| PathBuf::from(s).with_extension("png")).context("an image name")?;
+        if scored {
+            let path = truth_dir.join(&name);
+            let truth = image::open(&path).with_context(|| format!("{}: cannot read the true mask", path.display()))?;
+            let truth = truth.into_luma8();
+            if truth.dimensions() != left.dimensions() {
+                bail!("{}: mask is {:?}, the image {:?}", path.display(), truth.dimensions(), left.dimensions());
+            }
+            score.add(masker.mask(), truth.as_raw());
+        }
+        if let Some(dir) = &args.write {
+            let path = dir.join(&name);
+            image::GrayImage::from_raw(w as u32, h as u32, masker.mask().to_vec())
+                .context("mask size")?
+                .save(&path)
+                .with_context(|| format!("{}: cannot write", path.display()))?;
+        }
+        bar.inc(1);
+    }
+    bar.finish_and_clear();
+    let frames = sequence.frames.len().max(1);
+    let mean_share = masked_share / frames as f64;
+    if args.json {
+        let mut report = serde_json::json!({
+            "frames": sequence.frames.len(),
+            "frames_with_instruments": frames_with_regions,
+            "masked_share": mean_share,
+        });
+        if scored {
+            report["precision"] = score.precision().into();
+            report["recall"] = score.recall().into();
+        }
+        println!("{}", serde_json::to_string_pretty(&report)?);
+        return Ok(());
+    }
+    print!(
+        "masks: {} frames, instruments found in {frames_with_regions}, {:.1} % of the image masked on average",
+        sequence.frames.len(),
+        100.0 * mean_share
+    );
+    if scored {
+        println!("; against {}: precision {:.3}, recall {:.3}", truth_dir.display(), score.precision(), score.recall());
+    } else {
+        println!();
+    }
+    Ok(())
+}

@@ -1,0 +1,282 @@
+//! Our own estimate of where the instruments are, for footage that comes without masks, on the CPU and without
+//! a neural network. Surgical instruments are metal or black plastic: achromatic, where tissue — mucosa, muscle,
+//! fat, blood — is strongly coloured; and they enter the view from its borders, as large connected regions. So:
+//!
+//! 1. a pixel is *grey* when its saturation `(max − min) / max` is low and red does not lead (tissue stays
+//!    red-dominant even where glare washes its saturation out; ratios: no assumption on exposure), and it has
+//!    *no colour* when it is too dim for its hue to mean anything (rings and jaws) or clipped (glare);
+//! 2. grey pixels, and dark ones touching them, are grouped into 8-connected regions;
+//! 3. a region is an instrument when it touches the image border and covers at least a small share of the
+//!    image — a specular highlight on tissue is grey too, but small and inside the view;
+//! 4. the result is grown by a couple of pixels (a silhouette's rim mixes metal and tissue colours).
+//!
+//! A view that is mostly grey is not tissue (a street, a phantom, a grey-scale camera): then nothing is masked.
+//! Depth discontinuity and motion against the camera are the cues to add next (see the issue's note).
+
+/// The estimator's thresholds (ratios and shares of the image: no unit, no image size).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct InstrumentParams {
+    /// Saturation at or below which a pixel counts as grey.
+    pub max_saturation: f32,
+    /// ... and red leads green and blue by at most this share of the brightest channel.
+    pub max_red_lead: f32,
+    /// A pixel whose brightest channel is below this share of full scale is dark (its hue is noise).
+    pub dark_level: f32,
+    /// A pale pixel whose brightest channel is at or above this share of full scale is clipped (glare or a
+    /// highlight: its hue is lost).
+    pub clip_level: f32,
+    /// A region must cover at least this share of the image.
+    pub min_area: f32,
+    /// If more than this share of the image is grey, the view is not of tissue: no mask.
+    pub max_grey_share: f32,
+    /// Growth of the mask, as a share of the image's smaller side.
+    pub grow: f32,
+}
+
+impl Default for InstrumentParams {
+    fn default() -> Self {
+        Self {
+            max_saturation: 0.22,
+            max_red_lead: 0.06,
+            dark_level: 0.07,
+            clip_level: 0.98,
+            min_area: 0.004,
+            max_grey_share: 0.6,
+            grow: 0.008,
+        }
+    }
+}
+
+/// What the estimate found in one frame.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct InstrumentEstimate {
+    /// Share of the image masked.
+    pub masked_share: f32,
+    /// Instrument regions found.
+    pub regions: usize,
+    /// The view was mostly grey: nothing masked.
+    pub not_tissue: bool,
+}
+
+/// Estimates instrument masks frame after frame with buffers it owns (a warmed-up frame allocates nothing).
+#[derive(Debug, Default)]
+pub struct InstrumentMasker {
+    pub params: InstrumentParams,
+    /// Per pixel: tissue, grey, or no colour.
+    class: Vec<u8>,
+    labels: Vec<u32>,
+    stack: Vec<u32>,
+    mask: Vec<u8>,
+    scratch: Vec<u8>,
+}
+
+const TISSUE: u8 = 0;
+const GREY: u8 = 1;
+/// Too dark or clipped: joins a region, never starts one.
+const NO_COLOUR: u8 = 2;
+
+impl InstrumentMasker {
+    pub fn new(params: InstrumentParams) -> Self {
+        Self { params, ..Self::default() }
+    }
+
+    /// The last estimate: one byte per pixel, 255 = instrument.
+    pub fn mask(&self) -> &[u8] {
+        &self.mask
+    }
+
+    /// Estimates the mask of a `width × height` RGB image (3 bytes per pixel, rows of `3 · width`).
+    pub fn estimate(&mut self, rgb: &[u8], width: usize, height: usize) -> InstrumentEstimate {
+        let n = width * height;
+        let p = self.params;
+        self.mask.clear();
+        self.mask.resize(n, 0);
+        if n == 0 || rgb.len() < 3 * n {
+            return InstrumentEstimate::default();
+        }
+        self.class.clear();
+        self.class.resize(n, TISSUE);
+        let (dark, clipped) = (p.dark_level * 255.0, p.clip_level * 255.0);
+        let mut grey = 0usize;
+        for (class, px) in self.class.iter_mut().zip(rgb.chunks_exact(3)) {
+            let (hi, lo) = (px[0].max(px[1]).max(px[2]), px[0].min(px[1]).min(px[2]));
+            let (hi_f, red_lead) = (f32::from(hi), f32::from(px[0]) - f32::from(px[1].max(px[2])));
+            let pale = f32::from(hi - lo) <= p.max_saturation * hi_f && red_lead <= p.max_red_lead * hi_f;
+            // A clipped pixel that still shows colour is tissue; a pale one may be glare or a metal highlight.
+            *class = if hi_f < dark || (pale && hi_f >= clipped) {
+                NO_COLOUR
+            } else if pale {
+                grey += 1;
+                GREY
+            } else {
+                TISSUE
+            };
+        }
+        if grey as f32 > p.max_grey_share * n as f32 {
+            return InstrumentEstimate { not_tissue: true, ..Default::default() };
+        }
+        // Regions: flood fill from every grey pixel over grey and colourless neighbours (8-connected). A region
+        // of those alone (the lumen's far end, a vignetted corner, glare) is never started.
+        self.labels.clear();
+        self.labels.resize(n, 0);
+        let (w, h) = (width as isize, height as isize);
+        let min_area = (p.min_area * n as f32).ceil() as usize;
+        let mut regions = 0usize;
+        let mut next_label = 0u32;
+        for seed in 0..n {
+            if self.class[seed] != GREY || self.labels[seed] != 0 {
+                continue;
+            }
+            next_label += 1;
+            self.labels[seed] = next_label;
+            self.stack.clear();
+            self.stack.push(seed as u32);
+            let (mut area, mut grey_area, mut touches_border) = (0usize, 0usize, false);
+            // Members are recorded in `stack` order; `head` walks them (a queue kept in the same buffer).
+            let mut head = 0;
+            while head < self.stack.len() {
+                let i = self.stack[head] as usize;
+                head += 1;
+                area += 1;
+                grey_area += usize::from(self.class[i] == GREY);
+                let (x, y) = ((i % width) as isize, (i / width) as isize);
+                touches_border |= x == 0 || y == 0 || x == w - 1 || y == h - 1;
+                for dy in -1..=1 {
+                    for dx in -1..=1 {
+                        let (nx, ny) = (x + dx, y + dy);
+                        if (dx, dy) == (0, 0) || nx < 0 || ny < 0 || nx >= w || ny >= h {
+                            continue;
+                        }
+                        let j = (ny * w + nx) as usize;
+                        if self.class[j] != TISSUE && self.labels[j] == 0 {
+                            self.labels[j] = next_label;
+                            self.stack.push(j as u32);
+                        }
+                    }
+                }
+            }
+            // An instrument: from the border, large, and grey for the most part (not a dark vignette or glare
+            // that a grey fleck happens to touch).
+            if touches_border && area >= min_area && 2 * grey_area >= area {
+                regions += 1;
+                for &i in &self.stack {
+                    self.mask[i as usize] = 255;
+                }
+            }
+        }
+        // Grow by a few pixels: square dilation, rows then columns.
+        let radius = (p.grow * width.min(height) as f32).round() as usize;
+        if radius > 0 && regions > 0 {
+            dilate(&mut self.mask, &mut self.scratch, width, height, radius);
+        }
+        let masked = self.mask.iter().filter(|&&m| m != 0).count();
+        InstrumentEstimate { masked_share: masked as f32 / n as f32, regions, not_tissue: false }
+    }
+}
+
+/// Square dilation by `radius` (separable: the maximum over a row window, then a column window).
+fn dilate(mask: &mut [u8], scratch: &mut Vec<u8>, width: usize, height: usize, radius: usize) {
+    scratch.clear();
+    scratch.resize(mask.len(), 0);
+    for y in 0..height {
+        let row = &mask[y * width..(y + 1) * width];
+        for x in 0..width {
+            let (a, b) = (x.saturating_sub(radius), (x + radius + 1).min(width));
+            scratch[y * width + x] = row[a..b].iter().copied().max().unwrap_or(0);
+        }
+    }
+    for x in 0..width {
+        for y in 0..height {
+            let (a, b) = (y.saturating_sub(radius), (y + radius + 1).min(height));
+            mask[y * width + x] = (a..b).map(|k| scratch[k * width + x]).max().unwrap_or(0);
+        }
+    }
+}
+
+/// Precision and recall of an estimated mask against a true one (non-zero = instrument in both).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct MaskScore {
+    pub true_positive: u64,
+    pub false_positive: u64,
+    pub false_negative: u64,
+}
+
+impl MaskScore {
+    pub fn add(&mut self, estimated: &[u8], truth: &[u8]) {
+        for (&e, &t) in estimated.iter().zip(truth) {
+            match (e != 0, t != 0) {
+                (true, true) => self.true_positive += 1,
+                (true, false) => self.false_positive += 1,
+                (false, true) => self.false_negative += 1,
+                (false, false) => {}
+            }
+        }
+    }
+
+    /// Share of the masked pixels that are instrument (1 when nothing is masked).
+    pub fn precision(&self) -> f64 {
+        let masked = self.true_positive + self.false_positive;
+        if masked == 0 { 1.0 } else { self.true_positive as f64 / masked as f64 }
+    }
+
+    /// Share of the instrument's pixels masked (1 when there is no instrument).
+    pub fn recall(&self) -> f64 {
+        let truth = self.true_positive + self.false_negative;
+        if truth == 0 { 1.0 } else { self.true_positive as f64 / truth as f64 }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Red tissue with a texture, a grey bar from the left border with a dark tip, and a small grey highlight
+    /// in the middle.
+    fn scene(w: usize, h: usize) -> (Vec<u8>, Vec<u8>) {
+        let mut rgb = Vec::with_capacity(3 * w * h);
+        let mut truth = vec![0u8; w * h];
+        for y in 0..h {
+            for x in 0..w {
+                let t = ((x * 7 + y * 13) % 40) as u8;
+                let bar = (h / 3..h / 2).contains(&y) && x < w / 2;
+                let tip = (h / 3..h / 2).contains(&y) && (w / 2..w / 2 + 6).contains(&x);
+                let highlight =
+                    (x as isize - 3 * w as isize / 4).abs() < 3 && (y as isize - 3 * h as isize / 4).abs() < 3;
+                let px = if bar {
+                    [120 + t, 122 + t, 125 + t]
+                } else if tip {
+                    [10, 10, 11]
+                } else if highlight {
+                    [250, 245, 240]
+                } else {
+                    [150 + t, 60 + t / 2, 55 + t / 3]
+                };
+                if bar || tip {
+                    truth[y * w + x] = 255;
+                }
+                rgb.extend_from_slice(&px);
+            }
+        }
+        (rgb, truth)
+    }
+
+    #[test]
+    fn a_grey_shaft_from_the_border_is_masked_a_highlight_is_not() {
+        let (w, h) = (160, 120);
+        let (rgb, truth) = scene(w, h);
+        let mut masker = InstrumentMasker::new(InstrumentParams::default());
+        let found = masker.estimate(&rgb, w, h);
+        assert_eq!(found.regions, 1, "{found:?}");
+        let mut score = MaskScore::default();
+        score.add(masker.mask(), &truth);
+        assert_eq!(score.recall(), 1.0, "the shaft and its dark tip: {score:?}");
+        // Only the grown rim is extra: no highlight.
+        assert!(score.precision() > 0.8, "{score:?}");
+        let highlight = (3 * h / 4) * w + 3 * w / 4;
+        assert_eq!(masker.mask()[highlight], 0);
+        // A grey view (no tissue) gets no mask.
+        let grey: Vec<u8> = (0..3 * w * h).map(|i| (i % 200) as u8 / 3 + 60).collect();
+        let found = masker.estimate(&grey, w, h);
+        assert!(found.not_tissue && masker.mask().iter().all(|&m| m == 0), "{found:?}");
+    }
+}
