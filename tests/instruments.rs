@@ -1,0 +1,141 @@
+#![allow(clippy::unwrap_used, clippy::expect_used)] // test code: a panic is the failure report
+//! Issue #22, instruments, through the real processes: a laparoscopic hover with two graspers moving through the
+//! view (`synth --instruments`, ~a fifth of the image) is tracked and mapped with the renderer's masks given
+//! (`--masks`), with our own estimate (the default), and with neither. With masks or the estimate the map has
+//! (almost) no point floating in front of the tissue and the pose holds; with neither, the instruments are in
+//! the map — which is what makes the other two figures mean something. A mask folder that lacks a frame's mask
+//! is refused in one line naming the file.
+//!
+//! Rendered once per test binary at 320×240 (f = 260), 90 frames (3 s): the smallest ORB's eight levels take.
+
+mod common;
+
+use common::*;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::sync::OnceLock;
+use std::time::Duration;
+
+const FRAMES: usize = 90;
+
+struct Renders {
+    _tmp: TempDir,
+    with_tools: PathBuf,
+    clean: PathBuf,
+    root: PathBuf,
+}
+
+fn renders() -> &'static Renders {
+    static RENDERS: OnceLock<Renders> = OnceLock::new();
+    RENDERS.get_or_init(|| {
+        let tmp = TempDir::new("instruments");
+        let (with_tools, clean) = (tmp.path().join("with-tools"), tmp.path().join("clean"));
+        for (dir, tools) in [(&with_tools, true), (&clean, false)] {
+            let mut cmd = Command::new(bdis_slam());
+            cmd.args(["synth", "--scene", "abdomen", "--trajectory", "hover", "--frames", &FRAMES.to_string()])
+                .args(["--width", "320", "--height", "240", "--focal", "260", "--out"])
+                .arg(dir);
+            if tools {
+                cmd.arg("--instruments");
+            }
+            let out = run_with_timeout(&mut cmd, Duration::from_secs(600));
+            assert!(out.status.success(), "{}", text(&out.stderr));
+        }
+        Renders { root: tmp.path().to_path_buf(), _tmp: tmp, with_tools, clean }
+    })
+}
+
+/// Tracks `seq` with `extra` arguments; the ATE RMSE (mm) and the map's share of points more than 5 mm in front
+/// of the tissue (aligned by the whole trajectory: a hover has few keyframes).
+fn run(seq: &Path, tag: &str, extra: &[&str]) -> (f64, f64) {
+    let run_dir = renders().root.join(tag);
+    track_run(seq, &seq.join("settings.yaml"), &run_dir, tag, extra);
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(run_dir.join("tracking.json")).unwrap()).unwrap();
+    assert_eq!(summary["lost"], 0, "{tag}: {summary}");
+    let (rmse, _) = ate(seq, &run_dir);
+    let out = run_with_timeout(
+        Command::new(bdis_slam())
+            .args(["eval", "map", "--json", "--mesh"])
+            .arg(seq.join("gt/mesh.ply"))
+            .arg("--map")
+            .arg(run_dir.join("map.ply"))
+            .arg("--align-est")
+            .arg(run_dir.join("trajectory.tum"))
+            .arg("--align-gt")
+            .arg(seq.join("gt/poses.tum")),
+        Duration::from_secs(300),
+    );
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let score: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let in_front = score["in_front"].as_f64().unwrap();
+    eprintln!("{tag}: ATE {rmse:.3} mm, {:.2} % of the map in front of the tissue; {score}", 100.0 * in_front);
+    (rmse, in_front)
+}
+
+#[test]
+fn instruments_stay_out_of_the_map_and_the_pose_with_masks_or_our_estimate() {
+    let r = renders();
+    let (clean_ate, clean_front) = run(&r.clean, "clean", &[]);
+    assert!(clean_front < 0.001, "nothing floats over a clean hover: {clean_front}");
+    let masks = r.with_tools.join("gt/masks");
+    let (masked_ate, masked_front) = run(&r.with_tools, "masks", &["--masks", masks.to_str().unwrap()]);
+    let (estimate_ate, estimate_front) = run(&r.with_tools, "estimate", &[]);
+    let (_, off_front) = run(&r.with_tools, "off", &["--instrument-masks", "off"]);
+    // Without masks the instruments are in the map: the two bounds below are not met by chance.
+    assert!(off_front > 0.05, "with neither masks nor the estimate, {off_front} of the map floats");
+    // The issue's bounds: ≤ 0.1 % with the true masks, ≤ 0.5 % with our estimate.
+    assert!(masked_front <= 0.001, "with --masks, {masked_front} of the map floats in front of the tissue");
+    assert!(estimate_front <= 0.005, "with the estimate, {estimate_front} of the map floats in front of the tissue");
+    // The pose: a fifth of the view is gone and the scope barely moves (5.7 mm in 3 s), so the figure is noisy
+    // at this size; a tracker that followed the instruments is off by millimetres (10× and more).
+    for (what, rmse) in [("masks", masked_ate), ("estimate", estimate_ate)] {
+        assert!(rmse <= 3.0 * clean_ate.max(0.05), "{what}: ATE {rmse} mm against {clean_ate} mm without instruments");
+    }
+}
+
+#[test]
+fn the_estimate_finds_the_instruments_and_nothing_on_clean_tissue() {
+    let r = renders();
+    let score = |seq: &Path| -> serde_json::Value {
+        let out = run_with_timeout(
+            Command::new(bdis_slam()).args(["eval", "masks", "--json", "--sequence"]).arg(seq),
+            Duration::from_secs(300),
+        );
+        assert!(out.status.success(), "{}", text(&out.stderr));
+        serde_json::from_slice(&out.stdout).unwrap()
+    };
+    let with_tools = score(&r.with_tools);
+    eprintln!("with instruments: {with_tools}");
+    assert_eq!(with_tools["frames_with_instruments"], FRAMES as u64, "{with_tools}");
+    assert!(with_tools["recall"].as_f64().unwrap() >= 0.95, "{with_tools}");
+    assert!(with_tools["precision"].as_f64().unwrap() >= 0.8, "{with_tools}");
+    let clean = score(&r.clean);
+    assert_eq!(clean["frames_with_instruments"], 0, "a clean hover has no instrument: {clean}");
+}
+
+#[test]
+fn a_mask_folder_without_every_frame_is_refused_naming_the_file() {
+    let r = renders();
+    let partial = r.root.join("partial-masks");
+    std::fs::create_dir_all(&partial).unwrap();
+    for n in 1..=2 {
+        std::fs::copy(r.with_tools.join(format!("gt/masks/{n}.png")), partial.join(format!("{n}.png"))).unwrap();
+    }
+    let out = run_with_timeout(
+        Command::new(bdis_slam())
+            .args(["run", "--track", "--sequence"])
+            .arg(&r.with_tools)
+            .arg("--settings")
+            .arg(r.with_tools.join("settings.yaml"))
+            .arg("--masks")
+            .arg(&partial)
+            .args(["--ipc-prefix", &prefix("partial-masks"), "--out"])
+            .arg(r.root.join("partial-run")),
+        Duration::from_secs(120),
+    );
+    assert!(!out.status.success());
+    let stderr = text(&out.stderr);
+    assert!(stderr.contains(&partial.join("3.png").display().to_string()), "{stderr}");
+    assert!(!stderr.contains("panicked"), "{stderr}");
+}
