@@ -9,6 +9,7 @@ pub mod colon;
 pub mod instruments;
 pub mod interlace;
 pub mod render;
+pub mod smoke;
 
 use std::path::{Path, PathBuf};
 
@@ -336,6 +337,8 @@ pub struct SceneRequest {
     /// Instruments in the view (two laparoscopic graspers over the abdomen, a working-channel tool in the
     /// colon), with a ground-truth mask per frame in `gt/masks/`.
     pub instruments: bool,
+    /// A puff of surgical smoke 40 % of the way in: up in 0.3 s, 0.5 s thick, gone 0.8 s later.
+    pub smoke: bool,
 }
 
 impl Default for SceneRequest {
@@ -351,6 +354,7 @@ impl Default for SceneRequest {
             raw: None,
             optics_blur_px: 0.0,
             instruments: false,
+            smoke: false,
         }
     }
 }
@@ -419,11 +423,13 @@ pub fn write_scene(
                 let kind = instruments::InstrumentKind::WorkingChannel;
                 instruments::Instruments::new(kind, colon.radius_mm, shading.exposure_distance_mm)
             });
+            let smoke = request.smoke.then(|| smoke::Smoke::puff(0.4 * total_s, colon.radius_mm, seed));
             render::write_sequence(
                 dir,
                 rig,
                 &colon,
                 tools.as_ref(),
+                smoke.as_ref(),
                 &path,
                 mesh,
                 &shading,
@@ -461,11 +467,13 @@ pub fn write_scene(
                 let kind = instruments::InstrumentKind::Laparoscopic;
                 instruments::Instruments::new(kind, abdomen::STANDOFF_MM, shading.exposure_distance_mm)
             });
+            let smoke = request.smoke.then(|| smoke::Smoke::puff(0.4 * total_s, abdomen::STANDOFF_MM, seed));
             render::write_sequence(
                 dir,
                 rig,
                 &abdomen,
                 tools.as_ref(),
+                smoke.as_ref(),
                 &path,
                 mesh,
                 &shading,

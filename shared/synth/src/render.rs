@@ -49,6 +49,8 @@ pub struct Shading {
     /// Raw optics: `None` renders a rectified pair; `Some` renders what distorted, slightly turned cameras at
     /// the same centres see ([`RawLens`]), to be rectified by `bdis-slam rectify`.
     pub lens: Option<RawLens>,
+    /// Smoke in front of the scope in this frame ([`crate::smoke`]); `None`: clear air.
+    pub haze: Option<crate::smoke::Haze>,
 }
 
 /// A raw stereo camera for rendering: each side's lens (intrinsics and distortion, pixel centres at integer
@@ -141,6 +143,7 @@ impl Default for Shading {
             noise: 2.0,
             optics_blur_px: 0.0,
             lens: None,
+            haze: None,
         }
     }
 }
@@ -313,6 +316,20 @@ pub fn render_scene(
             radiance_image.iter_mut().filter(|r| r.is_nan()).for_each(|r| *r = 0.0);
             gaussian_blur_rgb(radiance_image, w as usize, h as usize, shading.optics_blur_px);
         }
+        if let Some(haze) = &shading.haze {
+            // The sheet seen from this view's centre: the right camera sits a baseline to the right.
+            let offset = if view == 1 { 0.0 } else { rig.baseline() };
+            let z = haze.depth_mm;
+            // Lit by the scope's light at its depth, as a wall there would be (an albedo of 0.6), never white.
+            let exposure = (0.8 * (shading.exposure_distance_mm / z).powi(2) * 0.6).min(0.85) * 255.0;
+            for (i, radiance) in radiance_image.chunks_exact_mut(3).enumerate() {
+                let (x, y) = ((i % w as usize) as f64 + 0.5, (i / w as usize) as f64 + 0.5);
+                let a = haze.alpha((x - rig.cx) * z / rig.fx + offset, (y - rig.cy) * z / rig.fy);
+                for r in radiance {
+                    *r = if r.is_nan() { 0.0 } else { *r } * (1.0 - a) + exposure * a;
+                }
+            }
+        }
         for (i, (px, radiance)) in img.chunks_exact_mut(3).zip(radiance_image.chunks_exact(3)).enumerate() {
             if radiance[0].is_nan() {
                 px.copy_from_slice(&[0, 0, 0]);
@@ -372,7 +389,7 @@ pub struct WrittenSequence {
 /// Writes a camera path over a surface as a plain sequence (`left/`, `right/`, `times.txt`, `settings.yaml`) with
 /// its ground truth in `gt/`: `poses.tum` (world_from_camera of the left camera), `depth/<n>.pfm` (z, mm, +inf
 /// where no wall), `disparity/<n>.pfm` (px), `mesh.ply` (the wall along the flight). `progress(i)` after each
-/// frame. With `instruments`, they are rendered in front of the tissue (not in the mesh) and each frame's mask
+/// frame. With `smoke`, its haze is in the images (not in the ground truth). With `instruments`, they are rendered in front of the tissue (not in the mesh) and each frame's mask
 /// of them is written to `gt/masks/<n>.png` (left view, 255 = instrument), the layout `--masks` reads.
 #[allow(clippy::too_many_arguments)]
 pub fn write_sequence(
@@ -380,6 +397,7 @@ pub fn write_sequence(
     rig: &RectifiedCamera,
     surface: &dyn Surface,
     instruments: Option<&crate::instruments::Instruments>,
+    smoke: Option<&crate::smoke::Smoke>,
     path: &dyn Fn(f64) -> Isometry3<f64>,
     mesh: (Vec<[f32; 3]>, Vec<[u32; 3]>),
     shading: &Shading,
@@ -406,7 +424,8 @@ pub fn write_sequence(
         let t = i as f64 / fps;
         let pose = path(t);
         let parts = instruments.map(|tools| tools.parts_at(t, &pose)).unwrap_or_default();
-        let pair = render_scene(surface, &parts, rig, shading, &pose, i as u64);
+        let shading = Shading { haze: smoke.and_then(|smoke| smoke.haze_at(t)), ..*shading };
+        let pair = render_scene(surface, &parts, rig, &shading, &pose, i as u64);
         for (side, img) in [("left", &pair.left), ("right", &pair.right)] {
             let path = dir.join(format!("{side}/{}.png", i + 1));
             img.save(&path).map_err(|e| fail(&path, &e))?;

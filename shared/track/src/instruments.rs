@@ -66,6 +66,8 @@ pub struct InstrumentMasker {
     class: Vec<u8>,
     labels: Vec<u32>,
     stack: Vec<u32>,
+    /// The mask on the working grid, then spread to `mask` (full size).
+    grid: Vec<u8>,
     mask: Vec<u8>,
     scratch: Vec<u8>,
 }
@@ -87,18 +89,25 @@ impl InstrumentMasker {
 
     /// Estimates the mask of a `width × height` RGB image (3 bytes per pixel, rows of `3 · width`).
     pub fn estimate(&mut self, rgb: &[u8], width: usize, height: usize) -> InstrumentEstimate {
-        let n = width * height;
+        let (full_width, full_height) = (width, height);
         let p = self.params;
         self.mask.clear();
-        self.mask.resize(n, 0);
-        if n == 0 || rgb.len() < 3 * n {
+        self.mask.resize(full_width * full_height, 0);
+        if full_width * full_height == 0 || rgb.len() < 3 * full_width * full_height {
             return InstrumentEstimate::default();
         }
+        // Instruments are large: the work is done on every `step`-th pixel, a grid of about 240 rows or
+        // columns whatever the image size (a quarter of the work at 640×480), and the result spread back.
+        let step = (full_width.min(full_height) / 240).max(1);
+        let (width, height) = (full_width.div_ceil(step), full_height.div_ceil(step));
+        let n = width * height;
         self.class.clear();
         self.class.resize(n, TISSUE);
         let (dark, clipped) = (p.dark_level * 255.0, p.clip_level * 255.0);
         let mut grey = 0usize;
-        for (class, px) in self.class.iter_mut().zip(rgb.chunks_exact(3)) {
+        let samples = (0..height).flat_map(|gy| (0..width).map(move |gx| 3 * (gy * step * full_width + gx * step)));
+        for (class, at) in self.class.iter_mut().zip(samples) {
+            let px = &rgb[at..at + 3];
             let (hi, lo) = (px[0].max(px[1]).max(px[2]), px[0].min(px[1]).min(px[2]));
             let (hi_f, red_lead) = (f32::from(hi), f32::from(px[0]) - f32::from(px[1].max(px[2])));
             let pale = f32::from(hi - lo) <= p.max_saturation * hi_f && red_lead <= p.max_red_lead * hi_f;
@@ -115,6 +124,8 @@ impl InstrumentMasker {
         if grey as f32 > p.max_grey_share * n as f32 {
             return InstrumentEstimate { not_tissue: true, ..Default::default() };
         }
+        self.grid.clear();
+        self.grid.resize(n, 0);
         // Regions: flood fill from every grey pixel over grey and colourless neighbours (8-connected). A region
         // of those alone (the lumen's far end, a vignetted corner, glare) is never started.
         self.labels.clear();
@@ -160,35 +171,56 @@ impl InstrumentMasker {
             if touches_border && area >= min_area && 2 * grey_area >= area {
                 regions += 1;
                 for &i in &self.stack {
-                    self.mask[i as usize] = 255;
+                    self.grid[i as usize] = 255;
                 }
             }
         }
         // Grow by a few pixels: square dilation, rows then columns.
-        let radius = (p.grow * width.min(height) as f32).round() as usize;
+        let radius = (p.grow * full_width.min(full_height) as f32 / step as f32).ceil() as usize;
         if radius > 0 && regions > 0 {
-            dilate(&mut self.mask, &mut self.scratch, width, height, radius);
+            dilate(&mut self.grid, &mut self.scratch, width, height, radius);
         }
-        let masked = self.mask.iter().filter(|&&m| m != 0).count();
+        if regions > 0 {
+            // Each grid row widened once into the first of its image rows, then copied to the others.
+            for (gy, cells) in self.grid.chunks_exact(width).enumerate() {
+                let y0 = gy * step;
+                let first = &mut self.mask[y0 * full_width..(y0 + 1) * full_width];
+                for (chunk, &cell) in first.chunks_mut(step).zip(cells) {
+                    chunk.fill(cell);
+                }
+                for y in y0 + 1..(y0 + step).min(full_height) {
+                    self.mask.copy_within(y0 * full_width..(y0 + 1) * full_width, y * full_width);
+                }
+            }
+        }
+        let masked = self.grid.iter().filter(|&&m| m != 0).count();
         InstrumentEstimate { masked_share: masked as f32 / n as f32, regions, not_tissue: false }
     }
 }
 
-/// Square dilation by `radius` (separable: the maximum over a row window, then a column window).
+/// Square dilation by `radius` (separable: the maximum over a row window, then a column window; both as
+/// whole-row maxima of shifted rows, so the work is contiguous).
 fn dilate(mask: &mut [u8], scratch: &mut Vec<u8>, width: usize, height: usize, radius: usize) {
     scratch.clear();
-    scratch.resize(mask.len(), 0);
-    for y in 0..height {
-        let row = &mask[y * width..(y + 1) * width];
-        for x in 0..width {
-            let (a, b) = (x.saturating_sub(radius), (x + radius + 1).min(width));
-            scratch[y * width + x] = row[a..b].iter().copied().max().unwrap_or(0);
+    scratch.extend_from_slice(mask);
+    for (out, row) in scratch.chunks_exact_mut(width).zip(mask.chunks_exact(width)) {
+        for d in 1..=radius.min(width - 1) {
+            for (o, &m) in out[..width - d].iter_mut().zip(&row[d..]) {
+                *o = (*o).max(m);
+            }
+            for (o, &m) in out[d..].iter_mut().zip(&row[..width - d]) {
+                *o = (*o).max(m);
+            }
         }
     }
-    for x in 0..width {
-        for y in 0..height {
-            let (a, b) = (y.saturating_sub(radius), (y + radius + 1).min(height));
-            mask[y * width + x] = (a..b).map(|k| scratch[k * width + x]).max().unwrap_or(0);
+    mask.copy_from_slice(scratch);
+    for y in 0..height {
+        let (a, b) = (y.saturating_sub(radius), (y + radius + 1).min(height));
+        let out = &mut mask[y * width..(y + 1) * width];
+        for k in (a..b).filter(|&k| k != y) {
+            for (o, &m) in out.iter_mut().zip(&scratch[k * width..(k + 1) * width]) {
+                *o = (*o).max(m);
+            }
         }
     }
 }

@@ -29,3 +29,27 @@ fn a_warmed_up_frame_without_a_keyframe_allocates_nothing() {
     assert!(checked >= 3, "only {checked} frames without a keyframe to check");
     assert_eq!(worst, 0, "a warmed-up frame allocated {worst} times");
 }
+
+#[test]
+fn a_warmed_up_instrument_estimate_allocates_nothing() {
+    use bdis_track::instruments::{InstrumentMasker, InstrumentParams};
+    let (w, h) = (320, 240);
+    // Red tissue, a grey shaft from the left border whose position changes frame to frame.
+    let frame = |shift: usize| -> Vec<u8> {
+        (0..w * h)
+            .flat_map(|i| {
+                let (x, y) = (i % w, i / w);
+                if x < w / 2 && (100 + shift..140 + shift).contains(&y) { [120u8, 121, 124] } else { [160, 70, 60] }
+            })
+            .collect()
+    };
+    let frames: Vec<Vec<u8>> = (0..6).map(|k| frame(5 * k)).collect();
+    let mut masker = InstrumentMasker::new(InstrumentParams::default());
+    masker.estimate(&frames[0], w, h);
+    for rgb in &frames[1..] {
+        let before = bdis_testkit::allocations();
+        let found = masker.estimate(rgb, w, h);
+        assert_eq!(bdis_testkit::allocations() - before, 0, "{found:?}");
+        assert_eq!(found.regions, 1);
+    }
+}
