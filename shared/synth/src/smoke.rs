@@ -21,7 +21,7 @@ pub struct Smoke {
     pub seed: u64,
 }
 
-/// The haze of one frame ([`crate::render::Shading::haze`]).
+/// The haze of one frame (the renderer's `Shading::haze`).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Haze {
     pub density: f64,
