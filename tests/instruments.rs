@@ -139,3 +139,36 @@ fn a_mask_folder_without_every_frame_is_refused_naming_the_file() {
     assert!(stderr.contains(&partial.join("3.png").display().to_string()), "{stderr}");
     assert!(!stderr.contains("panicked"), "{stderr}");
 }
+
+#[test]
+fn smoke_makes_the_frames_it_veils_uncertain_and_tracking_resumes_when_it_clears() {
+    // 120 frames: the puff starts 40 % in (frame 48), is thickest over frames 57–72 and is gone by frame 96.
+    let dir = renders().root.join("smoke");
+    let out = run_with_timeout(
+        Command::new(bdis_slam())
+            .args(["synth", "--scene", "abdomen", "--trajectory", "hover", "--frames", "120", "--smoke"])
+            .args(["--width", "320", "--height", "240", "--focal", "260", "--out"])
+            .arg(&dir),
+        Duration::from_secs(600),
+    );
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let run_dir = renders().root.join("smoke-run");
+    track_run(&dir, &dir.join("settings.yaml"), &run_dir, "smoke", &[]);
+    let csv = std::fs::read_to_string(run_dir.join("tracking-quality.csv")).unwrap();
+    let states: Vec<(usize, String, String)> = csv
+        .lines()
+        .skip(1)
+        .map(|line| {
+            let f: Vec<&str> = line.split(',').collect();
+            (f[0].parse().unwrap(), f[2].to_string(), f[3].to_string())
+        })
+        .collect();
+    let count = |range: std::ops::Range<usize>, state: &str| {
+        states.iter().filter(|(i, s, _)| range.contains(i) && s == state).count()
+    };
+    let thick = count(57..73, "uncertain");
+    assert!(thick >= 12, "{thick} of the 16 thickest frames uncertain: {csv}");
+    assert!(states.iter().any(|(_, _, doubt)| doubt == "low-contrast"), "{csv}");
+    assert_eq!(count(0..120, "lost"), 0, "{csv}");
+    assert!(count(0..48, "ok") == 48 && count(100..120, "ok") == 20, "ok before the smoke and after it: {csv}");
+}

@@ -64,6 +64,7 @@ fn doubt_code(doubt: Option<Doubt>) -> u32 {
         Some(Doubt::LowInlierRatio) => doubt::LOW_INLIER_RATIO,
         Some(Doubt::IllConditioned) => doubt::ILL_CONDITIONED,
         Some(Doubt::AppearanceDisagrees) => doubt::APPEARANCE_DISAGREES,
+        Some(Doubt::LowContrast) => doubt::LOW_CONTRAST,
     }
 }
 

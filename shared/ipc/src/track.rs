@@ -23,6 +23,7 @@ pub mod doubt {
     pub const LOW_INLIER_RATIO: u32 = 2;
     pub const ILL_CONDITIONED: u32 = 3;
     pub const APPEARANCE_DISAGREES: u32 = 4;
+    pub const LOW_CONTRAST: u32 = 5;
 }
 
 /// How a pose was first found ([`PoseRecord::method`]).

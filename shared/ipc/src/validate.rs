@@ -277,7 +277,7 @@ pub fn correction(c: &KeyframePose) -> Result<Isometry3<f64>, Rejection> {
 /// Returns the pose, if any.
 pub fn pose_record(r: &PoseRecord) -> Result<Option<Isometry3<f64>>, Rejection> {
     let id = r.frame_seq;
-    if r.doubt > crate::track::doubt::APPEARANCE_DISAGREES
+    if r.doubt > crate::track::doubt::LOW_CONTRAST
         || r.method > crate::track::pose_method::RELOCALISATION
         || r.prior_rejected > 1
     {

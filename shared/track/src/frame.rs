@@ -57,6 +57,30 @@ pub struct Frame {
     /// the map's `refined_sigma` of its octave's.
     pub refined: Vec<bool>,
     pub camera_from_world: Option<CameraFromWorld>,
+    /// The left image's texture contrast ([`texture_contrast`]): how much of the scene's texture reaches the
+    /// camera (smoke, a fogged lens and blood lower it).
+    pub contrast: f32,
+}
+
+/// Mean absolute difference between neighbouring pixels over the mean brightness, on every fourth row, away from
+/// `keep_out`: the share of the image's light that is texture. A gain (exposure) leaves it unchanged; a veil
+/// (smoke: an added haze and the texture behind it dimmed) lowers it.
+pub fn texture_contrast(image: &[u8], width: usize, height: usize, keep_out: Option<&[u8]>) -> f32 {
+    let (mut difference, mut brightness) = (0u64, 0u64);
+    for y in (0..height.saturating_sub(1)).step_by(4) {
+        let (row, below) = (&image[y * width..(y + 1) * width], &image[(y + 1) * width..(y + 2) * width]);
+        let masked = keep_out.map(|m| &m[y * width..(y + 1) * width]);
+        for x in 0..width - 1 {
+            if masked.is_some_and(|m| m[x] != 0 || m[x + 1] != 0) {
+                continue;
+            }
+            let p = i32::from(row[x]);
+            difference +=
+                (p - i32::from(row[x + 1])).unsigned_abs() as u64 + (p - i32::from(below[x])).unsigned_abs() as u64;
+            brightness += p as u64;
+        }
+    }
+    if brightness == 0 { 0.0 } else { difference as f32 / brightness as f32 }
 }
 
 impl Frame {
@@ -73,6 +97,7 @@ impl Frame {
             outlier: Vec::new(),
             refined: Vec::new(),
             camera_from_world: None,
+            contrast: f32::NAN,
         }
     }
 
@@ -122,6 +147,7 @@ impl Frame {
         self.outlier.clone_from(&other.outlier);
         self.refined.clone_from(&other.refined);
         self.camera_from_world = other.camera_from_world;
+        self.contrast = other.contrast;
     }
 }
 
@@ -211,6 +237,31 @@ impl FrameBuilder {
         frame.refined.clear();
         frame.refined.resize(n, false);
         frame.camera_from_world = None;
+        let (w, h) = (self.cam.width as usize, self.cam.height as usize);
+        frame.contrast = texture_contrast(&left[..w * h], w, h, keep_out);
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod contrast_tests {
+    use super::texture_contrast;
+
+    #[test]
+    fn a_gain_keeps_the_texture_contrast_and_a_veil_lowers_it() {
+        let (w, h) = (64, 48);
+        let texture: Vec<u8> = (0..w * h).map(|i| (60 + (i * 37 % 51) + (i / w * 13 % 29)) as u8).collect();
+        let clear = texture_contrast(&texture, w, h, None);
+        let brighter: Vec<u8> = texture.iter().map(|&p| (u16::from(p) * 3 / 2) as u8).collect();
+        assert!((texture_contrast(&brighter, w, h, None) / clear - 1.0).abs() < 0.03, "an exposure change");
+        // Smoke: half the light replaced by a bright haze.
+        let veiled: Vec<u8> = texture.iter().map(|&p| (u16::from(p) / 2 + 100) as u8).collect();
+        assert!(texture_contrast(&veiled, w, h, None) < 0.5 * clear);
+        // A masked half is left out.
+        let mut half = texture.clone();
+        half[..w * h / 2].fill(255);
+        let mask: Vec<u8> = (0..w * h).map(|i| if i < w * h / 2 + w { 255 } else { 0 }).collect();
+        let kept = texture_contrast(&half, w, h, Some(&mask));
+        assert!((kept / texture_contrast(&texture[w * h / 2..], w, h / 2, None) - 1.0).abs() < 0.2, "{kept}");
     }
 }

@@ -39,6 +39,8 @@ pub struct KeyFrame {
     /// Median stereo depth of its keypoints (NaN without any): how far it looks, for finding the keyframes a
     /// later frame looks at again (map reuse).
     pub median_depth: f64,
+    /// Its left image's texture contrast ([`crate::frame::texture_contrast`]).
+    pub contrast: f32,
 }
 
 impl KeyFrame {
@@ -62,6 +64,7 @@ impl KeyFrame {
             bad: false,
             camera_from_parent: None,
             median_depth: median_depth(&frame.depth),
+            contrast: frame.contrast,
         }
     }
 
@@ -491,6 +494,7 @@ mod tests {
             bad,
             camera_from_parent: bad.then(Isometry3::identity),
             median_depth: f64::NAN,
+            contrast: f32::NAN,
         }
     }
 

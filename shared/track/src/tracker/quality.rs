@@ -46,6 +46,9 @@ pub enum Doubt {
     IllConditioned,
     /// Matching by appearance, with no prior, puts the camera somewhere the pose does not explain.
     AppearanceDisagrees,
+    /// The image keeps too little of the texture contrast its reference keyframe had: something veils the
+    /// tissue (smoke, a fogged lens) and biases the measurements, however many of them agree.
+    LowContrast,
 }
 
 impl Doubt {
@@ -55,6 +58,7 @@ impl Doubt {
             Self::LowInlierRatio => "low-inlier-ratio",
             Self::IllConditioned => "ill-conditioned",
             Self::AppearanceDisagrees => "appearance-disagrees",
+            Self::LowContrast => "low-contrast",
         }
     }
 }
@@ -111,6 +115,10 @@ pub const MIN_APPEARANCE_AGREEMENT: f64 = 0.5;
 pub const PRIOR_AGREEMENT: f64 = 0.8;
 /// At least this fraction of the links in the final optimisation must be inliers.
 pub const MIN_INLIER_RATIO: f64 = 0.25;
+/// A frame whose texture contrast fell below this share of its reference keyframe's is doubted: a veil that
+/// takes half the texture away also shifts every measurement it leaves (smoke blends a second, nearer layer
+/// into each patch), while moving over tissue changes the contrast far less (measured in BENCHMARKS.md).
+pub const MIN_CONTRAST_KEPT: f32 = 0.5;
 /// The camera centre's σ may be at most this fraction of the inliers' median depth.
 pub const MAX_POSITION_SIGMA_REL: f64 = 0.01;
 
@@ -172,7 +180,17 @@ impl Tracker {
             quality.appearance_agreement = self.appearance_agreement(&pose);
         }
         let ratio = f64::from(quality.inliers) / f64::from(quality.matched.max(1));
-        if quality.appearance_agreement < MIN_APPEARANCE_AGREEMENT {
+        // The clearest view of this place: the reference keyframe and its covisible neighbours (a veil that
+        // thickens slowly would otherwise lower the reference keyframe by keyframe).
+        let reference_contrast = self.reference_kf.and_then(|r| self.map.keyframes.get(r)).map_or(f32::NAN, |kf| {
+            kf.ordered
+                .iter()
+                .filter_map(|&(k, _)| self.map.keyframes.get(k).map(|n| n.contrast))
+                .fold(kf.contrast, f32::max)
+        });
+        if self.current.contrast < MIN_CONTRAST_KEPT * reference_contrast {
+            Some(Doubt::LowContrast)
+        } else if quality.appearance_agreement < MIN_APPEARANCE_AGREEMENT {
             Some(Doubt::AppearanceDisagrees)
         } else if ratio < MIN_INLIER_RATIO {
             Some(Doubt::LowInlierRatio)
