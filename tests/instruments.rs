@@ -106,6 +106,18 @@ fn the_estimate_finds_the_instruments_and_nothing_on_clean_tissue() {
         serde_json::from_slice(&out.stdout).unwrap()
     };
     let with_tools = score(&r.with_tools);
+    // Something to look at: the frame and the estimate laid over it, side by side.
+    let preview = r.root.join("masks-preview.png");
+    let out = run_with_timeout(
+        Command::new(bdis_slam())
+            .args(["eval", "masks", "--sequence"])
+            .arg(&r.with_tools)
+            .arg("--preview")
+            .arg(&preview),
+        Duration::from_secs(300),
+    );
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    assert_eq!(image::image_dimensions(&preview).unwrap(), (640, 240));
     eprintln!("with instruments: {with_tools}");
     assert_eq!(with_tools["frames_with_instruments"], FRAMES as u64, "{with_tools}");
     assert!(with_tools["recall"].as_f64().unwrap() >= 0.95, "{with_tools}");

@@ -17,9 +17,21 @@ pub struct MasksArgs {
     /// Write each estimated mask here (`<name>.png`, 255 = instrument).
     #[arg(long)]
     write: Option<PathBuf>,
+    /// Write a picture to look at: the frame where the estimate masks most, beside it with the estimate laid
+    /// over it (green: instrument found; red: tissue masked; blue: instrument missed, when true masks exist).
+    #[arg(long, value_name = "PNG")]
+    preview: Option<PathBuf>,
     /// Print JSON instead of a sentence.
     #[arg(long)]
     json: bool,
+}
+
+/// The frame shown by `--preview`.
+struct Preview {
+    share: f32,
+    left: image::RgbImage,
+    mask: Vec<u8>,
+    truth: Option<Vec<u8>>,
 }
 
 pub fn eval_masks(args: MasksArgs) -> Result<()> {
@@ -35,6 +47,7 @@ pub fn eval_masks(args: MasksArgs) -> Result<()> {
     let mut masker = InstrumentMasker::new(InstrumentParams::default());
     let mut score = MaskScore::default();
     let (mut masked_share, mut frames_with_regions) = (0.0f64, 0usize);
+    let mut preview: Option<Preview> = None;
     let bar = bdis_slam::progress::bar(sequence.frames.len() as u64, "masks {bar:40} {pos}/{len} frames ({eta} left)");
     for entry in &sequence.frames {
         let left =
@@ -53,6 +66,12 @@ pub fn eval_masks(args: MasksArgs) -> Result<()> {
             }
             score.add(masker.mask(), truth.as_raw());
         }
+        if args.preview.is_some() && found.masked_share >= preview.as_ref().map_or(0.0, |p: &Preview| p.share) {
+            let truth =
+                if scored { image::open(truth_dir.join(&name)).ok().map(|t| t.into_luma8().into_raw()) } else { None };
+            preview =
+                Some(Preview { share: found.masked_share, left: left.clone(), mask: masker.mask().to_vec(), truth });
+        }
         if let Some(dir) = &args.write {
             let path = dir.join(&name);
             image::GrayImage::from_raw(w as u32, h as u32, masker.mask().to_vec())
@@ -63,6 +82,25 @@ pub fn eval_masks(args: MasksArgs) -> Result<()> {
         bar.inc(1);
     }
     bar.finish_and_clear();
+    if let (Some(path), Some(p)) = (&args.preview, &preview) {
+        let (w, h) = p.left.dimensions();
+        let mut picture = image::RgbImage::new(2 * w, h);
+        for (x, y, px) in p.left.enumerate_pixels() {
+            picture.put_pixel(x, y, *px);
+            let i = (y * w + x) as usize;
+            let (found, truth) = (p.mask[i] != 0, p.truth.as_ref().map(|t| t.get(i).is_some_and(|&v| v != 0)));
+            let tint = match (found, truth) {
+                (true, Some(false)) => Some([255u8, 0, 0]),
+                (true, _) => Some([0, 255, 0]),
+                (false, Some(true)) => Some([0, 0, 255]),
+                _ => None,
+            };
+            let out =
+                tint.map_or(*px, |t| image::Rgb([0, 1, 2].map(|c| ((u16::from(px[c]) + u16::from(t[c])) / 2) as u8)));
+            picture.put_pixel(w + x, y, out);
+        }
+        picture.save(path).with_context(|| format!("{}: cannot write", path.display()))?;
+    }
     let frames = sequence.frames.len().max(1);
     let mean_share = masked_share / frames as f64;
     if args.json {
@@ -87,6 +125,9 @@ pub fn eval_masks(args: MasksArgs) -> Result<()> {
         println!("; against {}: precision {:.3}, recall {:.3}", truth_dir.display(), score.precision(), score.recall());
     } else {
         println!();
+    }
+    if let Some(path) = &args.preview {
+        println!("preview: {}", path.display());
     }
     Ok(())
 }
