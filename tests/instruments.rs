@@ -54,20 +54,7 @@ fn run(seq: &Path, tag: &str, extra: &[&str]) -> (f64, f64) {
         serde_json::from_str(&std::fs::read_to_string(run_dir.join("tracking.json")).unwrap()).unwrap();
     assert_eq!(summary["lost"], 0, "{tag}: {summary}");
     let (rmse, _) = ate(seq, &run_dir);
-    let out = run_with_timeout(
-        Command::new(bdis_slam())
-            .args(["eval", "map", "--json", "--mesh"])
-            .arg(seq.join("gt/mesh.ply"))
-            .arg("--map")
-            .arg(run_dir.join("map.ply"))
-            .arg("--align-est")
-            .arg(run_dir.join("trajectory.tum"))
-            .arg("--align-gt")
-            .arg(seq.join("gt/poses.tum")),
-        Duration::from_secs(300),
-    );
-    assert!(out.status.success(), "{}", text(&out.stderr));
-    let score: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let score = map_score_aligned_by(seq, &run_dir, "trajectory.tum");
     let in_front = score["in_front"].as_f64().unwrap();
     eprintln!("{tag}: ATE {rmse:.3} mm, {:.2} % of the map in front of the tissue; {score}", 100.0 * in_front);
     (rmse, in_front)

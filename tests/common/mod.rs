@@ -220,6 +220,12 @@ pub fn ate(seq: &Path, run_dir: &Path) -> (f64, f64) {
 /// The map scored against the renderer's mesh (`bdis-slam eval map`), moved into the ground truth's frame by
 /// the alignment of the keyframe trajectory (the poses that place the map's points).
 pub fn map_score(seq: &Path, run_dir: &Path) -> serde_json::Value {
+    map_score_aligned_by(seq, run_dir, "keyframes.tum")
+}
+
+/// [`map_score`] with the map moved by the alignment of `trajectory` (a TUM file in the run folder): a hover has
+/// too few keyframes to align by, its whole trajectory has enough.
+pub fn map_score_aligned_by(seq: &Path, run_dir: &Path, trajectory: &str) -> serde_json::Value {
     let out = run_with_timeout(
         Command::new(bdis_slam())
             .args(["eval", "map", "--json", "--mesh"])
@@ -227,7 +233,7 @@ pub fn map_score(seq: &Path, run_dir: &Path) -> serde_json::Value {
             .arg("--map")
             .arg(run_dir.join("map.ply"))
             .arg("--align-est")
-            .arg(run_dir.join("keyframes.tum"))
+            .arg(run_dir.join(trajectory))
             .arg("--align-gt")
             .arg(seq.join("gt/poses.tum")),
         Duration::from_secs(300),
