@@ -62,6 +62,12 @@ pub struct SynthArgs {
     /// at its thickest for 0.5 s and clears in 0.8 s (in the images only, not the ground truth)
     #[arg(long)]
     smoke: bool,
+    /// Breathing: the tissue swells and settles every 4 s (0.25 Hz) by up to this many mm, a standing wave over
+    /// it (patches 20 mm apart move opposite ways, so it is not a rigid motion the scope could be blamed for).
+    /// gt/depth follows each frame's tissue; gt/mesh.ply is the mean surface, what the map should converge to.
+    /// 0: still
+    #[arg(long, default_value_t = 0.0, value_name = "MM")]
+    breathing: f64,
     /// Texture and shape seed: the same seed gives byte-identical files.
     #[arg(long, default_value_t = 2026)]
     seed: u64,
@@ -107,6 +113,7 @@ pub fn synth(args: SynthArgs) -> Result<()> {
         optics_blur_px: args.optics_blur_px,
         instruments: args.instruments,
         smoke: args.smoke,
+        breathing_mm: args.breathing,
     };
     if args.interlaced {
         render_with_progress(&args.out.join("fields"), &rig, &request)?;

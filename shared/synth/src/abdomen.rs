@@ -21,6 +21,8 @@ pub struct Abdomen {
     pub bump_mm: f64,
     pub texture: TissueTexture,
     pub seed: u64,
+    /// Breathing's displacement in this frame ([`crate::breathing::Breathing::swell_mm`]); 0: the mean wall.
+    pub swell_mm: f64,
 }
 
 impl Default for Abdomen {
@@ -37,6 +39,7 @@ impl Default for Abdomen {
             bump_mm: 1.2,
             texture: TissueTexture { seed: 4242 },
             seed: 4242,
+            swell_mm: 0.0,
         }
     }
 }
@@ -52,7 +55,9 @@ impl Abdomen {
             .map(|&(bx, by, r, h)| h * (-((x - bx).powi(2) + (y - by).powi(2)) / (2.0 * r * r / 4.0)).exp())
             .sum();
         let bumps = self.bump_mm * (value_noise(self.seed ^ 3, x / 7.0, y / 7.0) - 0.5) * 2.0;
-        self.distance_mm + bowl - blobs + bumps
+        // Breathing lifts the wall towards the scope (−z) where its share is positive.
+        let swell = self.swell_mm * crate::breathing::wall_share(x, y);
+        self.distance_mm + bowl - blobs + bumps - swell
     }
 
     /// Positive in front of the wall (on the scope's side).

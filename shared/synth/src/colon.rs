@@ -21,6 +21,8 @@ pub struct Colon {
     pub bump_mm: f64,
     pub texture: TissueTexture,
     pub seed: u64,
+    /// Breathing's displacement in this frame ([`crate::breathing::Breathing::swell_mm`]); 0: the mean wall.
+    pub swell_mm: f64,
 }
 
 impl Default for Colon {
@@ -32,6 +34,7 @@ impl Default for Colon {
             bump_mm: 0.9,
             texture: TissueTexture { seed: 2026 },
             seed: 2026,
+            swell_mm: 0.0,
         }
     }
 }
@@ -52,7 +55,9 @@ impl Colon {
         let fold_depth = self.fold_depth * (0.8 + 0.4 * value_noise(self.seed ^ 11, 2.0 * c + z / 20.0, 2.0 * s));
         let k = self.radius_mm / 6.0;
         let bumps = self.bump_mm * (value_noise(self.seed ^ 7, k * c + z / 6.0, k * s - z / 9.0) - 0.5) * 2.0;
-        self.radius_mm * (1.0 - fold_depth * fold) + bumps
+        // Breathing narrows the tube where its share is positive.
+        let swell = self.swell_mm * crate::breathing::tube_share(z, theta);
+        self.radius_mm * (1.0 - fold_depth * fold) + bumps - swell
     }
 
     /// Positive inside the tube, 0 on the wall (not a true distance; marching steps are scaled down for that).

@@ -5,6 +5,7 @@
 //! ground-truth disparity is `bf / depth` everywhere. The colon and abdomen scenes of issue #4 grow from here.
 
 pub mod abdomen;
+pub mod breathing;
 pub mod colon;
 pub mod instruments;
 pub mod interlace;
@@ -339,6 +340,8 @@ pub struct SceneRequest {
     pub instruments: bool,
     /// A puff of surgical smoke 40 % of the way in: up in 0.3 s, 0.5 s thick, gone 0.8 s later.
     pub smoke: bool,
+    /// Breathing ([`breathing`]): the largest displacement of the tissue from its mean surface, mm; 0: still.
+    pub breathing_mm: f64,
 }
 
 impl Default for SceneRequest {
@@ -355,6 +358,7 @@ impl Default for SceneRequest {
             optics_blur_px: 0.0,
             instruments: false,
             smoke: false,
+            breathing_mm: 0.0,
         }
     }
 }
@@ -371,6 +375,9 @@ impl SceneRequest {
             "abdomen" => &["hover", "sweep", "revisit", "pan", "oblique", "circle"],
             other => return invalid(format!("`{other}` is not a scene (colon, abdomen)")),
         };
+        if !(0.0..=10.0).contains(&self.breathing_mm) {
+            return invalid(format!("breathing {} mm is outside 0–10 mm", self.breathing_mm));
+        }
         if !(0.0..=5.0).contains(&self.optics_blur_px) {
             return invalid(format!("optics blur σ {} px is outside 0–5 px", self.optics_blur_px));
         }
@@ -405,85 +412,94 @@ pub fn write_scene(
     // the mesh) is that of its last frame.
     let warp = move |t: f64| motion.path_time(t, total_s, fps);
     let path_total_s = warp(total_s);
-    let trajectory = request.trajectory.as_deref();
+    let trajectory = request.trajectory.clone();
     let lens = request.raw.as_deref().and_then(|name| render::RawLens::preset(name, rig));
     let optics_blur_px = request.optics_blur_px;
-    match (request.scene.as_str(), trajectory) {
-        ("colon", None | Some("forward") | Some("revisit")) => {
-            let colon = colon::Colon { seed, texture: TissueTexture { seed }, ..colon::Colon::default() };
-            let revisit = trajectory == Some("revisit");
-            let path = move |t: f64| {
-                let t = warp(t);
-                if revisit { colon.revisit_pose(t, path_total_s, speed) } else { colon.forward_pose(t, speed) }
-            };
-            let far = speed.abs() * if revisit { 0.5 * path_total_s } else { path_total_s };
-            let mesh = colon.mesh(-20.0, far + 150.0, 0.5, 180);
-            let shading = render::Shading { lens, optics_blur_px, ..render::Shading::default() };
-            let tools = request.instruments.then(|| {
-                let kind = instruments::InstrumentKind::WorkingChannel;
-                instruments::Instruments::new(kind, colon.radius_mm, shading.exposure_distance_mm)
-            });
-            let smoke = request.smoke.then(|| smoke::Smoke::puff(0.4 * total_s, colon.radius_mm, seed));
-            render::write_sequence(
-                dir,
-                rig,
-                &colon,
-                tools.as_ref(),
-                smoke.as_ref(),
-                &path,
-                mesh,
-                &shading,
-                request.frames,
-                request.fps,
-                progress,
-            )
-        }
-        (
-            "abdomen",
-            None | Some("hover") | Some("sweep") | Some("revisit") | Some("pan") | Some("oblique") | Some("circle"),
-        ) => {
-            let abdomen = abdomen::Abdomen { seed, texture: TissueTexture { seed }, ..abdomen::Abdomen::default() };
-            let a = abdomen.clone();
-            let path = move |t: f64| {
-                let t = warp(t);
-                match trajectory {
-                    Some("hover") => a.hover_pose(t),
-                    Some("revisit") => a.revisit_pose(t, path_total_s, speed),
-                    Some("pan") => a.pan_pose(t, speed),
-                    Some("oblique") => a.oblique_pose(t, speed),
-                    Some("circle") => a.circle_pose(t, speed),
-                    _ => a.sweep_pose(t, speed),
-                }
-            };
-            // The circle stays within its radius of the centre; the other paths move along x.
-            let travel =
-                if trajectory == Some("circle") { abdomen::CIRCLE_RADIUS_MM } else { speed.abs() * path_total_s };
-            let mesh = abdomen.mesh(60.0 + travel, 0.5);
-            // A laparoscope's light is stronger and the wall farther away than in a colon.
-            let shading =
-                render::Shading { exposure_distance_mm: 65.0, lens, optics_blur_px, ..render::Shading::default() };
-            // The graspers work at the depth the scope hovers at over the wall.
-            let tools = request.instruments.then(|| {
-                let kind = instruments::InstrumentKind::Laparoscopic;
-                instruments::Instruments::new(kind, abdomen::STANDOFF_MM, shading.exposure_distance_mm)
-            });
-            let smoke = request.smoke.then(|| smoke::Smoke::puff(0.4 * total_s, abdomen::STANDOFF_MM, seed));
-            render::write_sequence(
-                dir,
-                rig,
-                &abdomen,
-                tools.as_ref(),
-                smoke.as_ref(),
-                &path,
-                mesh,
-                &shading,
-                request.frames,
-                request.fps,
-                progress,
-            )
-        }
-        _ => Err(SynthError::Request {
-            detail: format!("`{}` with {:?} cannot be rendered", request.scene, request.trajectory),
-        }),
-    }
+    let breathing = (request.breathing_mm > 0.0).then(|| breathing::Breathing::new(request.breathing_mm));
+    let swell_at = move |t: f64| breathing.map_or(0.0, |b| b.swell_mm(t));
+    // Per scene: the tissue at a time, the path, the mean surface's mesh, the light, and the depth the
+    // instruments and smoke work at (the scope's working distance).
+    type SurfaceAt = Box<dyn Fn(f64) -> Box<dyn render::Surface>>;
+    type Path = Box<dyn Fn(f64) -> nalgebra::Isometry3<f64>>;
+    let (surface_at, path, mesh, shading, tool_kind, working_distance_mm): (SurfaceAt, Path, _, _, _, _) =
+        match (request.scene.as_str(), trajectory.as_deref()) {
+            ("colon", None | Some("forward") | Some("revisit")) => {
+                let colon = colon::Colon { seed, texture: TissueTexture { seed }, ..colon::Colon::default() };
+                let revisit = trajectory.as_deref() == Some("revisit");
+                let path = move |t: f64| {
+                    let t = warp(t);
+                    if revisit { colon.revisit_pose(t, path_total_s, speed) } else { colon.forward_pose(t, speed) }
+                };
+                let far = speed.abs() * if revisit { 0.5 * path_total_s } else { path_total_s };
+                (
+                    Box::new(move |t| Box::new(colon::Colon { swell_mm: swell_at(t), ..colon })),
+                    Box::new(path),
+                    colon.mesh(-20.0, far + 150.0, 0.5, 180),
+                    render::Shading { lens, optics_blur_px, ..render::Shading::default() },
+                    instruments::InstrumentKind::WorkingChannel,
+                    colon.radius_mm,
+                )
+            }
+            (
+                "abdomen",
+                None | Some("hover") | Some("sweep") | Some("revisit") | Some("pan") | Some("oblique") | Some("circle"),
+            ) => {
+                let abdomen = abdomen::Abdomen { seed, texture: TissueTexture { seed }, ..abdomen::Abdomen::default() };
+                let a = abdomen.clone();
+                let name = trajectory.clone();
+                let path = move |t: f64| {
+                    let t = warp(t);
+                    match name.as_deref() {
+                        Some("hover") => a.hover_pose(t),
+                        Some("revisit") => a.revisit_pose(t, path_total_s, speed),
+                        Some("pan") => a.pan_pose(t, speed),
+                        Some("oblique") => a.oblique_pose(t, speed),
+                        Some("circle") => a.circle_pose(t, speed),
+                        _ => a.sweep_pose(t, speed),
+                    }
+                };
+                // The circle stays within its radius of the centre; the other paths move along x.
+                let travel = if trajectory.as_deref() == Some("circle") {
+                    abdomen::CIRCLE_RADIUS_MM
+                } else {
+                    speed.abs() * path_total_s
+                };
+                let mesh = abdomen.mesh(60.0 + travel, 0.5);
+                let surface_at = move |t| -> Box<dyn render::Surface> {
+                    Box::new(abdomen::Abdomen { swell_mm: swell_at(t), ..abdomen.clone() })
+                };
+                // A laparoscope's light is stronger and the wall farther away than in a colon; the graspers work
+                // at the depth the scope hovers at over the wall.
+                (
+                    Box::new(surface_at),
+                    Box::new(path),
+                    mesh,
+                    render::Shading { exposure_distance_mm: 65.0, lens, optics_blur_px, ..render::Shading::default() },
+                    instruments::InstrumentKind::Laparoscopic,
+                    abdomen::STANDOFF_MM,
+                )
+            }
+            _ => {
+                return Err(SynthError::Request {
+                    detail: format!("`{}` with {:?} cannot be rendered", request.scene, request.trajectory),
+                });
+            }
+        };
+    let tools = request
+        .instruments
+        .then(|| instruments::Instruments::new(tool_kind, working_distance_mm, shading.exposure_distance_mm));
+    let smoke = request.smoke.then(|| smoke::Smoke::puff(0.4 * total_s, working_distance_mm, seed));
+    render::write_sequence(
+        dir,
+        rig,
+        &surface_at,
+        tools.as_ref(),
+        smoke.as_ref(),
+        &path,
+        mesh,
+        &shading,
+        request.frames,
+        request.fps,
+        progress,
+    )
 }

@@ -389,13 +389,16 @@ pub struct WrittenSequence {
 /// Writes a camera path over a surface as a plain sequence (`left/`, `right/`, `times.txt`, `settings.yaml`) with
 /// its ground truth in `gt/`: `poses.tum` (world_from_camera of the left camera), `depth/<n>.pfm` (z, mm, +inf
 /// where no wall), `disparity/<n>.pfm` (px), `mesh.ply` (the wall along the flight). `progress(i)` after each
-/// frame. With `smoke`, its haze is in the images (not in the ground truth). With `instruments`, they are rendered in front of the tissue (not in the mesh) and each frame's mask
-/// of them is written to `gt/masks/<n>.png` (left view, 255 = instrument), the layout `--masks` reads.
+/// frame. `surface_at(t)` is the tissue at time t: the same surface every frame, or a breathing one
+/// ([`crate::breathing`]), whose depth is each frame's while `mesh` is the mean surface. With `smoke`, its haze
+/// is in the images (not in the ground truth). With `instruments`, they are rendered in front of the tissue (not
+/// in the mesh) and each frame's mask of them is written to `gt/masks/<n>.png` (left view, 255 = instrument), the
+/// layout `--masks` reads.
 #[allow(clippy::too_many_arguments)]
 pub fn write_sequence(
     dir: &std::path::Path,
     rig: &RectifiedCamera,
-    surface: &dyn Surface,
+    surface_at: &dyn Fn(f64) -> Box<dyn Surface>,
     instruments: Option<&crate::instruments::Instruments>,
     smoke: Option<&crate::smoke::Smoke>,
     path: &dyn Fn(f64) -> Isometry3<f64>,
@@ -425,7 +428,7 @@ pub fn write_sequence(
         let pose = path(t);
         let parts = instruments.map(|tools| tools.parts_at(t, &pose)).unwrap_or_default();
         let shading = Shading { haze: smoke.and_then(|smoke| smoke.haze_at(t)), ..*shading };
-        let pair = render_scene(surface, &parts, rig, &shading, &pose, i as u64);
+        let pair = render_scene(surface_at(t).as_ref(), &parts, rig, &shading, &pose, i as u64);
         for (side, img) in [("left", &pair.left), ("right", &pair.right)] {
             let path = dir.join(format!("{side}/{}.png", i + 1));
             img.save(&path).map_err(|e| fail(&path, &e))?;

@@ -306,3 +306,84 @@ fn smoke_lowers_the_contrast_and_leaves_the_ground_truth_alone() {
     assert!(detail(&b.left) < 0.8 * detail(&a.left), "{} vs {}", detail(&b.left), detail(&a.left));
     assert!(smoke.haze_at(2.0).is_none(), "cleared");
 }
+
+#[test]
+fn breathing_moves_the_tissue_both_ways_by_its_amplitude_and_leaves_the_mean_surface_in_the_mesh() {
+    let rig = rig();
+    let abdomen = Abdomen::default();
+    let colon = Colon::default();
+    let amplitude_mm = 2.0;
+    // How far a point lies from the mean (still) surface, along the surface's depth: towards the scope over the
+    // abdomen, towards the axis in the colon.
+    let (a2, c2) = (abdomen.clone(), colon);
+    let above_abdomen = move |p: Point3<f64>| a2.height(p.x, p.y) - p.z;
+    let inside_colon = move |p: Point3<f64>| {
+        let (cx, cy) = c2.centre(p.z);
+        c2.radius(p.z, (p.y - cy).atan2(p.x - cx)) - ((p.x - cx).powi(2) + (p.y - cy).powi(2)).sqrt()
+    };
+    type Offset = Box<dyn Fn(Point3<f64>) -> f64>;
+    type Case = (&'static str, Box<dyn Surface>, Isometry3<f64>, Offset);
+    let cases: [Case; 2] = [
+        (
+            "abdomen",
+            Box::new(Abdomen { swell_mm: amplitude_mm, ..abdomen.clone() }),
+            abdomen.hover_pose(0.0),
+            Box::new(above_abdomen),
+        ),
+        (
+            "colon",
+            Box::new(Colon { swell_mm: amplitude_mm, ..colon }),
+            colon.forward_pose(1.0, 20.0),
+            Box::new(inside_colon),
+        ),
+    ];
+    for (name, breathing, pose, offset) in cases {
+        let pair = render(breathing.as_ref(), &rig, &albedo_only(), &pose, 0);
+        let mut moved = Vec::new();
+        for (i, &z) in pair.depth.iter().enumerate() {
+            let (x, y) = ((i as u32 % rig.width) as f64 + 0.5, (i as u32 / rig.width) as f64 + 0.5);
+            if z.is_finite() {
+                let z = f64::from(z);
+                moved.push(offset(pose * Point3::new((x - rig.cx) * z / rig.fx, (y - rig.cy) * z / rig.fy, z)));
+            }
+        }
+        assert!(moved.len() > 10_000, "{name}: {} pixels see tissue", moved.len());
+        let rms = (moved.iter().map(|d| d * d).sum::<f64>() / moved.len() as f64).sqrt();
+        let mean = moved.iter().sum::<f64>() / moved.len() as f64;
+        let largest = moved.iter().fold(0.0f64, |m, d| m.max(d.abs()));
+        let (nearer, farther) =
+            (moved.iter().filter(|&&d| d > 0.5).count(), moved.iter().filter(|&&d| d < -0.5).count());
+        // Moved by up to its amplitude, both ways, without a rigid part to mistake for the scope's motion.
+        assert!(largest <= amplitude_mm * 1.001 && largest > 0.8 * amplitude_mm, "{name}: largest {largest:.2} mm");
+        assert!(rms > 0.25 * amplitude_mm, "{name}: rms {rms:.2} mm");
+        assert!(nearer > moved.len() / 10 && farther > moved.len() / 10, "{name}: {nearer} nearer, {farther} farther");
+        // Over the wall, the mean depth offset is the rigid part (the wall as a whole nearer or farther). In the
+        // tube the mean radial offset is a narrowing, not a motion; its rigid part, a sideways shift, is absent by
+        // construction (breathing's own unit test).
+        if name == "abdomen" {
+            assert!(mean.abs() < 0.25 * rms, "{name}: mean {mean:.2} mm against rms {rms:.2} mm");
+        }
+    }
+
+    // Through the sequence writer: the mesh is the mean surface (the still scene's), the first frame is at rest,
+    // and a breath a quarter period in has moved it.
+    let small = RectifiedCamera { width: 64, height: 48, fx: 52.0, fy: 52.0, cx: 32.0, cy: 24.0, bf: 52.0 * 5.0 };
+    let base = std::env::temp_dir().join(format!("bdis-synth-breath-{}", std::process::id()));
+    let still = bdis_synth::SceneRequest {
+        scene: "abdomen".into(),
+        trajectory: Some("hover".into()),
+        frames: 2,
+        fps: 1.0,
+        ..Default::default()
+    };
+    let breathing = bdis_synth::SceneRequest { breathing_mm: amplitude_mm, ..still.clone() };
+    bdis_synth::write_scene(&base.join("still"), &small, &still, |_| {}).unwrap();
+    bdis_synth::write_scene(&base.join("breathing"), &small, &breathing, |_| {}).unwrap();
+    let read = |seq: &str, file: &str| std::fs::read(base.join(seq).join(file)).unwrap();
+    assert_eq!(read("still", "gt/mesh.ply"), read("breathing", "gt/mesh.ply"), "the mesh is the mean surface");
+    assert_eq!(read("still", "gt/depth/1.pfm"), read("breathing", "gt/depth/1.pfm"), "at rest at t = 0");
+    assert_ne!(read("still", "gt/depth/2.pfm"), read("breathing", "gt/depth/2.pfm"), "a quarter breath in");
+    std::fs::remove_dir_all(&base).unwrap();
+    let too_much = bdis_synth::SceneRequest { breathing_mm: 11.0, ..still };
+    assert!(too_much.validate().is_err());
+}
