@@ -62,12 +62,21 @@ pub struct SynthArgs {
     /// at its thickest for 0.5 s and clears in 0.8 s (in the images only, not the ground truth)
     #[arg(long)]
     smoke: bool,
+    /// A bleed 30 % of the way in: a pool of blood spreads over 2 s from the tissue just below the centre of the
+    /// view to about a fifth of the view across, dark red and wet (a sharp moving sheen), and stays. A film on the
+    /// tissue: in the images only; depth and mesh are unchanged
+    #[arg(long)]
+    bleeding: bool,
     /// Breathing: the tissue swells and settles every 4 s (0.25 Hz) by up to this many mm, a standing wave over
-    /// it (patches 20 mm apart move opposite ways, so it is not a rigid motion the scope could be blamed for).
+    /// it (patches half a --breathing-wavelength apart move opposite ways: not a rigid motion the scope could be blamed for).
     /// gt/depth follows each frame's tissue; gt/mesh.ply is the mean surface, what the map should converge to.
     /// 0: still
     #[arg(long, default_value_t = 0.0, value_name = "MM")]
     breathing: f64,
+    /// Breathing's wavelength over the tissue, mm: patches this far apart rise together, half of it apart
+    /// opposite ways. Longer: more of what a view sees moves as a whole (which looks like the scope moving)
+    #[arg(long, default_value_t = bdis_synth::breathing::WAVELENGTH_MM, value_name = "MM")]
+    breathing_wavelength: f64,
     /// Texture and shape seed: the same seed gives byte-identical files.
     #[arg(long, default_value_t = 2026)]
     seed: u64,
@@ -114,6 +123,8 @@ pub fn synth(args: SynthArgs) -> Result<()> {
         instruments: args.instruments,
         smoke: args.smoke,
         breathing_mm: args.breathing,
+        bleeding: args.bleeding,
+        breathing_wavelength_mm: args.breathing_wavelength,
     };
     if args.interlaced {
         render_with_progress(&args.out.join("fields"), &rig, &request)?;

@@ -21,8 +21,8 @@ pub struct Abdomen {
     pub bump_mm: f64,
     pub texture: TissueTexture,
     pub seed: u64,
-    /// Breathing's displacement in this frame ([`crate::breathing::Breathing::swell_mm`]); 0: the mean wall.
-    pub swell_mm: f64,
+    /// Breathing's displacement in this frame ([`crate::breathing::Breathing::swell_at`]); 0: the mean wall.
+    pub swell: crate::breathing::Swell,
 }
 
 impl Default for Abdomen {
@@ -39,7 +39,7 @@ impl Default for Abdomen {
             bump_mm: 1.2,
             texture: TissueTexture { seed: 4242 },
             seed: 4242,
-            swell_mm: 0.0,
+            swell: crate::breathing::Swell::default(),
         }
     }
 }
@@ -56,7 +56,7 @@ impl Abdomen {
             .sum();
         let bumps = self.bump_mm * (value_noise(self.seed ^ 3, x / 7.0, y / 7.0) - 0.5) * 2.0;
         // Breathing lifts the wall towards the scope (−z) where its share is positive.
-        let swell = self.swell_mm * crate::breathing::wall_share(x, y);
+        let swell = self.swell.mm * crate::breathing::wall_share(x, y, self.swell.wavelength_mm);
         self.distance_mm + bowl - blobs + bumps - swell
     }
 

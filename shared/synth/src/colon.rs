@@ -21,8 +21,8 @@ pub struct Colon {
     pub bump_mm: f64,
     pub texture: TissueTexture,
     pub seed: u64,
-    /// Breathing's displacement in this frame ([`crate::breathing::Breathing::swell_mm`]); 0: the mean wall.
-    pub swell_mm: f64,
+    /// Breathing's displacement in this frame ([`crate::breathing::Breathing::swell_at`]); 0: the mean wall.
+    pub swell: crate::breathing::Swell,
 }
 
 impl Default for Colon {
@@ -34,7 +34,7 @@ impl Default for Colon {
             bump_mm: 0.9,
             texture: TissueTexture { seed: 2026 },
             seed: 2026,
-            swell_mm: 0.0,
+            swell: crate::breathing::Swell::default(),
         }
     }
 }
@@ -56,7 +56,7 @@ impl Colon {
         let k = self.radius_mm / 6.0;
         let bumps = self.bump_mm * (value_noise(self.seed ^ 7, k * c + z / 6.0, k * s - z / 9.0) - 0.5) * 2.0;
         // Breathing narrows the tube where its share is positive.
-        let swell = self.swell_mm * crate::breathing::tube_share(z, theta);
+        let swell = self.swell.mm * crate::breathing::tube_share(z, theta, self.swell.wavelength_mm);
         self.radius_mm * (1.0 - fold_depth * fold) + bumps - swell
     }
 

@@ -5,6 +5,7 @@
 //! ground-truth disparity is `bf / depth` everywhere. The colon and abdomen scenes of issue #4 grow from here.
 
 pub mod abdomen;
+pub mod bleeding;
 pub mod breathing;
 pub mod colon;
 pub mod instruments;
@@ -342,6 +343,10 @@ pub struct SceneRequest {
     pub smoke: bool,
     /// Breathing ([`breathing`]): the largest displacement of the tissue from its mean surface, mm; 0: still.
     pub breathing_mm: f64,
+    /// A bleed 30 % of the way in ([`bleeding`]): a pool of blood spreading over the tissue in view for 2 s.
+    pub bleeding: bool,
+    /// Breathing's wavelength over the tissue ([`breathing::WAVELENGTH_MM`] by default), mm.
+    pub breathing_wavelength_mm: f64,
 }
 
 impl Default for SceneRequest {
@@ -359,6 +364,8 @@ impl Default for SceneRequest {
             instruments: false,
             smoke: false,
             breathing_mm: 0.0,
+            breathing_wavelength_mm: breathing::WAVELENGTH_MM,
+            bleeding: false,
         }
     }
 }
@@ -377,6 +384,9 @@ impl SceneRequest {
         };
         if !(0.0..=10.0).contains(&self.breathing_mm) {
             return invalid(format!("breathing {} mm is outside 0–10 mm", self.breathing_mm));
+        }
+        if !(self.breathing_wavelength_mm.is_finite() && self.breathing_wavelength_mm >= 5.0) {
+            return invalid(format!("breathing wavelength {} mm is not ≥ 5 mm", self.breathing_wavelength_mm));
         }
         if !(0.0..=5.0).contains(&self.optics_blur_px) {
             return invalid(format!("optics blur σ {} px is outside 0–5 px", self.optics_blur_px));
@@ -415,8 +425,9 @@ pub fn write_scene(
     let trajectory = request.trajectory.clone();
     let lens = request.raw.as_deref().and_then(|name| render::RawLens::preset(name, rig));
     let optics_blur_px = request.optics_blur_px;
-    let breathing = (request.breathing_mm > 0.0).then(|| breathing::Breathing::new(request.breathing_mm));
-    let swell_at = move |t: f64| breathing.map_or(0.0, |b| b.swell_mm(t));
+    let breathing = (request.breathing_mm > 0.0)
+        .then(|| breathing::Breathing::new(request.breathing_mm, request.breathing_wavelength_mm));
+    let swell_at = move |t: f64| breathing.map_or_else(breathing::Swell::default, |b| b.swell_at(t));
     // Per scene: the tissue at a time, the path, the mean surface's mesh, the light, and the depth the
     // instruments and smoke work at (the scope's working distance).
     type SurfaceAt = Box<dyn Fn(f64) -> Box<dyn render::Surface>>;
@@ -432,7 +443,7 @@ pub fn write_scene(
                 };
                 let far = speed.abs() * if revisit { 0.5 * path_total_s } else { path_total_s };
                 (
-                    Box::new(move |t| Box::new(colon::Colon { swell_mm: swell_at(t), ..colon })),
+                    Box::new(move |t| Box::new(colon::Colon { swell: swell_at(t), ..colon })),
                     Box::new(path),
                     colon.mesh(-20.0, far + 150.0, 0.5, 180),
                     render::Shading { lens, optics_blur_px, ..render::Shading::default() },
@@ -466,7 +477,7 @@ pub fn write_scene(
                 };
                 let mesh = abdomen.mesh(60.0 + travel, 0.5);
                 let surface_at = move |t| -> Box<dyn render::Surface> {
-                    Box::new(abdomen::Abdomen { swell_mm: swell_at(t), ..abdomen.clone() })
+                    Box::new(abdomen::Abdomen { swell: swell_at(t), ..abdomen.clone() })
                 };
                 // A laparoscope's light is stronger and the wall farther away than in a colon; the graspers work
                 // at the depth the scope hovers at over the wall.
@@ -489,17 +500,19 @@ pub fn write_scene(
         .instruments
         .then(|| instruments::Instruments::new(tool_kind, working_distance_mm, shading.exposure_distance_mm));
     let smoke = request.smoke.then(|| smoke::Smoke::puff(0.4 * total_s, working_distance_mm, seed));
-    render::write_sequence(
-        dir,
-        rig,
-        &surface_at,
-        tools.as_ref(),
-        smoke.as_ref(),
-        &path,
-        mesh,
-        &shading,
-        request.frames,
-        request.fps,
-        progress,
-    )
+    // The bleed's source: the tissue a little below the centre of the view when it starts (the centre of a colon
+    // view looks down the lumen).
+    let bleeding = if request.bleeding {
+        let start_s = 0.3 * total_s;
+        let pose = path(start_s);
+        let dir = pose.rotation * nalgebra::Vector3::new(0.0, 0.2 * rig.height as f64 / rig.fy, 1.0).normalize();
+        let Some(hit) = surface_at(start_s).hit(&(pose * nalgebra::Point3::origin()), &dir, 150.0) else {
+            return Err(SynthError::Request { detail: "no tissue in view where the bleed should start".into() });
+        };
+        Some(bleeding::Bleeding::new(start_s, hit.uv, working_distance_mm, seed))
+    } else {
+        None
+    };
+    let events = render::Events { instruments: tools.as_ref(), smoke: smoke.as_ref(), bleeding: bleeding.as_ref() };
+    render::write_sequence(dir, rig, &surface_at, events, &path, mesh, &shading, request.frames, request.fps, progress)
 }

@@ -51,6 +51,8 @@ pub struct Shading {
     pub lens: Option<RawLens>,
     /// Smoke in front of the scope in this frame ([`crate::smoke`]); `None`: clear air.
     pub haze: Option<crate::smoke::Haze>,
+    /// Blood on the tissue in this frame ([`crate::bleeding`]); `None`: none.
+    pub bleeding: Option<crate::bleeding::Pool>,
 }
 
 /// A raw stereo camera for rendering: each side's lens (intrinsics and distortion, pixel centres at integer
@@ -144,6 +146,7 @@ impl Default for Shading {
             optics_blur_px: 0.0,
             lens: None,
             haze: None,
+            bleeding: None,
         }
     }
 }
@@ -220,7 +223,11 @@ pub fn render_scene(
                 // One pixel's footprint on the surface (ignoring obliqueness).
                 let footprint_mm = hit.t / rig.fx;
                 let albedo = surface.albedo(hit.uv, footprint_mm).map(|c| f64::from(c) / 255.0);
-                (hit.t, hit.point, hit.normal, albedo, shading.specular, shading.shininess)
+                let (albedo, specular, shininess) = match &shading.bleeding {
+                    Some(pool) => pool.wet(hit.uv, albedo, shading.specular, shading.shininess),
+                    None => (albedo, shading.specular, shading.shininess),
+                };
+                (hit.t, hit.point, hit.normal, albedo, specular, shininess)
             }
             (None, None) => return None,
         };
@@ -386,21 +393,28 @@ pub struct WrittenSequence {
     pub mean_depth_mm: f64,
 }
 
+/// What happens in front of and on the tissue during a sequence, besides the tissue itself.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct Events<'a> {
+    pub instruments: Option<&'a crate::instruments::Instruments>,
+    pub smoke: Option<&'a crate::smoke::Smoke>,
+    pub bleeding: Option<&'a crate::bleeding::Bleeding>,
+}
+
 /// Writes a camera path over a surface as a plain sequence (`left/`, `right/`, `times.txt`, `settings.yaml`) with
 /// its ground truth in `gt/`: `poses.tum` (world_from_camera of the left camera), `depth/<n>.pfm` (z, mm, +inf
 /// where no wall), `disparity/<n>.pfm` (px), `mesh.ply` (the wall along the flight). `progress(i)` after each
 /// frame. `surface_at(t)` is the tissue at time t: the same surface every frame, or a breathing one
 /// ([`crate::breathing`]), whose depth is each frame's while `mesh` is the mean surface. With `smoke`, its haze
-/// is in the images (not in the ground truth). With `instruments`, they are rendered in front of the tissue (not
-/// in the mesh) and each frame's mask of them is written to `gt/masks/<n>.png` (left view, 255 = instrument), the
-/// layout `--masks` reads.
-#[allow(clippy::too_many_arguments)]
+/// is in the images (not in the ground truth), and so is `bleeding`'s blood (a film on the tissue). With
+/// `instruments`, they are rendered in front of the tissue (not in the mesh) and each frame's mask of them is
+/// written to `gt/masks/<n>.png` (left view, 255 = instrument), the layout `--masks` reads.
+#[allow(clippy::too_many_arguments)] // each is one thing the sequence is made of
 pub fn write_sequence(
     dir: &std::path::Path,
     rig: &RectifiedCamera,
     surface_at: &dyn Fn(f64) -> Box<dyn Surface>,
-    instruments: Option<&crate::instruments::Instruments>,
-    smoke: Option<&crate::smoke::Smoke>,
+    events: Events,
     path: &dyn Fn(f64) -> Isometry3<f64>,
     mesh: (Vec<[f32; 3]>, Vec<[u32; 3]>),
     shading: &Shading,
@@ -416,6 +430,7 @@ pub fn write_sequence(
     for sub in ["left", "right", "gt/depth", "gt/disparity"] {
         std::fs::create_dir_all(dir.join(sub)).map_err(|e| fail(&dir.join(sub), &e))?;
     }
+    let Events { instruments, smoke, bleeding } = events;
     if instruments.is_some() {
         std::fs::create_dir_all(dir.join("gt/masks")).map_err(|e| fail(&dir.join("gt/masks"), &e))?;
     }
@@ -427,7 +442,11 @@ pub fn write_sequence(
         let t = i as f64 / fps;
         let pose = path(t);
         let parts = instruments.map(|tools| tools.parts_at(t, &pose)).unwrap_or_default();
-        let shading = Shading { haze: smoke.and_then(|smoke| smoke.haze_at(t)), ..*shading };
+        let shading = Shading {
+            haze: smoke.and_then(|smoke| smoke.haze_at(t)),
+            bleeding: bleeding.and_then(|bleeding| bleeding.pool_at(t)),
+            ..*shading
+        };
         let pair = render_scene(surface_at(t).as_ref(), &parts, rig, &shading, &pose, i as u64);
         for (side, img) in [("left", &pair.left), ("right", &pair.right)] {
             let path = dir.join(format!("{side}/{}.png", i + 1));

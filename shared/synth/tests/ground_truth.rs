@@ -4,6 +4,7 @@
 
 use bdis_synth::RectifiedCamera;
 use bdis_synth::abdomen::Abdomen;
+use bdis_synth::breathing::Swell;
 use bdis_synth::colon::Colon;
 use bdis_synth::render::{Shading, Surface, render};
 use nalgebra::{Isometry3, Point3};
@@ -326,13 +327,13 @@ fn breathing_moves_the_tissue_both_ways_by_its_amplitude_and_leaves_the_mean_sur
     let cases: [Case; 2] = [
         (
             "abdomen",
-            Box::new(Abdomen { swell_mm: amplitude_mm, ..abdomen.clone() }),
+            Box::new(Abdomen { swell: Swell { mm: amplitude_mm, ..Swell::default() }, ..abdomen.clone() }),
             abdomen.hover_pose(0.0),
             Box::new(above_abdomen),
         ),
         (
             "colon",
-            Box::new(Colon { swell_mm: amplitude_mm, ..colon }),
+            Box::new(Colon { swell: Swell { mm: amplitude_mm, ..Swell::default() }, ..colon }),
             colon.forward_pose(1.0, 20.0),
             Box::new(inside_colon),
         ),
@@ -386,4 +387,29 @@ fn breathing_moves_the_tissue_both_ways_by_its_amplitude_and_leaves_the_mean_sur
     std::fs::remove_dir_all(&base).unwrap();
     let too_much = bdis_synth::SceneRequest { breathing_mm: 11.0, ..still };
     assert!(too_much.validate().is_err());
+}
+
+#[test]
+fn bleeding_reddens_and_wets_the_tissue_under_the_pool_and_leaves_the_ground_truth_alone() {
+    let rig = rig();
+    let abdomen = Abdomen::default();
+    let pose = abdomen.hover_pose(0.0);
+    // The pool at the tissue the view's centre sees.
+    let bleed = bdis_synth::bleeding::Bleeding::new(0.0, (pose.translation.x, pose.translation.y), 55.0, 5);
+    let dry = Shading { exposure_distance_mm: 65.0, ..Shading::default() };
+    let wet = Shading { bleeding: bleed.pool_at(5.0), ..dry };
+    let (a, b) = (render(&abdomen, &rig, &dry, &pose, 3), render(&abdomen, &rig, &wet, &pose, 3));
+    let bits = |d: &[f32]| d.iter().map(|z| z.to_bits()).collect::<Vec<_>>();
+    assert_eq!(bits(&a.depth), bits(&b.depth), "a film on the tissue: the depth is the tissue's");
+    let centre = |img: &image::RgbImage| *img.get_pixel(rig.width / 2, rig.height / 2);
+    let (dry_px, wet_px) = (centre(&a.left), centre(&b.left));
+    // Blood absorbs green: the centre loses most of its green and keeps more of its red.
+    assert!(u32::from(wet_px.0[1]) * 3 < u32::from(dry_px.0[1]), "green {} → {}", dry_px.0[1], wet_px.0[1]);
+    assert!(wet_px.0[0] > 2 * wet_px.0[1], "red over green under blood: {wet_px:?}");
+    // Far from the pool nothing changed.
+    assert_eq!(a.left.get_pixel(2, 2), b.left.get_pixel(2, 2));
+    // Changed pixels: a pool of about its size (radius 11 mm ≈ 33 px at 55 mm with f = 162.5), not the frame.
+    let changed = a.left.pixels().zip(b.left.pixels()).filter(|(p, q)| p != q).count();
+    let share = changed as f64 / f64::from(rig.width * rig.height);
+    assert!(share > 0.05 && share < 0.35, "{share:.3} of the image changed");
 }
