@@ -126,7 +126,7 @@ pub fn demo(args: DemoArgs) -> Result<ExitCode> {
         match eval_cmd::score_map_file(
             &sequence.join("gt/mesh.ply"),
             &run_dir.join("map.ply"),
-            Some((&trajectory, &gt_poses)),
+            Some(eval_cmd::MapAlignment { est: &trajectory, gt: &gt_poses, first_pose: false }),
             5.0,
             1.0,
             2.0,

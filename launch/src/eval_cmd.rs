@@ -68,6 +68,11 @@ pub struct MapArgs {
     /// Ground-truth trajectory (TUM) for --align-est.
     #[arg(long, requires = "align_est")]
     align_gt: Option<PathBuf>,
+    /// How --align-est places the map: `trajectory` (the SE(3) fit of the whole trajectory, as the ATE) or
+    /// `first` (the first frame's pose, no fit: for short paths such as a hover, whose fit leaves the rotation
+    /// loose — a degree of it moves tissue 55 mm away by a millimetre)
+    #[arg(long, default_value = "trajectory", value_parser = ["trajectory", "first"], requires = "align_est")]
+    align_by: String,
     #[arg(long)]
     json: bool,
 }
@@ -136,7 +141,11 @@ pub fn eval(command: EvalCommand) -> Result<()> {
             }
         }
         EvalCommand::Map(a) => {
-            let align = a.align_est.as_deref().zip(a.align_gt.as_deref());
+            let align = a.align_est.as_deref().zip(a.align_gt.as_deref()).map(|(est, gt)| MapAlignment {
+                est,
+                gt,
+                first_pose: a.align_by == "first",
+            });
             let score = score_map_file(&a.mesh, &a.map, align, a.outlier_mm, a.coverage_mm, a.layer_gap_mm)?;
             if a.json {
                 println!("{}", serde_json::to_string_pretty(&score)?);
@@ -227,12 +236,22 @@ pub fn eval(command: EvalCommand) -> Result<()> {
     Ok(())
 }
 
-/// The paper's map metric for a PLY map against a mesh; with `align = (estimated, ground-truth trajectory)`, the
-/// map is first moved into the ground truth's frame by the trajectories' SE(3) alignment.
+/// How a map is brought into the ground truth's frame: by its run's estimated trajectory and the ground truth's.
+#[derive(Debug, Clone, Copy)]
+pub struct MapAlignment<'a> {
+    pub est: &'a Path,
+    pub gt: &'a Path,
+    /// By the first frame's pose ([`bdis_eval::traj::align_first`]) rather than the SE(3) fit of the whole
+    /// trajectory.
+    pub first_pose: bool,
+}
+
+/// The paper's map metric for a PLY map against a mesh; with `align`, the map is first moved into the ground
+/// truth's frame.
 pub fn score_map_file(
     mesh_path: &Path,
     map_path: &Path,
-    align: Option<(&Path, &Path)>,
+    align: Option<MapAlignment>,
     outlier_mm: f64,
     coverage_mm: f64,
     layer_gap_mm: f64,
@@ -243,9 +262,14 @@ pub fn score_map_file(
     let mut points: Vec<Point3<f64>> =
         map.positions.iter().map(|p| Point3::new(f64::from(p[0]), f64::from(p[1]), f64::from(p[2]))).collect();
     let mut cameras = Vec::new();
-    if let Some((est, gt)) = align {
-        let (est, gt) = (trajectory::read_tum(est)?, trajectory::read_tum(gt)?);
-        let gt_from_est = bdis_eval::traj::align_se3(&gt, &est, 0.01).context("--align-est / --align-gt")?;
+    if let Some(align) = align {
+        let (est, gt) = (trajectory::read_tum(align.est)?, trajectory::read_tum(align.gt)?);
+        let gt_from_est = if align.first_pose {
+            bdis_eval::traj::align_first(&gt, &est, 0.01)
+        } else {
+            bdis_eval::traj::align_se3(&gt, &est, 0.01)
+        }
+        .context("--align-est / --align-gt")?;
         for p in &mut points {
             *p = gt_from_est * *p;
         }

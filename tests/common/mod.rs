@@ -226,6 +226,16 @@ pub fn map_score(seq: &Path, run_dir: &Path) -> serde_json::Value {
 /// [`map_score`] with the map moved by the alignment of `trajectory` (a TUM file in the run folder): a hover has
 /// too few keyframes to align by, its whole trajectory has enough.
 pub fn map_score_aligned_by(seq: &Path, run_dir: &Path, trajectory: &str) -> serde_json::Value {
+    eval_map(seq, run_dir, trajectory, "trajectory")
+}
+
+/// [`map_score`] with the map placed by the first frame's pose (`eval map --align-by first`): no fit, so a short
+/// hover's loose rotation does not tilt the map.
+pub fn map_score_from_first_frame(seq: &Path, run_dir: &Path) -> serde_json::Value {
+    eval_map(seq, run_dir, "trajectory.tum", "first")
+}
+
+fn eval_map(seq: &Path, run_dir: &Path, trajectory: &str, align_by: &str) -> serde_json::Value {
     let out = run_with_timeout(
         Command::new(bdis_slam())
             .args(["eval", "map", "--json", "--mesh"])
@@ -235,7 +245,8 @@ pub fn map_score_aligned_by(seq: &Path, run_dir: &Path, trajectory: &str) -> ser
             .arg("--align-est")
             .arg(run_dir.join(trajectory))
             .arg("--align-gt")
-            .arg(seq.join("gt/poses.tum")),
+            .arg(seq.join("gt/poses.tum"))
+            .args(["--align-by", align_by]),
         Duration::from_secs(300),
     );
     assert!(out.status.success(), "{}", text(&out.stderr));

@@ -109,6 +109,16 @@ pub fn align_se3(gt: &[StampedPose], est: &[StampedPose], max_dt_s: f64) -> Resu
     umeyama_se3(&src, &dst)
 }
 
+/// `gt_from_est` from the first pose both trajectories share: the estimate's world is where its first frame
+/// was, and this puts it where the ground truth has that frame, without a fit. For a map built along a short
+/// path (a hover of a few millimetres), where a fit of positions alone leaves the rotation loose and a degree
+/// of it moves a map 55 mm away by a millimetre.
+pub fn align_first(gt: &[StampedPose], est: &[StampedPose], max_dt_s: f64) -> Result<Isometry3<f64>, TrajError> {
+    let pairs = associate(gt, est, max_dt_s);
+    let Some(&(i, j)) = pairs.first() else { return Err(TrajError::TooFewPairs { pairs: 0, max_dt_s }) };
+    Ok(gt[i].world_from_camera * est[j].world_from_camera.inverse())
+}
+
 /// ATE of `est` against `gt` after SE(3) alignment (`evo_ape tum gt est -a`).
 pub fn ate(gt: &[StampedPose], est: &[StampedPose], max_dt_s: f64) -> Result<Ate, TrajError> {
     let (src, dst) = matched_positions(gt, est, max_dt_s)?;

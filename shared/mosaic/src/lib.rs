@@ -12,8 +12,9 @@
 //! bounds intersect the new view's frustum are visited, so the cost of a new keyframe depends on how much of the
 //! map it overlaps, not on the size of the map.
 //!
-//! Optional (the paper's future work): instead of plain replacement, an agreeing earlier point is folded into the
-//! new point of the same grid cell, weighted by confidence ([`Fusion::Weighted`]).
+//! By default (the paper's future work) an agreeing earlier point is not just replaced: it is folded into the new
+//! point of the same grid cell, weighted by confidence ([`Fusion::Weighted`]), so tissue that breathes is mapped
+//! at its mean; [`Fusion::Replace`] is the paper's plain replacement.
 
 mod carve;
 mod params;

@@ -6,10 +6,13 @@ use serde::{Deserialize, Serialize};
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
 pub enum Fusion {
     /// Algorithm 1: the newest keyframe's point replaces it.
-    #[default]
     Replace,
     /// Its depth (along the new ray) is averaged into the new point of the same grid cell, weighted by
-    /// confidence; the colour stays the newest (blending colours blurs texture, the paper's argument).
+    /// confidence; the colour stays the newest (blending colours blurs texture, the paper's argument). The
+    /// default: breathing tissue is seen at a different phase by every keyframe, and the average of the views
+    /// is the mean surface where the newest view is one phase of it (issue #22: a hover under ±2 mm breathing,
+    /// map 1.29× static with replacement over 3 s, 1.23× averaged; 3–6 % better on still tissue too).
+    #[default]
     Weighted,
 }
 
@@ -59,7 +62,7 @@ impl Default for MosaicParams {
             depth_tolerance_mm: 0.5,
             disparity_tolerance_px: 1.0,
             keep_closer_ratio: 0.8,
-            fusion: Fusion::Replace,
+            fusion: Fusion::Weighted,
             max_weight: 8.0,
             carve_disparity_px: 3.0,
         }

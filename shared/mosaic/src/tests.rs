@@ -218,8 +218,8 @@ fn a_keyframe_sent_twice_is_added_once() {
 
 #[test]
 fn weighted_fusion_averages_agreeing_depths() {
-    let params = MosaicParams { fusion: Fusion::Weighted, ..MosaicParams::default() };
-    let mut m = Mosaic::new(params);
+    assert_eq!(MosaicParams::default().fusion, Fusion::Weighted, "averaging is the default");
+    let mut m = Mosaic::new(MosaicParams::default());
     let a = views(|_, _| Some(50.4), [100, 100, 100]);
     let b = views(|_, _| Some(49.6), [100, 100, 100]);
     m.insert(&keyframe(0, Isometry3::identity(), &a)).unwrap();
@@ -230,7 +230,7 @@ fn weighted_fusion_averages_agreeing_depths() {
     assert!(fused.points.iter().all(|p| (p.xyz[2] - 50.0).abs() < 2e-3), "{:?}", fused.points[0]);
     assert!(fused.points.iter().all(|p| (p.weight - 1.6).abs() < 1e-4));
     // Replacement keeps the newest depth instead.
-    let mut plain = Mosaic::new(MosaicParams::default());
+    let mut plain = Mosaic::new(MosaicParams { fusion: Fusion::Replace, ..MosaicParams::default() });
     plain.insert(&keyframe(0, Isometry3::identity(), &a)).unwrap();
     plain.insert(&keyframe(1, Isometry3::identity(), &b)).unwrap();
     assert!(plain.keyframe(1).unwrap().points.iter().all(|p| (p.xyz[2] - 49.6).abs() < 2e-3));
