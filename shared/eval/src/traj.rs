@@ -185,6 +185,47 @@ mod tests {
     }
 
     #[test]
+    fn the_first_pose_places_an_estimate_exactly_where_a_fit_of_a_short_path_tilts_it() {
+        // A hover: a few millimetres of path whose positions hardly fix a rotation, estimated with 0.3 mm of
+        // noise in a frame of its own (the first camera's).
+        let gt: Vec<StampedPose> = (0..90)
+            .map(|i| {
+                let t = i as f64 / 30.0;
+                StampedPose {
+                    t_s: t,
+                    world_from_camera: Isometry3::new(
+                        Vector3::new(2.0 * (0.6 * t).sin(), 1.5 * (0.45 * t).cos(), 15.0),
+                        Vector3::new(0.05 * (0.7 * t).sin(), 0.04 * (0.5 * t).cos(), 0.0),
+                    ),
+                }
+            })
+            .collect();
+        let first_inv = gt[0].world_from_camera.inverse();
+        let mut noise = Noise(7);
+        let est: Vec<StampedPose> = gt
+            .iter()
+            .enumerate()
+            .map(|(i, p)| {
+                let mut pose = first_inv * p.world_from_camera;
+                if i > 0 {
+                    pose.translation.vector += Vector3::new(noise.gauss(), noise.gauss(), noise.gauss()) * 0.3;
+                }
+                StampedPose { t_s: p.t_s, world_from_camera: pose }
+            })
+            .collect();
+        let by_first = align_first(&gt, &est, 0.01).unwrap();
+        assert!((by_first.to_homogeneous() - gt[0].world_from_camera.to_homogeneous()).abs().max() < 1e-12);
+        // A point of the tissue 55 mm in front of the first camera lands where it is under the first pose; the
+        // fit of the noisy positions turns it by a degree or more.
+        let tissue = nalgebra::Point3::new(0.0, 0.0, 55.0);
+        let truth = gt[0].world_from_camera * tissue;
+        let by_fit = align_se3(&gt, &est, 0.01).unwrap();
+        assert!((by_first * tissue - truth).norm() < 1e-9);
+        assert!((by_fit * tissue - truth).norm() > 0.5, "{}", (by_fit * tissue - truth).norm());
+        assert!(align_first(&gt, &[], 0.01).is_err());
+    }
+
+    #[test]
     fn a_rigidly_moved_copy_has_zero_error_and_the_motion_is_recovered() {
         let gt = gt_path(200);
         let moved = Isometry3::new(Vector3::new(5.0, -2.0, 1.0), Vector3::new(0.3, -0.2, 0.9));
