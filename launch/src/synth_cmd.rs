@@ -68,9 +68,9 @@ pub struct SynthArgs {
     #[arg(long)]
     bleeding: bool,
     /// Breathing: the tissue swells and settles every 4 s (0.25 Hz) by up to this many mm, a standing wave over
-    /// it (patches half a --breathing-wavelength apart move opposite ways: not a rigid motion the scope could be blamed for).
-    /// gt/depth follows each frame's tissue; gt/mesh.ply is the mean surface, what the map should converge to.
-    /// 0: still
+    /// it (patches half a --breathing-wavelength apart move opposite ways: not a rigid motion the scope could be
+    /// blamed for). gt/depth follows each frame's tissue; gt/mesh.ply is the mean surface, what the map should
+    /// converge to. 0: still
     #[arg(long, default_value_t = 0.0, value_name = "MM")]
     breathing: f64,
     /// Breathing's wavelength over the tissue, mm: patches this far apart rise together, half of it apart

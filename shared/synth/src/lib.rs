@@ -431,8 +431,8 @@ pub fn write_scene(
     // Per scene: the tissue at a time, the path, the mean surface's mesh, the light, and the depth the
     // instruments and smoke work at (the scope's working distance).
     type SurfaceAt = Box<dyn Fn(f64) -> Box<dyn render::Surface>>;
-    type Path = Box<dyn Fn(f64) -> nalgebra::Isometry3<f64>>;
-    let (surface_at, path, mesh, shading, tool_kind, working_distance_mm): (SurfaceAt, Path, _, _, _, _) =
+    type CameraPath = Box<dyn Fn(f64) -> nalgebra::Isometry3<f64>>;
+    let (surface_at, path, mesh, shading, tool_kind, working_distance_mm): (SurfaceAt, CameraPath, _, _, _, _) =
         match (request.scene.as_str(), trajectory.as_deref()) {
             ("colon", None | Some("forward") | Some("revisit")) => {
                 let colon = colon::Colon { seed, texture: TissueTexture { seed }, ..colon::Colon::default() };
