@@ -15,18 +15,20 @@ height field; its gt/depth is each frame's breathing tissue). For every 10th fra
 
 Both are compared with the run's trajectory, SE(3)-aligned to the truth as the ATE is. Numpy only; a few seconds.
 
-    python3 breathing_floor.py <render> <out.tum> --features <map.txt>
+    python3 breathing_floor.py <render> <out.tum> --features <map.txt> [--colon]
 
 with `track_sequence <render> <out.tum> 12 --dump-map <map.txt>` (beside this): the same ideal tracker over the
 points the tracker itself had (the first keyframe's, whose true positions are on the mean wall: t = 0 is the rest
-phase), frame by frame against the tracker's own error relative to its first frame.
+phase), frame by frame against the tracker's own error relative to its first frame. `--colon` for a colon render
+(the default breathing: an oval, cos 2θ · cos(2πz/40 mm), about the tube's centreline; seed 2026's shape).
 """
 import sys
 import numpy as np
 
 seq, est_path = sys.argv[1], sys.argv[2]
 features = sys.argv[sys.argv.index('--features') + 1] if '--features' in sys.argv else None
-numbers = [a for a in sys.argv[3:] if a != '--features' and a != features]
+colon = '--colon' in sys.argv
+numbers = [a for a in sys.argv[3:] if a not in ('--features', '--colon') and a != features]
 sigma = float(numbers[0]) if numbers else 0.35
 n_points = int(numbers[1]) if len(numbers) > 1 else 400
 
@@ -81,7 +83,7 @@ def mesh_grid(path):
 
 settings = {l.split(':')[0]: l.split(':')[1] for l in open(seq + '/settings.yaml') if l.startswith('Camera.')}
 fx, fy, cx, cy, bf = (float(settings['Camera.' + k]) for k in ('fx', 'fy', 'cx', 'cy', 'bf'))
-x0, step, Z = mesh_grid(seq + '/gt/mesh.ply')
+x0, step, Z = (None, None, None) if colon else mesh_grid(seq + '/gt/mesh.ply')
 
 
 def mean_wall_z(x, y):
@@ -137,11 +139,23 @@ if features:
     z = d0[y, x] * (1 - a) * (1 - b) + d0[y, x + 1] * a * (1 - b) + d0[y + 1, x] * (1 - a) * b + d0[y + 1, x + 1] * a * b
     R0, c0 = rot(gt[0, 4:8]), gt[0, 1:4]
     P = (R0 @ np.stack([(uv[:, 0] - cx) * z / fx, (uv[:, 1] - cy) * z / fy, z])).T + c0
+    P = P[np.isfinite(P).all(1)]
     E0 = np.linalg.inv(np.block([[rot(est[0, 4:8]), est[0, 1:4, None]], [np.zeros((1, 3)), np.ones((1, 1))]]))
     print(f'{len(P)} points of the first keyframe; camera position error (mm): ideal rigid tracker / this run')
     for f in range(1, len(est)):
         depth = pfm(f'{seq}/gt/depth/{f + 1}.pfm')
         R_w, c_w = rot(gt[f, 4:8]), gt[f, 1:4]
+        if colon:
+            # The colon's breathing is analytic: radial, about the centreline at the point's height.
+            centre_x, centre_y = 6 * np.sin(P[:, 2] / 40), 4 * np.sin(P[:, 2] / 55 + 1)
+            th = np.arctan2(P[:, 1] - centre_y, P[:, 0] - centre_x)
+            inward = 2 * np.sin(2 * np.pi * gt[f, 0] / 4) * np.cos(2 * th) * np.cos(2 * np.pi * P[:, 2] / 40)
+            Q = P - inward[:, None] * np.stack([np.cos(th), np.sin(th), 0 * th], 1)
+            ideal = np.linalg.norm(ideal_camera(P, project(R_w, c_w, Q), R_w, c_w) - c_w)
+            G0 = np.block([[rot(gt[0, 4:8]).T, -rot(gt[0, 4:8]).T @ gt[0, 1:4, None]], [np.zeros((1, 3)), np.ones((1, 1))]])
+            mine = (E0 @ np.r_[est[f, 1:4], 1])[:3] - (G0 @ np.r_[c_w, 1])[:3]
+            print(f'frame {f}: {ideal:.3f} / {np.linalg.norm(mine):.3f}')
+            continue
         # Where each material point is now: on this frame's tissue above the same (x, y).
         pc = (R_w.T @ (P - c_w).T).T
         u, v = fx * pc[:, 0] / pc[:, 2] + cx, fy * pc[:, 1] / pc[:, 2] + cy
