@@ -29,35 +29,18 @@ struct Renders {
     root: PathBuf,
 }
 
-/// Renders the 90-frame hover with `extra` synth arguments into the test's folder.
-fn render_hover(name: &str, extra: &[&str]) -> PathBuf {
-    let dir = renders().root.join(name);
+/// Renders a hover of `frames` frames with `extra` synth arguments into `dir`.
+fn synth_hover(dir: &Path, frames: usize, extra: &[&str]) {
     let out = run_with_timeout(
         Command::new(bdis_slam())
-            .args(["synth", "--scene", "abdomen", "--trajectory", "hover", "--frames", &FRAMES.to_string()])
+            .args(["synth", "--scene", "abdomen", "--trajectory", "hover", "--frames", &frames.to_string()])
             .args(["--width", "320", "--height", "240", "--focal", "260"])
             .args(extra)
             .arg("--out")
-            .arg(&dir),
+            .arg(dir),
         Duration::from_secs(600),
     );
     assert!(out.status.success(), "{}", text(&out.stderr));
-    dir
-}
-
-/// Tracks `seq` (no lost frame); its ATE RMSE (mm) and its map's mean distance to the (mean) tissue, the map placed
-/// by the first frame's pose: a fit of a 3 s hover's few millimetres of path leaves its rotation loose.
-fn run_scored_from_first_frame(seq: &Path, tag: &str) -> (f64, f64) {
-    let run_dir = renders().root.join(tag);
-    track_run(seq, &seq.join("settings.yaml"), &run_dir, tag, &[]);
-    let summary: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(run_dir.join("tracking.json")).unwrap()).unwrap();
-    assert_eq!(summary["lost"], 0, "{tag}: {summary}");
-    let (rmse, _) = ate(seq, &run_dir);
-    let score = map_score_from_first_frame(seq, &run_dir);
-    let mean = score["inliers"]["mean"].as_f64().unwrap();
-    eprintln!("{tag}: ATE {rmse:.3} mm, map mean {mean:.3} mm; {score}");
-    (rmse, mean)
 }
 
 fn renders() -> &'static Renders {
@@ -65,40 +48,70 @@ fn renders() -> &'static Renders {
     RENDERS.get_or_init(|| {
         let tmp = TempDir::new("instruments");
         let (with_tools, clean) = (tmp.path().join("with-tools"), tmp.path().join("clean"));
-        for (dir, tools) in [(&with_tools, true), (&clean, false)] {
-            let mut cmd = Command::new(bdis_slam());
-            cmd.args(["synth", "--scene", "abdomen", "--trajectory", "hover", "--frames", &FRAMES.to_string()])
-                .args(["--width", "320", "--height", "240", "--focal", "260", "--out"])
-                .arg(dir);
-            if tools {
-                cmd.arg("--instruments");
-            }
-            let out = run_with_timeout(&mut cmd, Duration::from_secs(600));
-            assert!(out.status.success(), "{}", text(&out.stderr));
-        }
+        synth_hover(&with_tools, FRAMES, &["--instruments"]);
+        synth_hover(&clean, FRAMES, &[]);
         Renders { root: tmp.path().to_path_buf(), _tmp: tmp, with_tools, clean }
     })
 }
 
-/// Tracks `seq` with `extra` arguments; the ATE RMSE (mm) and the map's share of points more than 5 mm in front
-/// of the tissue (aligned by the whole trajectory: a hover has few keyframes).
-fn run(seq: &Path, tag: &str, extra: &[&str]) -> (f64, f64) {
+/// Renders the 90-frame hover with `extra` synth arguments into the test's folder `name`.
+fn render_hover(name: &str, extra: &[&str]) -> PathBuf {
+    let dir = renders().root.join(name);
+    synth_hover(&dir, FRAMES, extra);
+    dir
+}
+
+/// A tracked run: its folder and its ATE RMSE (mm).
+type Tracked = (PathBuf, f64);
+
+/// Tracks `seq` with `extra` arguments into the test's folder `tag`; no frame may be lost.
+fn track(seq: &Path, tag: &str, extra: &[&str]) -> Tracked {
     let run_dir = renders().root.join(tag);
     track_run(seq, &seq.join("settings.yaml"), &run_dir, tag, extra);
     let summary: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(run_dir.join("tracking.json")).unwrap()).unwrap();
     assert_eq!(summary["lost"], 0, "{tag}: {summary}");
     let (rmse, _) = ate(seq, &run_dir);
-    let score = map_score_aligned_by(seq, &run_dir, "trajectory.tum");
+    (run_dir, rmse)
+}
+
+/// The clean hover, tracked once for every test that compares with it.
+fn clean_run() -> &'static Tracked {
+    static CLEAN: OnceLock<Tracked> = OnceLock::new();
+    CLEAN.get_or_init(|| track(&renders().clean, "clean", &[]))
+}
+
+/// Tracks `seq` with `extra` arguments; the ATE RMSE (mm) and the map's share of points more than 5 mm in front
+/// of the tissue (aligned by the whole trajectory: a hover has few keyframes).
+fn run(seq: &Path, tag: &str, extra: &[&str]) -> (f64, f64) {
+    in_front(seq, &track(seq, tag, extra))
+}
+
+/// A run's ATE RMSE (mm) and its map's share of points more than 5 mm in front of the tissue.
+fn in_front(seq: &Path, (run_dir, rmse): &Tracked) -> (f64, f64) {
+    let score = map_score_aligned_by(seq, run_dir, "trajectory.tum");
     let in_front = score["in_front"].as_f64().unwrap();
-    eprintln!("{tag}: ATE {rmse:.3} mm, {:.2} % of the map in front of the tissue; {score}", 100.0 * in_front);
-    (rmse, in_front)
+    eprintln!(
+        "{}: ATE {rmse:.3} mm, {:.2} % of the map in front of the tissue; {score}",
+        run_dir.display(),
+        100.0 * in_front
+    );
+    (*rmse, in_front)
+}
+
+/// A run's ATE RMSE (mm) and its map's mean distance to the (mean) tissue, the map placed by the first frame's
+/// pose: a fit of a 3 s hover's few millimetres of path leaves its rotation loose.
+fn from_first_frame(seq: &Path, (run_dir, rmse): &Tracked) -> (f64, f64) {
+    let score = map_score_from_first_frame(seq, run_dir);
+    let mean = score["inliers"]["mean"].as_f64().unwrap();
+    eprintln!("{}: ATE {rmse:.3} mm, map mean {mean:.3} mm; {score}", run_dir.display());
+    (*rmse, mean)
 }
 
 #[test]
 fn instruments_stay_out_of_the_map_and_the_pose_with_masks_or_our_estimate() {
     let r = renders();
-    let (clean_ate, clean_front) = run(&r.clean, "clean", &[]);
+    let (clean_ate, clean_front) = in_front(&r.clean, clean_run());
     assert!(clean_front < 0.001, "nothing floats over a clean hover: {clean_front}");
     let masks = r.with_tools.join("gt/masks");
     let (masked_ate, masked_front) = run(&r.with_tools, "masks", &["--masks", masks.to_str().unwrap()]);
@@ -178,14 +191,7 @@ fn a_mask_folder_without_every_frame_is_refused_naming_the_file() {
 fn smoke_makes_the_frames_it_veils_uncertain_and_tracking_resumes_when_it_clears() {
     // 120 frames: the puff starts 40 % in (frame 48), is thickest over frames 57–72 and is gone by frame 96.
     let dir = renders().root.join("smoke");
-    let out = run_with_timeout(
-        Command::new(bdis_slam())
-            .args(["synth", "--scene", "abdomen", "--trajectory", "hover", "--frames", "120", "--smoke"])
-            .args(["--width", "320", "--height", "240", "--focal", "260", "--out"])
-            .arg(&dir),
-        Duration::from_secs(600),
-    );
-    assert!(out.status.success(), "{}", text(&out.stderr));
+    synth_hover(&dir, 120, &["--smoke"]);
     let run_dir = renders().root.join("smoke-run");
     track_run(&dir, &dir.join("settings.yaml"), &run_dir, "smoke", &[]);
     let csv = std::fs::read_to_string(run_dir.join("tracking-quality.csv")).unwrap();
@@ -211,8 +217,8 @@ fn smoke_makes_the_frames_it_veils_uncertain_and_tracking_resumes_when_it_clears
 fn under_breathing_tracking_holds_and_the_map_is_the_mean_surface() {
     // ±2 mm at 0.25 Hz: over these 3 s the tissue swells to +2 mm, settles and sinks to −2 mm.
     let breathing = render_hover("breathing", &["--breathing", "2"]);
-    let (clean_ate, clean_map) = run_scored_from_first_frame(&renders().clean, "still-tissue");
-    let (ate, map) = run_scored_from_first_frame(&breathing, "breathing-run");
+    let (clean_ate, clean_map) = from_first_frame(&renders().clean, clean_run());
+    let (ate, map) = from_first_frame(&breathing, &track(&breathing, "breathing-run", &[]));
     // The map bound: within 1.5× of the still tissue's, against the mean surface (gt/mesh.ply). Each
     // keyframe sees another phase; averaged (the mosaic's default fusion) they give the mean.
     assert!(map <= 1.5 * clean_map, "map {map:.3} mm from the mean surface against {clean_map:.3} mm still");
@@ -226,8 +232,8 @@ fn under_breathing_tracking_holds_and_the_map_is_the_mean_surface() {
 #[test]
 fn a_bleed_spreading_over_the_view_neither_derails_tracking_nor_the_map() {
     let bleeding = render_hover("bleeding", &["--bleeding"]);
-    let (clean_ate, clean_map) = run_scored_from_first_frame(&renders().clean, "dry-tissue");
-    let (ate, map) = run_scored_from_first_frame(&bleeding, "bleeding-run");
+    let (clean_ate, clean_map) = from_first_frame(&renders().clean, clean_run());
+    let (ate, map) = from_first_frame(&bleeding, &track(&bleeding, "bleeding-run", &[]));
     // The pool covers a fifth of the view by the end, dark and without texture, with a sheen that moves.
     assert!(ate <= 2.0 * clean_ate.max(0.05), "ATE {ate:.3} mm against {clean_ate:.3} mm dry");
     assert!(map <= 1.5 * clean_map, "map {map:.3} mm from the tissue against {clean_map:.3} mm dry");

@@ -57,7 +57,7 @@ pub fn eval_masks(args: MasksArgs) -> Result<()> {
         masked_share += f64::from(found.masked_share);
         frames_with_regions += usize::from(found.regions > 0);
         let name = entry.left.file_stem().map(|s| PathBuf::from(s).with_extension("png")).context("an image name")?;
-        if scored {
+        let truth = if scored {
             let path = truth_dir.join(&name);
             let truth = image::open(&path).with_context(|| format!("{}: cannot read the true mask", path.display()))?;
             let truth = truth.into_luma8();
@@ -65,19 +65,19 @@ pub fn eval_masks(args: MasksArgs) -> Result<()> {
                 bail!("{}: mask is {:?}, the image {:?}", path.display(), truth.dimensions(), left.dimensions());
             }
             score.add(masker.mask(), truth.as_raw());
-        }
-        if args.preview.is_some() && found.masked_share >= preview.as_ref().map_or(0.0, |p: &Preview| p.share) {
-            let truth =
-                if scored { image::open(truth_dir.join(&name)).ok().map(|t| t.into_luma8().into_raw()) } else { None };
-            preview =
-                Some(Preview { share: found.masked_share, left: left.clone(), mask: masker.mask().to_vec(), truth });
-        }
+            Some(truth.into_raw())
+        } else {
+            None
+        };
         if let Some(dir) = &args.write {
             let path = dir.join(&name);
             image::GrayImage::from_raw(w as u32, h as u32, masker.mask().to_vec())
                 .context("mask size")?
                 .save(&path)
                 .with_context(|| format!("{}: cannot write", path.display()))?;
+        }
+        if args.preview.is_some() && found.masked_share >= preview.as_ref().map_or(0.0, |p: &Preview| p.share) {
+            preview = Some(Preview { share: found.masked_share, left, mask: masker.mask().to_vec(), truth });
         }
         bar.inc(1);
     }

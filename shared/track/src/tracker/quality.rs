@@ -46,8 +46,9 @@ pub enum Doubt {
     IllConditioned,
     /// Matching by appearance, with no prior, puts the camera somewhere the pose does not explain.
     AppearanceDisagrees,
-    /// The image keeps too little of the texture contrast its reference keyframe had: something veils the
-    /// tissue (smoke, a fogged lens) and biases the measurements, however many of them agree.
+    /// The image keeps too little of the texture contrast of the clearest keyframe of its place (the reference
+    /// keyframe and its covisible neighbours): something veils the tissue (smoke, a fogged lens) and biases the
+    /// measurements, however many of them agree.
     LowContrast,
 }
 
@@ -115,7 +116,8 @@ pub const MIN_APPEARANCE_AGREEMENT: f64 = 0.5;
 pub const PRIOR_AGREEMENT: f64 = 0.8;
 /// At least this fraction of the links in the final optimisation must be inliers.
 pub const MIN_INLIER_RATIO: f64 = 0.25;
-/// A frame whose texture contrast fell below this share of its reference keyframe's is doubted: a veil that
+/// A frame whose texture contrast fell below this share of the clearest of its reference keyframe and that
+/// keyframe's covisible neighbours is doubted: a veil that
 /// takes half the texture away also shifts every measurement it leaves (smoke blends a second, nearer layer
 /// into each patch), while moving over tissue changes the contrast far less (measured in BENCHMARKS.md).
 pub const MIN_CONTRAST_KEPT: f32 = 0.5;
