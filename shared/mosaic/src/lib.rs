@@ -17,6 +17,7 @@
 //! at its mean; [`Fusion::Replace`] is the paper's plain replacement.
 
 mod carve;
+mod normals;
 mod params;
 mod render;
 mod store;
@@ -27,6 +28,7 @@ use std::collections::BTreeMap;
 use nalgebra::{Isometry3, Matrix3, Point3, Vector3};
 use serde::{Deserialize, Serialize};
 
+pub use normals::keyframe_normals;
 pub use params::{Fusion, MosaicParams};
 pub use render::{PreviewView, render_preview};
 pub use store::{MOSAIC_FORMAT, Outputs, decode, load, save, write_outputs};

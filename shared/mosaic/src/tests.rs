@@ -273,17 +273,47 @@ fn a_saved_map_loads_back_identical_and_a_foreign_file_is_refused() {
 }
 
 #[test]
-fn the_preview_shows_the_surface() {
+fn the_preview_shows_the_surface_shaded_from_the_scope_side_with_the_path() {
     let mut m = Mosaic::new(MosaicParams::default());
+    // A tilted plane seen from two places: the path between them is drawn in.
     let v = views(|x, y| Some(40.0 + 0.02 * (x + y) as f32), [180, 60, 60]);
     m.insert(&keyframe(0, Isometry3::identity(), &v)).unwrap();
+    m.insert(&keyframe(1, Isometry3::translation(2.0, 0.0, 0.0), &v)).unwrap();
     let (image, view) = render_preview(&m, 320).unwrap();
-    let covered = image.pixels().filter(|p| p.0 == [180, 60, 60]).count();
     let total = (image.width() * image.height()) as usize;
-    // The plane fills the frame (minus the margin), seen along its normal (about the camera's axis).
-    assert!(covered as f64 > 0.7 * total as f64, "{covered} of {total}");
-    assert!(view.looking_along[2] > 0.9, "{:?}", view.looking_along);
+    let tissue: Vec<[u8; 3]> =
+        image.pixels().map(|p| p.0).filter(|&[r, g, b]| r > 40 && r > 2 * g && g.abs_diff(b) < 12).collect();
+    // The plane covers much of the frame (beside the path and the scope's frustum), in its own hue, shaded: not one flat colour.
+    assert!(tissue.len() as f64 > 0.2 * total as f64, "{} of {total}", tissue.len());
+    let (lo, hi) = tissue.iter().fold((255, 0), |(lo, hi), p| (lo.min(p[0]), hi.max(p[0])));
+    assert!(hi - lo > 20, "red from {lo} to {hi}: no shading");
+    // Seen from the cameras' side (they look along +z), raised above their axis rather than straight on.
+    assert!(view.looking_along[2] > 0.6 && view.looking_along[2] < 0.99, "{:?}", view.looking_along);
+    let path = image.pixels().filter(|p| p.0[0] > 200 && p.0[1] > 150 && p.0[2] < 120).count();
+    assert!(path > 10, "the path between the keyframes is not drawn ({path} pixels)");
     assert!(render_preview(&Mosaic::new(MosaicParams::default()), 320).is_none());
+}
+
+#[test]
+fn normals_of_a_plane_are_its_normal_turned_to_the_camera() {
+    let mut m = Mosaic::new(MosaicParams::default());
+    // z = 40 + 0.02 (x + y) in pixels: tilted about the diagonal.
+    let v = views(|x, y| Some(40.0 + 0.02 * (x + y) as f32), [180, 60, 60]);
+    m.insert(&keyframe(0, Isometry3::identity(), &v)).unwrap();
+    let cloud = m.keyframe(0).unwrap();
+    let (mut grid, mut normals) = (Vec::new(), Vec::new());
+    crate::keyframe_normals(cloud, m.params.depth_gap_px, &mut grid, &mut normals);
+    assert_eq!(normals.len(), cloud.points.len());
+    // Along the image x axis the plane rises 0.02 per pixel in z while x grows z/fx per pixel, so its normal
+    // leans towards -x and -y by the same amount, and faces the camera (-z).
+    let inside: Vec<_> =
+        normals.iter().zip(&cloud.points).filter(|(_, p)| p.xyz[0].abs() < 5.0 && p.xyz[1].abs() < 5.0).collect();
+    assert!(!inside.is_empty());
+    for (n, _) in inside {
+        let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
+        assert!((len - 1.0).abs() < 1e-4 && n[2] < -0.5, "{n:?}");
+        assert!((n[0] - n[1]).abs() < 0.02 && n[0] > 0.05, "{n:?}");
+    }
 }
 
 #[test]
