@@ -20,6 +20,7 @@ mod stereo_cmd;
 mod swap_cmd;
 mod synth_cmd;
 mod top_cmd;
+mod view_cmd;
 
 /// bdis-slam: lightweight CPU-only dense stereo SLAM for minimally invasive surgery, as separate processes
 /// over zero-copy shared memory.
@@ -65,6 +66,9 @@ enum Command {
     /// Rectify a raw stereo sequence with its calibration (distortion removed, rows aligned): rectified pairs,
     /// `times.txt` and the rectified `settings.yaml`, ready for `run`.
     Rectify(calib_cmd::RectifyArgs),
+    /// Look at a finished run in a browser: the dense map, the scope's path, the depth and every process's
+    /// health, served as a local web page (nothing leaves the machine).
+    View(view_cmd::ViewArgs),
     /// Score results against ground truth: trajectories, maps, disparity.
     #[command(subcommand)]
     Eval(eval_cmd::EvalCommand),
@@ -98,6 +102,7 @@ fn main() -> ExitCode {
         }
         Command::Calib(command) => calib_cmd::calib(command).map(|()| ExitCode::SUCCESS),
         Command::Rectify(args) => calib_cmd::rectify(args).map(|()| ExitCode::SUCCESS),
+        Command::View(args) => view_cmd::view(args).map(|()| ExitCode::SUCCESS),
         Command::Synth(args) => synth_cmd::synth(args).map(|()| ExitCode::SUCCESS),
     };
     match result {

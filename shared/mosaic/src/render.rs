@@ -89,7 +89,8 @@ pub fn render_preview(mosaic: &Mosaic, width: u32) -> Option<(RgbImage, PreviewV
         Some(f) => (f, across_length(up).try_normalize(1e-9).unwrap_or_else(|| any_perpendicular(&f))),
         None => {
             let from_above = across_length(-up).try_normalize(1e-9).unwrap_or_else(|| any_perpendicular(&length));
-            (from_above, length * forward.dot(&length).signum())
+            // Tilted to look the way the scope looked, from behind it.
+            (from_above, -length * forward.dot(&length).signum())
         }
     };
     let raise = (raise - base * raise.dot(&base)).try_normalize(1e-9).unwrap_or_else(|| any_perpendicular(&base));

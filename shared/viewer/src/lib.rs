@@ -1,0 +1,33 @@
+//! The viewer's library: what a person looks at while bdis-slam runs and afterwards — the coloured dense map lit
+//! so surfaces read as surfaces, the scope's path with each frame's tracking state, the newest depth, and every
+//! process's rate, latency, CPU and restarts — as a local web page (three.js, vendored, served from the binary;
+//! no request leaves the machine). It knows nothing of processes: [`RunView`] reads a finished run's folder,
+//! [`encode_map`] turns a map into the per-keyframe blocks the page draws, and [`Site`] answers HTTP requests.
+
+mod assets;
+mod encode;
+mod run;
+mod server;
+
+pub use encode::{KEYFRAME_HEADER_BYTES, MAP_MAGIC, encode_map};
+pub use run::RunView;
+pub use server::{Site, bind};
+
+use std::path::PathBuf;
+
+/// What went wrong reading a run or serving it; every case names the file or address.
+#[derive(Debug, thiserror::Error)]
+pub enum ViewerError {
+    #[error("{path}: {what}")]
+    File { path: PathBuf, what: String },
+    #[error("{dir}: nothing to show: neither map.bin nor trajectory.tum is there (is it a run folder?)")]
+    NothingToShow { dir: PathBuf },
+    /// A trajectory file (the message names it and the line).
+    #[error("{0}")]
+    Trajectory(String),
+    /// The map file (its error names it).
+    #[error(transparent)]
+    Map(#[from] bdis_mosaic::MosaicError),
+    #[error("cannot listen on {addr}: {what}")]
+    Listen { addr: String, what: String },
+}

@@ -1,0 +1,234 @@
+// The viewer's page. It draws what the server describes — /api/run (the path, the keyframes, the latency report)
+// and /api/map (the map in per-keyframe blocks; the layout is written down in shared/viewer/src/encode.rs) — and
+// cannot steer anything: it only reads.
+import * as THREE from '/vendor/three/three.module.js';
+import { OrbitControls } from '/vendor/three/OrbitControls.js';
+
+const STATE_COLOURS = { ok: 0xffcd3c, uncertain: 0xff8c1a, lost: 0xe0303a, unknown: 0x9a9a9a };
+const FRUSTUM_COLOUR = 0x5ac8ff;
+const MAP_MAGIC = 'BDISMAP1';
+const KEYFRAME_HEADER_BYTES = 4 * (4 + 6 + 16);
+
+// Colours are taken as they are written — the endoscope's bytes, the page's palette — with no conversion.
+THREE.ColorManagement.enabled = false;
+const canvas = document.getElementById('scene');
+const renderer = new THREE.WebGLRenderer({ canvas, antialias: true, preserveDrawingBuffer: true });
+renderer.outputColorSpace = THREE.LinearSRGBColorSpace;
+renderer.setClearColor(0x18181c);
+const scene = new THREE.Scene();
+const camera = new THREE.PerspectiveCamera(45, 1, 0.01, 1e7);
+const controls = new OrbitControls(camera, canvas);
+controls.enableDamping = false;
+const viewportHeight = { value: 1 };
+
+// Points shaded from their normals, as map.png is: a light at the eye and one from above, both two-sided (the
+// map may be looked at from behind the surface the scope saw). A point stands for a patch spacingPerDepth · z
+// wide, z its depth in its own keyframe, so the map reads as a surface at any zoom.
+const VERTEX_SHADER = `
+uniform float spacingPerDepth;
+uniform float viewportHeight;
+varying vec3 vColour;
+void main() {
+  vec4 mv = modelViewMatrix * vec4(position, 1.0);
+  vec3 n = normalize(normalMatrix * normal);
+  vec3 toEye = normalize(-mv.xyz);
+  vec3 key = normalize(vec3(-0.4, 0.7, 0.6));
+  float lit = 0.28 + 0.62 * abs(dot(n, toEye)) + 0.3 * abs(dot(n, key));
+  vColour = color * min(lit, 1.15);
+  gl_Position = projectionMatrix * mv;
+  float patchSize = spacingPerDepth * position.z;
+  gl_PointSize = clamp(1.5 * patchSize * projectionMatrix[1][1] * 0.5 * viewportHeight / -mv.z, 1.0, 32.0);
+}`;
+const FRAGMENT_SHADER = `
+varying vec3 vColour;
+void main() { gl_FragColor = vec4(min(vColour, vec3(1.0)), 1.0); }`;
+
+/** The map's blocks, by keyframe id: a correction later moves one block's matrix. */
+const blocks = new Map();
+
+function parseMap(buffer) {
+  const magic = new TextDecoder().decode(new Uint8Array(buffer, 0, 8));
+  if (magic !== MAP_MAGIC) throw new Error(`/api/map: not a bdis-slam map (starts ${JSON.stringify(magic)})`);
+  const view = new DataView(buffer);
+  const count = view.getUint32(8, true);
+  const parsed = [];
+  let at = 16;
+  for (let i = 0; i < count; i++) {
+    const id = view.getUint32(at, true) + view.getUint32(at + 4, true) * 2 ** 32;
+    const n = view.getUint32(at + 8, true);
+    const header = new Float32Array(buffer, at + 12, 1 + 6 + 16);
+    const [fx, fy, cx, cy, width, height] = header.slice(1, 7);
+    const block = {
+      id, n, spacingPerDepth: header[0], intrinsics: { fx, fy, cx, cy, width, height },
+      worldFromCamera: new THREE.Matrix4().fromArray(header, 7),
+    };
+    at += KEYFRAME_HEADER_BYTES;
+    block.positions = new Float32Array(buffer, at, 3 * n); at += 12 * n;
+    block.normals = new Int8Array(buffer, at, 3 * n); at += 3 * n;
+    block.colours = new Uint8Array(buffer, at, 3 * n); at += 3 * n;
+    at = (at + 3) & ~3;
+    parsed.push(block);
+  }
+  if (at !== buffer.byteLength) throw new Error(`/api/map: ${buffer.byteLength - at} bytes after the last keyframe`);
+  return parsed;
+}
+
+function addBlock(block) {
+  const geometry = new THREE.BufferGeometry();
+  geometry.setAttribute('position', new THREE.BufferAttribute(block.positions, 3));
+  geometry.setAttribute('normal', new THREE.BufferAttribute(block.normals, 3, true));
+  geometry.setAttribute('color', new THREE.BufferAttribute(block.colours, 3, true));
+  const material = new THREE.ShaderMaterial({
+    uniforms: { spacingPerDepth: { value: block.spacingPerDepth }, viewportHeight },
+    vertexColors: true, vertexShader: VERTEX_SHADER, fragmentShader: FRAGMENT_SHADER,
+  });
+  const points = new THREE.Points(geometry, material);
+  points.matrixAutoUpdate = false;
+  points.matrix.copy(block.worldFromCamera);
+  scene.add(points);
+  blocks.set(block.id, { ...block, points });
+}
+
+function poseMatrix(pose) {
+  const [x, y, z, w] = pose.orientation_xyzw;
+  return new THREE.Matrix4().compose(new THREE.Vector3(...pose.position), new THREE.Quaternion(x, y, z, w),
+    new THREE.Vector3(1, 1, 1));
+}
+
+function addPath(path, keyframes) {
+  if (path.length > 1) {
+    const positions = new Float32Array(path.flatMap((p) => p.position));
+    const colours = new Float32Array(path.flatMap((p) => new THREE.Color(STATE_COLOURS[p.state] ?? STATE_COLOURS.unknown).toArray()));
+    const geometry = new THREE.BufferGeometry();
+    geometry.setAttribute('position', new THREE.BufferAttribute(positions, 3));
+    geometry.setAttribute('color', new THREE.BufferAttribute(colours, 3));
+    scene.add(new THREE.Line(geometry, new THREE.LineBasicMaterial({ vertexColors: true })));
+  }
+  if (keyframes.length > 0) {
+    const geometry = new THREE.BufferGeometry();
+    geometry.setAttribute('position', new THREE.BufferAttribute(new Float32Array(keyframes.flatMap((p) => p.position)), 3));
+    scene.add(new THREE.Points(geometry, new THREE.PointsMaterial({ color: 0xfff3c0, size: 3, sizeAttenuation: false })));
+  }
+}
+
+/** The scope at `pose`: its centre and its image's four corners `size` in front of it. */
+function addFrustum(pose, intrinsics, size) {
+  const { fx, fy, cx, cy, width, height } = intrinsics;
+  const corner = (u, v) => new THREE.Vector3((u - cx) / fx, (v - cy) / fy, 1).multiplyScalar(size);
+  const c = [corner(0, 0), corner(width, 0), corner(width, height), corner(0, height)];
+  const apex = new THREE.Vector3();
+  const segments = [];
+  for (let i = 0; i < 4; i++) segments.push(apex, c[i], c[i], c[(i + 1) % 4]);
+  const geometry = new THREE.BufferGeometry().setFromPoints(segments);
+  const frustum = new THREE.LineSegments(geometry, new THREE.LineBasicMaterial({ color: FRUSTUM_COLOUR }));
+  frustum.matrixAutoUpdate = false;
+  frustum.matrix.copy(poseMatrix(pose));
+  scene.add(frustum);
+}
+
+/** Frames the map and the path from the scope's side, raised so the relief shows; across a long flight. */
+function frame(path) {
+  const box = new THREE.Box3();
+  for (const b of blocks.values()) {
+    b.points.geometry.computeBoundingBox();
+    box.union(b.points.geometry.boundingBox.clone().applyMatrix4(b.worldFromCamera));
+  }
+  for (const p of path) box.expandByPoint(new THREE.Vector3(...p.position));
+  if (box.isEmpty()) return 1;
+  const centre = box.getCenter(new THREE.Vector3());
+  const radius = Math.max(box.getSize(new THREE.Vector3()).length() / 2, 1e-6);
+  const forward = new THREE.Vector3();
+  const down = new THREE.Vector3();
+  // The scope's mean view, from its path (else from the keyframes that made the map).
+  const views = path.length ? path.map(poseMatrix) : [...blocks.values()].map((b) => b.worldFromCamera);
+  for (const m of views) {
+    forward.add(new THREE.Vector3().setFromMatrixColumn(m, 2));
+    down.add(new THREE.Vector3().setFromMatrixColumn(m, 1));
+  }
+  forward.normalize();
+  const up = down.negate().addScaledVector(forward, -down.dot(forward)).normalize();
+  const travelled = path.length > 1 ? new THREE.Vector3(...path.at(-1).position).sub(new THREE.Vector3(...path[0].position)) : new THREE.Vector3();
+  let from;
+  if (travelled.length() > 0.5 * radius) {
+    // A flight along the map: look across it from above, the way travelled running left to right.
+    from = up.clone().multiplyScalar(2.0).addScaledVector(forward, -0.6).normalize();
+    const right = travelled.clone().addScaledVector(from, -travelled.dot(from)).normalize();
+    camera.up.copy(right.clone().cross(from.clone().negate()));
+  } else {
+    from = forward.clone().multiplyScalar(-1.6).addScaledVector(up, 1.1).normalize();
+    camera.up.copy(up);
+  }
+  camera.position.copy(centre).addScaledVector(from, 1.9 * radius);
+  camera.near = radius / 1000;
+  camera.far = radius * 100;
+  camera.updateProjectionMatrix();
+  controls.target.copy(centre);
+  controls.update();
+  return radius;
+}
+
+function resize() {
+  const { clientWidth: w, clientHeight: h } = canvas;
+  renderer.setPixelRatio(window.devicePixelRatio || 1);
+  renderer.setSize(w, h, false);
+  viewportHeight.value = h * renderer.getPixelRatio();
+  camera.aspect = w / Math.max(h, 1);
+  camera.updateProjectionMatrix();
+}
+
+function showProcesses(latency) {
+  const body = document.querySelector('#processes tbody');
+  const restarts = new Map((latency?.services ?? []).map((s) => [s.name, s.restarts]));
+  for (const p of latency?.processes ?? []) {
+    const row = document.createElement('tr');
+    const ms = (us) => (us == null ? '–' : (us / 1000).toFixed(2));
+    const cells = [p.name, p.rate_hz?.toFixed(1) ?? '–', ms(p.processing_us?.p50), ms(p.processing_us?.p99),
+      p.cpu_time_s?.toFixed(2) ?? '–', String(restarts.get(p.name) ?? p.restarts ?? 0)];
+    for (const [i, text] of cells.entries()) {
+      const cell = document.createElement('td');
+      cell.textContent = text;
+      if (i === 5 && text !== '0') cell.className = 'bad';
+      row.append(cell);
+    }
+    body.append(row);
+  }
+  const events = document.getElementById('events');
+  for (const e of latency?.events ?? []) {
+    const item = document.createElement('li');
+    item.textContent = e;
+    events.append(item);
+  }
+  if (!(latency?.events ?? []).length) events.textContent = 'none';
+}
+
+async function main() {
+  const run = await (await fetch('/api/run')).json();
+  document.getElementById('run-name').textContent = run.name;
+  const map = parseMap(await (await fetch('/api/map')).arrayBuffer());
+  map.forEach(addBlock);
+  addPath(run.path, run.keyframes);
+  const radius = frame(run.path);
+  const newest = map.at(-1);
+  const last = run.path.at(-1) ?? run.keyframes.at(-1);
+  if (last) {
+    const intrinsics = newest?.intrinsics ?? { fx: 1, fy: 1, cx: 0.5, cy: 0.5, width: 1, height: 1 };
+    addFrustum(last, intrinsics, 0.12 * radius);
+  }
+  const counts = { ok: 0, uncertain: 0, lost: 0 };
+  for (const p of run.path) if (p.state in counts) counts[p.state]++;
+  document.getElementById('status').textContent =
+    `${run.map_keyframes} keyframes, ${run.map_points.toLocaleString()} points; ${run.path.length} poses ` +
+    `(Ok ${counts.ok}, Uncertain ${counts.uncertain}, Lost ${counts.lost})`;
+  if (run.has_depth_preview) document.getElementById('depth').src = '/api/depth.png';
+  showProcesses(run.latency);
+  resize();
+  window.addEventListener('resize', resize);
+  renderer.setAnimationLoop(() => renderer.render(scene, camera));
+  // For whoever waits on the page (a test, a screenshot): the map is drawn.
+  requestAnimationFrame(() => requestAnimationFrame(() => { document.body.dataset.ready = String(map.length); }));
+}
+
+main().catch((e) => {
+  document.getElementById('status').textContent = `error: ${e.message}`;
+  document.body.dataset.error = e.message;
+});

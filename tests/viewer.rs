@@ -1,0 +1,260 @@
+#![allow(clippy::unwrap_used, clippy::expect_used)] // test code: a panic is the failure report
+//! `bdis-slam view RUN_DIR` over a real demo run: the page and its data over HTTP (the map's blocks are the
+//! points of `map.ply`, the path is `trajectory.tum`), read-only, nothing from off the machine; and the page in
+//! headless Chromium with software GL and no name resolution beyond this machine: the map is drawn as tissue,
+//! the scope's frustum and the depth panel are there.
+
+mod common;
+
+use std::io::{BufRead, BufReader, Read, Write};
+use std::net::TcpStream;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::sync::OnceLock;
+use std::time::Duration;
+
+use common::{TempDir, bdis_slam, run_with_timeout, text};
+
+/// One demo run for every test here.
+fn demo_run() -> &'static Path {
+    static RUN: OnceLock<TempDir> = OnceLock::new();
+    RUN.get_or_init(|| {
+        let tmp = TempDir::new("viewer");
+        let out = run_with_timeout(
+            Command::new(bdis_slam()).args(["demo", "--frames", "24", "--out"]).arg(tmp.path()),
+            Duration::from_secs(180),
+        );
+        assert!(out.status.success(), "{}\n{}", text(&out.stdout), text(&out.stderr));
+        tmp
+    })
+    .path()
+}
+
+/// `bdis-slam view` on a free port; killed when dropped.
+struct Viewer {
+    child: Child,
+    addr: String,
+}
+
+impl Viewer {
+    fn start(run_dir: &Path) -> Self {
+        let mut child = Command::new(bdis_slam())
+            .arg("view")
+            .arg(run_dir)
+            .args(["--listen", "127.0.0.1:0"])
+            .stdin(Stdio::null())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::inherit())
+            .spawn()
+            .unwrap();
+        let mut line = String::new();
+        BufReader::new(child.stdout.take().unwrap()).read_line(&mut line).unwrap();
+        let addr = line.split("http://").nth(1).and_then(|s| s.split('/').next()).unwrap_or_default().to_string();
+        assert!(addr.starts_with("127.0.0.1:"), "the viewer said {line:?}");
+        Self { child, addr }
+    }
+}
+
+impl Drop for Viewer {
+    fn drop(&mut self) {
+        self.child.kill().ok();
+        self.child.wait().ok();
+    }
+}
+
+/// One HTTP/1.1 exchange: status, headers (lower-case names), body.
+fn http(addr: &str, method: &str, path: &str) -> (u16, Vec<(String, String)>, Vec<u8>) {
+    let mut stream = TcpStream::connect(addr).unwrap();
+    write!(stream, "{method} {path} HTTP/1.1\r\nHost: {addr}\r\nConnection: close\r\nContent-Length: 0\r\n\r\n")
+        .unwrap();
+    let mut raw = Vec::new();
+    stream.read_to_end(&mut raw).unwrap();
+    let split = raw.windows(4).position(|w| w == b"\r\n\r\n").expect("an HTTP answer");
+    let head = String::from_utf8_lossy(&raw[..split]).into_owned();
+    let mut lines = head.lines();
+    let status = lines.next().unwrap().split(' ').nth(1).unwrap().parse().unwrap();
+    let headers = lines
+        .filter_map(|l| l.split_once(':'))
+        .map(|(k, v)| (k.trim().to_ascii_lowercase(), v.trim().to_string()))
+        .collect();
+    (status, headers, raw[split + 4..].to_vec())
+}
+
+fn header<'a>(headers: &'a [(String, String)], name: &str) -> Option<&'a str> {
+    headers.iter().find(|(k, _)| k == name).map(|(_, v)| v.as_str())
+}
+
+/// The map's blocks (see shared/viewer/src/encode.rs): every point in world coordinates, and every normal.
+fn decode_map(bytes: &[u8]) -> (Vec<[f32; 3]>, Vec<[i8; 3]>, usize) {
+    let u32_at = |at: usize| u32::from_le_bytes(bytes[at..at + 4].try_into().unwrap());
+    let f32_at = |at: usize| f32::from_le_bytes(bytes[at..at + 4].try_into().unwrap());
+    assert_eq!(&bytes[..8], bdis_viewer::MAP_MAGIC);
+    let blocks = u32_at(8) as usize;
+    let (mut world, mut normals) = (Vec::new(), Vec::new());
+    let mut at = 16;
+    for _ in 0..blocks {
+        let n = u32_at(at + 8) as usize;
+        let m: Vec<f32> = (0..16).map(|i| f32_at(at + 4 * (4 + 6 + i))).collect();
+        at += bdis_viewer::KEYFRAME_HEADER_BYTES;
+        for i in 0..n {
+            let p: Vec<f32> = (0..3).map(|k| f32_at(at + 12 * i + 4 * k)).collect();
+            // Column-major 4x4: world = M · (p, 1).
+            world.push([0, 1, 2].map(|r| m[r] * p[0] + m[4 + r] * p[1] + m[8 + r] * p[2] + m[12 + r]));
+        }
+        at += 12 * n;
+        for i in 0..n {
+            normals.push([0, 1, 2].map(|k| bytes[at + 3 * i + k] as i8));
+        }
+        at += 6 * n;
+        at = at.next_multiple_of(4);
+    }
+    assert_eq!(at, bytes.len(), "the map's blocks end where the answer ends");
+    (world, normals, blocks)
+}
+
+#[test]
+fn the_page_and_its_data_are_served_read_only_and_match_the_run() {
+    let run = demo_run();
+    let viewer = Viewer::start(run);
+
+    let (status, headers, page) = http(&viewer.addr, "GET", "/");
+    assert_eq!(status, 200);
+    let policy = header(&headers, "content-security-policy").unwrap_or_default();
+    assert!(policy.contains("default-src 'self'"), "the page may load only from the viewer: {policy:?}");
+    for (path, body) in [("/", page), ("/viewer.js", http(&viewer.addr, "GET", "/viewer.js").2)] {
+        let body = String::from_utf8(body).unwrap();
+        assert!(!body.contains("http://") && !body.contains("https://"), "{path} names a place off the machine");
+    }
+    for asset in ["/vendor/three/three.module.js", "/vendor/three/three.core.js", "/vendor/three/OrbitControls.js"] {
+        let (status, headers, body) = http(&viewer.addr, "GET", asset);
+        assert_eq!(status, 200, "{asset}");
+        assert!(header(&headers, "content-type").unwrap_or_default().starts_with("text/javascript"), "{asset}");
+        assert!(
+            !String::from_utf8(body).unwrap().contains("from 'three'"),
+            "{asset}: a bare import needs an import map"
+        );
+    }
+    // Read-only: nothing but GET and HEAD.
+    assert_eq!(http(&viewer.addr, "POST", "/api/run").0, 405);
+    assert_eq!(http(&viewer.addr, "PUT", "/").0, 405);
+    assert_eq!(http(&viewer.addr, "GET", "/../map.bin").0, 404);
+
+    // The map's blocks are map.ply's points, in the same order, placed by their keyframes' matrices.
+    let ply = bdis_core::formats::ply::read(&run.join("map.ply")).unwrap();
+    let (status, _, map) = http(&viewer.addr, "GET", "/api/map");
+    assert_eq!(status, 200);
+    let (world, normals, blocks) = decode_map(&map);
+    assert!(blocks >= 2 && world.len() > 1000, "{blocks} keyframes, {} points", world.len());
+    assert_eq!(world.len(), ply.positions.len());
+    let scale = ply.positions.iter().map(|p| p[2].abs()).fold(0f32, f32::max);
+    for (a, b) in world.iter().zip(&ply.positions) {
+        for k in 0..3 {
+            assert!((a[k] - b[k]).abs() <= 1e-5 * scale, "{a:?} against map.ply's {b:?}");
+        }
+    }
+    for n in &normals {
+        let len = n.iter().map(|&v| f32::from(v).powi(2)).sum::<f32>().sqrt() / 127.0;
+        assert!((len - 1.0).abs() < 0.03, "{n:?} is not a unit normal");
+    }
+
+    // The path is the trajectory, each pose with the tracker's state; the latency report rides along.
+    let trajectory = bdis_core::formats::trajectory::read_tum(&run.join("trajectory.tum")).unwrap();
+    let (_, _, body) = http(&viewer.addr, "GET", "/api/run");
+    let summary: serde_json::Value = serde_json::from_slice(&body).unwrap();
+    let path = summary["path"].as_array().unwrap();
+    assert_eq!(path.len(), trajectory.len());
+    assert!(path.iter().all(|p| ["ok", "uncertain", "lost"].contains(&p["state"].as_str().unwrap())), "{path:?}");
+    assert_eq!(summary["map_points"].as_u64().unwrap() as usize, world.len());
+    let processes = summary["latency"]["processes"].as_array().unwrap();
+    assert!(processes.iter().any(|p| p["name"] == "tracking"), "{processes:?}");
+    let (status, headers, png) = http(&viewer.addr, "GET", "/api/depth.png");
+    assert_eq!((status, header(&headers, "content-type")), (200, Some("image/png")));
+    assert!(image::load_from_memory(&png).is_ok());
+}
+
+fn chromium() -> PathBuf {
+    let found = ["chromium", "chromium-browser", "google-chrome"].iter().find_map(|name| {
+        std::env::var_os("PATH")?.to_str()?.split(':').map(|d| Path::new(d).join(name)).find(|p| p.is_file())
+    });
+    found.expect("the viewer's test needs Chromium: `apt-get install chromium` (the README's set-up line)")
+}
+
+/// Headless Chromium with software GL, and no name resolution beyond this machine: a page that fetched
+/// anything from the web would not load it.
+fn headless(url: &str, what: &[&str]) -> std::process::Output {
+    let profile = TempDir::new("chromium");
+    run_with_timeout(
+        Command::new(chromium())
+            .args([
+                "--headless",
+                "--no-sandbox",
+                "--disable-gpu-sandbox",
+                "--use-angle=swiftshader",
+                "--enable-unsafe-swiftshader",
+                "--no-first-run",
+                "--host-resolver-rules=MAP * ~NOTFOUND, EXCLUDE 127.0.0.1",
+                "--window-size=1280,800",
+                "--virtual-time-budget=30000",
+            ])
+            .arg(format!("--user-data-dir={}", profile.path().display()))
+            .args(what)
+            .arg(url),
+        Duration::from_secs(120),
+    )
+}
+
+#[test]
+fn the_page_draws_the_map_the_scope_and_the_depth_in_headless_chromium() {
+    let run = demo_run();
+    let viewer = Viewer::start(run);
+    let url = format!("http://{}/", viewer.addr);
+
+    // The page says it drew every keyframe block, and no error.
+    let dom = headless(&url, &["--dump-dom"]);
+    let dom_text = text(&dom.stdout);
+    assert!(!dom_text.contains("data-error"), "{dom_text}");
+    let blocks = decode_map(&http(&viewer.addr, "GET", "/api/map").2).2;
+    assert!(dom_text.contains(&format!("data-ready=\"{blocks}\"")), "the page did not finish: {dom_text}");
+
+    let shot = TempDir::new("shot");
+    let png = shot.path().join("view.png");
+    let out = headless(&url, &[&format!("--screenshot={}", png.display())]);
+    let image = image::open(&png).unwrap_or_else(|e| panic!("no screenshot ({e}): {}", text(&out.stderr))).to_rgb8();
+    let (w, h) = image.dimensions();
+    // The scene is everything left of the 380-pixel side panel.
+    let scene_w = w - 380;
+    let (mut tissue, mut frustum, mut drawn) = (0usize, 0usize, 0usize);
+    for (x, y, p) in image.enumerate_pixels() {
+        let [r, g, b] = p.0.map(i32::from);
+        if x >= scene_w || y > h - 40 {
+            continue;
+        }
+        let background = (r - 0x18).abs() < 6 && (g - 0x18).abs() < 6 && (b - 0x1c).abs() < 6;
+        drawn += usize::from(!background);
+        tissue += usize::from(!background && r > g + 25 && r > b + 20);
+        frustum += usize::from(b > 200 && g > 150 && r < 150);
+    }
+    let scene_pixels = (scene_w * (h - 40)) as usize;
+    assert!(drawn * 100 > scene_pixels * 3, "the map covers {drawn} of {scene_pixels} pixels");
+    assert!(tissue * 2 > drawn, "{tissue} of {drawn} drawn pixels have the tissue's colour");
+    assert!(frustum > 20, "the scope's frustum: {frustum} pixels");
+    // The depth panel: the side panel shows the colour-coded depth (saturated blues and yellows).
+    let vivid = image
+        .enumerate_pixels()
+        .filter(|(x, _, p)| *x >= scene_w && p.0.iter().max().unwrap() - p.0.iter().min().unwrap() > 120)
+        .count();
+    assert!(vivid > 2000, "the depth image: {vivid} vivid pixels in the side panel");
+}
+
+#[test]
+fn a_folder_that_is_not_a_run_or_a_broken_map_is_one_clear_line() {
+    let tmp = TempDir::new("viewbad");
+    let out = run_with_timeout(Command::new(bdis_slam()).arg("view").arg(tmp.path()), Duration::from_secs(20));
+    let stderr = text(&out.stderr);
+    assert!(!out.status.success() && stderr.contains("nothing to show"), "{stderr}");
+    std::fs::write(tmp.path().join("map.bin"), b"not a map").unwrap();
+    let out = run_with_timeout(Command::new(bdis_slam()).arg("view").arg(tmp.path()), Duration::from_secs(20));
+    let stderr = text(&out.stderr);
+    assert!(!out.status.success() && stderr.contains("map.bin") && !stderr.contains("panicked"), "{stderr}");
+    assert_eq!(stderr.trim().lines().count(), 1, "{stderr}");
+}
