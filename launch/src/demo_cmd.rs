@@ -23,6 +23,13 @@ pub struct DemoArgs {
     /// Pacing: on-demand (as fast as the pipeline consumes), recorded (30 fps), or a rate such as 60hz.
     #[arg(long, default_value = "on-demand")]
     pacing: bdis_source::Pacing,
+    /// When the run ends, serve the viewer's page over it (as `bdis-slam view RUN_DIR` does) and print its
+    /// address; Ctrl-C stops it.
+    #[arg(long)]
+    view: bool,
+    /// Address for `--view` (default: this machine only).
+    #[arg(long, default_value = crate::view_cmd::DEFAULT_LISTEN, requires = "view")]
+    listen: String,
 }
 
 pub fn demo(args: DemoArgs) -> Result<ExitCode> {
@@ -169,6 +176,11 @@ pub fn demo(args: DemoArgs) -> Result<ExitCode> {
         run_dir.join("keyframes.tum").display(),
         run_dir.join("latency.svg").display()
     );
+    if args.view {
+        crate::view_cmd::view(crate::view_cmd::ViewArgs { run_dir: run_dir.clone(), listen: args.listen })?;
+    } else {
+        println!("              or in a browser: bdis-slam view {}", run_dir.display());
+    }
     Ok(code)
 }
 

@@ -232,9 +232,13 @@ fn draw_segment(image: &mut RgbImage, depth: &[f32], view: &View, a: &Point3<f64
     for s in 0..=steps {
         let t = s as f64 / steps as f64;
         let (u, v, z) = (ua + t * (ub - ua), va + t * (vb - va), za + t * (zb - za));
-        // Two pixels thick, so the path reads at any preview width.
-        for (dx, dy) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
-            overlay(image, depth, u.floor() as i64 + dx, v.floor() as i64 + dy, z, rgb);
+        // At least two pixels thick, and thicker on a wide preview, so the path still reads when it is shrunk
+        // to fit a screen.
+        let thick = (view.width / 400).max(2) as i64;
+        for dy in 0..thick {
+            for dx in 0..thick {
+                overlay(image, depth, u.floor() as i64 + dx, v.floor() as i64 + dy, z, rgb);
+            }
         }
     }
 }
@@ -245,8 +249,9 @@ fn draw_path(image: &mut RgbImage, depth: &[f32], view: &View, path: &[Point3<f6
     }
     for p in path {
         if let Some((u, v, z)) = view.project(p) {
-            for dy in -2..=2 {
-                for dx in -2..=2 {
+            let reach = (view.width / 400).max(2) as i64;
+            for dy in -reach..=reach {
+                for dx in -reach..=reach {
                     overlay(image, depth, u.floor() as i64 + dx, v.floor() as i64 + dy, z, PATH);
                 }
             }
