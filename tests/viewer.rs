@@ -2,7 +2,8 @@
 //! `bdis-slam view RUN_DIR` over a real demo run: the page and its data over HTTP (the map's blocks are the
 //! points of `map.ply`, the path is `trajectory.tum`), read-only, nothing from off the machine; and the page in
 //! headless Chromium with software GL and no name resolution beyond this machine: the map is drawn as tissue,
-//! the scope's frustum and the depth panel are there.
+//! the scope's frustum and the depth panel are there. And the live view: `run --track --view` with the viewer
+//! service over a real pipeline, its WebSocket stream checked message by message against the run's results.
 
 mod common;
 
@@ -13,7 +14,7 @@ use std::process::{Child, Command, Stdio};
 use std::sync::OnceLock;
 use std::time::Duration;
 
-use common::{TempDir, bdis_slam, run_with_timeout, text};
+use common::{TempDir, bdis_slam, prefix, render_small_colon, run_with_timeout, text};
 
 /// One demo run for every test here.
 fn demo_run() -> &'static Path {
@@ -257,4 +258,211 @@ fn a_folder_that_is_not_a_run_or_a_broken_map_is_one_clear_line() {
     let stderr = text(&out.stderr);
     assert!(!out.status.success() && stderr.contains("map.bin") && !stderr.contains("panicked"), "{stderr}");
     assert_eq!(stderr.trim().lines().count(), 1, "{stderr}");
+}
+
+/// What a page holds of one keyframe after the messages so far.
+struct HeldBlock {
+    matrix: [f32; 16],
+    camera_points: Vec<[f32; 3]>,
+}
+
+fn u32_at(bytes: &[u8], at: usize) -> u32 {
+    u32::from_le_bytes(bytes[at..at + 4].try_into().unwrap())
+}
+
+fn id_at(bytes: &[u8], at: usize) -> u64 {
+    u64::from(u32_at(bytes, at)) | (u64::from(u32_at(bytes, at + 4)) << 32)
+}
+
+fn matrix_at(bytes: &[u8], at: usize) -> [f32; 16] {
+    std::array::from_fn(|i| f32::from_le_bytes(bytes[at + 4 * i..at + 4 * i + 4].try_into().unwrap()))
+}
+
+fn rigid(m: &[f32; 16]) -> bool {
+    let column = |c: usize| [m[4 * c], m[4 * c + 1], m[4 * c + 2]];
+    let dot = |a: [f32; 3], b: [f32; 3]| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+    (0..3).all(|i| (0..3).all(|j| (dot(column(i), column(j)) - f32::from(u8::from(i == j))).abs() < 1e-4))
+        && m[3] == 0.0
+        && m[7] == 0.0
+        && m[11] == 0.0
+        && m[15] == 1.0
+}
+
+#[test]
+fn the_live_view_streams_the_run_once_and_ends_on_its_map() {
+    let tmp = TempDir::new("viewlive");
+    let sequence = tmp.path().join("colon");
+    render_small_colon(&sequence, 48);
+    let port = std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port();
+    let addr = format!("127.0.0.1:{port}");
+    let run_dir = tmp.path().join("run");
+    // Paced like a slow camera, so the page watches the run as it happens.
+    let run = Command::new(bdis_slam())
+        .args(["run", "--track", "--sequence"])
+        .arg(&sequence)
+        .arg("--settings")
+        .arg(sequence.join("settings.yaml"))
+        .args(["--pacing", "on-demand:8hz", "--view", "--listen", &addr, "--ipc-prefix", &prefix("vlive"), "--out"])
+        .arg(&run_dir)
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+
+    // The viewer comes up with the pipeline.
+    let deadline = std::time::Instant::now() + Duration::from_secs(60);
+    let (mut socket, _) = loop {
+        match tungstenite::connect(format!("ws://{addr}/ws")) {
+            Ok(connected) => break connected,
+            Err(e) => {
+                assert!(std::time::Instant::now() < deadline, "the live viewer never answered: {e}");
+                std::thread::sleep(Duration::from_millis(100));
+            }
+        }
+    };
+    if let tungstenite::stream::MaybeTlsStream::Plain(tcp) = socket.get_ref() {
+        tcp.set_read_timeout(Some(Duration::from_secs(60))).unwrap();
+    }
+    // A second watcher, a real browser, mid-run: it draws without an error.
+    let browser_url = format!("http://{addr}/");
+    let browser = std::thread::spawn(move || headless(&browser_url, &["--timeout=4000", "--dump-dom"]));
+
+    let mut held: std::collections::BTreeMap<u64, HeldBlock> = Default::default();
+    let (mut blocks, mut trims, mut drops, mut moves, mut images, mut health) = (0, 0, 0, 0, 0, 0);
+    let mut path: Vec<f64> = Vec::new();
+    let mut processes_seen = std::collections::BTreeSet::new();
+    loop {
+        let message = match socket.read() {
+            Ok(m) => m,
+            Err(tungstenite::Error::ConnectionClosed | tungstenite::Error::AlreadyClosed) => break,
+            Err(tungstenite::Error::Protocol(_)) | Err(tungstenite::Error::Io(_)) => break,
+            Err(e) => panic!("the live stream: {e}"),
+        };
+        match message {
+            tungstenite::Message::Binary(bytes) => {
+                let tag = &bytes[..4];
+                match tag {
+                    b"BLK1" => {
+                        let id = id_at(&bytes, 4);
+                        let n = u32_at(&bytes, 12) as usize;
+                        // Points arrive once: a keyframe's block comes once, later changes are trims.
+                        assert!(!held.contains_key(&id), "keyframe {id} was sent whole twice");
+                        let at = 4 + bdis_viewer::KEYFRAME_HEADER_BYTES;
+                        let camera_points = (0..n)
+                            .map(|i| {
+                                std::array::from_fn(|k| {
+                                    f32::from_le_bytes(bytes[at + 12 * i + 4 * k..][..4].try_into().unwrap())
+                                })
+                            })
+                            .collect();
+                        let matrix = matrix_at(&bytes, 4 + 4 * (4 + 6));
+                        assert!(rigid(&matrix), "keyframe {id}: {matrix:?}");
+                        held.insert(id, HeldBlock { matrix, camera_points });
+                        blocks += 1;
+                    }
+                    b"TRM1" => {
+                        let id = id_at(&bytes, 4);
+                        let n = u32_at(&bytes, 12) as usize;
+                        let block = held
+                            .get_mut(&id)
+                            .unwrap_or_else(|| panic!("a trim of keyframe {id}, which the page does not hold"));
+                        assert_eq!(block.camera_points.len(), n, "keyframe {id}: a trim for another count");
+                        let mut i = 0;
+                        block.camera_points.retain(|_| {
+                            i += 1;
+                            bytes[16 + (i - 1) / 8] & (1 << ((i - 1) % 8)) != 0
+                        });
+                        assert!(block.camera_points.len() < n, "keyframe {id}: a trim that keeps everything");
+                        trims += 1;
+                    }
+                    b"DEL1" => {
+                        let id = id_at(&bytes, 4);
+                        assert!(held.remove(&id).is_some(), "a drop of keyframe {id}, which the page does not hold");
+                        drops += 1;
+                    }
+                    b"COR1" => {
+                        let id = id_at(&bytes, 4);
+                        let matrix = matrix_at(&bytes, 12);
+                        assert!(rigid(&matrix), "correction of keyframe {id}: {matrix:?}");
+                        held.get_mut(&id)
+                            .unwrap_or_else(|| panic!("a correction of keyframe {id}, which the page does not hold"))
+                            .matrix = matrix;
+                        moves += 1;
+                    }
+                    b"IMG1" => {
+                        let (w, h) = (u32_at(&bytes, 4) as usize, u32_at(&bytes, 8) as usize);
+                        assert!(
+                            w > 0 && w <= 480 && bytes.len() == 12 + 6 * w * h,
+                            "image {w}x{h}, {} bytes",
+                            bytes.len()
+                        );
+                        images += 1;
+                    }
+                    other => panic!("unknown message {:?}", String::from_utf8_lossy(other)),
+                }
+            }
+            tungstenite::Message::Text(text) => {
+                let value: serde_json::Value = serde_json::from_str(&text).unwrap();
+                match value["type"].as_str() {
+                    Some("poses") => {
+                        for p in value["poses"].as_array().unwrap() {
+                            let t = p["t_s"].as_f64().unwrap();
+                            assert!(path.last().is_none_or(|&last| t > last), "poses out of order at {t}");
+                            assert!(["ok", "uncertain", "lost"].contains(&p["state"].as_str().unwrap()), "{p}");
+                            path.push(t);
+                        }
+                    }
+                    Some("health") => {
+                        for p in value["processes"].as_array().unwrap() {
+                            processes_seen.insert(p["name"].as_str().unwrap().to_string());
+                        }
+                        health += 1;
+                    }
+                    other => panic!("unknown message {other:?}: {text}"),
+                }
+            }
+            _ => {}
+        }
+    }
+    let out = run.wait_with_output().unwrap();
+    assert!(out.status.success(), "{}\n{}", text(&out.stdout), text(&out.stderr));
+    let dom = browser.join().unwrap();
+    let dom_text = text(&dom.stdout);
+    assert!(!dom_text.contains("data-error"), "the live page: {dom_text}");
+    assert!(
+        dom_text.contains("data-live=\"1\"") || dom_text.contains("data-ready"),
+        "the live page did not draw: {dom_text}"
+    );
+
+    eprintln!(
+        "live: {blocks} blocks, {trims} trims, {drops} drops, {moves} corrections, {images} images, {health} health, {} poses",
+        path.len()
+    );
+    assert!(blocks >= 3 && images >= 1 && health >= 2, "{blocks} blocks, {images} images, {health} health reports");
+    for name in ["acquisition", "tracking", "stereo", "mosaic"] {
+        assert!(processes_seen.contains(name), "no health of {name}: {processes_seen:?}");
+    }
+    // Every pose the tracker published, in order.
+    let trajectory = bdis_core::formats::trajectory::read_tum(&run_dir.join("trajectory.tum")).unwrap();
+    assert_eq!(path.len(), trajectory.len());
+    // The page ends holding exactly the run's map: map.ply's points, in order, placed by their keyframes'
+    // last matrices.
+    let ply = bdis_core::formats::ply::read(&run_dir.join("map.ply")).unwrap();
+    let world: Vec<[f32; 3]> = held
+        .values()
+        .flat_map(|b| {
+            b.camera_points.iter().map(|p| {
+                let m = &b.matrix;
+                [0, 1, 2].map(|r| m[r] * p[0] + m[4 + r] * p[1] + m[8 + r] * p[2] + m[12 + r])
+            })
+        })
+        .collect();
+    assert_eq!(world.len(), ply.positions.len(), "points the page holds against map.ply");
+    let scale = ply.positions.iter().map(|p| p[2].abs()).fold(0f32, f32::max);
+    for (a, b) in world.iter().zip(&ply.positions) {
+        for k in 0..3 {
+            assert!((a[k] - b[k]).abs() <= 1e-4 * scale, "{a:?} against map.ply's {b:?}");
+        }
+    }
 }

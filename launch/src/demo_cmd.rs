@@ -23,8 +23,8 @@ pub struct DemoArgs {
     /// Pacing: on-demand (as fast as the pipeline consumes), recorded (30 fps), or a rate such as 60hz.
     #[arg(long, default_value = "on-demand")]
     pacing: bdis_source::Pacing,
-    /// When the run ends, serve the viewer's page over it (as `bdis-slam view RUN_DIR` does) and print its
-    /// address; Ctrl-C stops it.
+    /// Watch it in a browser: live while it runs (the viewer service), then the finished run (as `bdis-slam view
+    /// RUN_DIR` shows it) until Ctrl-C. The address is printed.
     #[arg(long)]
     view: bool,
     /// Address for `--view` (default: this machine only).
@@ -49,7 +49,7 @@ pub fn demo(args: DemoArgs) -> Result<ExitCode> {
     let preview = run_dir.join("preview.png");
     write_side_by_side(&sequence.join("left/1.png"), &sequence.join("right/1.png"), &preview)?;
 
-    let launch = plan_for_sequence(
+    let mut launch = plan_for_sequence(
         crate::plan::PlanInput::new(&sequence, Some(&settings)),
         args.pacing,
         false,
@@ -57,6 +57,10 @@ pub fn demo(args: DemoArgs) -> Result<ExitCode> {
         true,
         &[],
     )?;
+    if args.view {
+        crate::plan::add_viewer(&mut launch, &args.listen)?;
+        eprintln!("bdis-slam demo: live view at http://{}/ while it runs", args.listen);
+    }
     let (code, result) = execute_and_report(&launch, Path::new("launch.toml"), &run_dir, None)?;
     let find = |name: &str| result.latency.processes.iter().find(|p| p.name == name);
     let depth: Option<bdis_slam::probe::DepthSummary> =

@@ -162,3 +162,31 @@ pub fn plan_for_sequence(
     }
     Ok(LaunchFile { run: RunSection { name: Some(name), ..Default::default() }, services })
 }
+
+/// Adds the live viewer (`bdis-viewer`, serving on `listen`) to a plan that has a mosaic, on the dense side's
+/// core. It only reads, so a crash of it loses nothing: it is restarted and the page reconnects.
+pub fn add_viewer(plan: &mut bdis_slam::launch_file::LaunchFile, listen: &str) -> Result<()> {
+    let mosaic = plan.services.iter().find(|s| s.binary == "bdis-mosaic");
+    let Some(core) = mosaic.map(|m| m.core) else {
+        anyhow::bail!("--view needs the map: run with --track (the viewer draws the mosaic's map)");
+    };
+    // The mosaic's map parameters: the viewer keeps a replica of the same map.
+    let mut args = vec!["--listen".to_string(), listen.to_string()];
+    for p in mosaic.into_iter().flat_map(|m| m.args.windows(2)).filter(|w| w[0] == "--map-param") {
+        args.extend(["--map-param".to_string(), p[1].clone()]);
+    }
+    let mut viewer = bdis_slam::launch_file::ServiceSpec {
+        name: "viewer".into(),
+        binary: "bdis-viewer".into(),
+        args,
+        core,
+        env: Default::default(),
+        restart: Default::default(),
+        liveness_s: None,
+        handover: None,
+        replacement_args: Vec::new(),
+    };
+    viewer.restart.policy = bdis_slam::launch_file::RestartPolicy::OnFailure;
+    plan.services.push(viewer);
+    Ok(())
+}

@@ -77,6 +77,12 @@ pub struct RunArgs {
     /// Shared-memory name prefix (default: a fresh one per run, so runs never see each other).
     #[arg(long)]
     ipc_prefix: Option<String>,
+    /// With --track: a live view in a browser while it runs (the viewer service; its address is printed).
+    #[arg(long, requires = "track")]
+    view: bool,
+    /// Address for --view (default: this machine only).
+    #[arg(long, default_value = crate::view_cmd::DEFAULT_LISTEN, requires = "view")]
+    listen: String,
 }
 
 pub fn run(args: RunArgs) -> Result<ExitCode> {
@@ -201,6 +207,10 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
                         .with_context(|| format!("--masks {}: no such folder", masks.display()))?;
                     acquisition.args.extend(["--masks".to_string(), masks.display().to_string()]);
                 }
+            }
+            if args.view {
+                crate::plan::add_viewer(&mut plan, &args.listen)?;
+                eprintln!("bdis-slam: live view at http://{}/ while it runs", args.listen);
             }
             (plan, PathBuf::from("launch.toml"))
         }

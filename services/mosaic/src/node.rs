@@ -13,7 +13,7 @@ use bdis_mosaic::{DepthKeyframe, Mosaic, MosaicSummary};
 use bdis_node::{Ended, Flow};
 use iceoryx2::prelude::*;
 
-use crate::pending::PendingCorrections;
+use bdis_mosaic::pending::PendingCorrections;
 
 /// The map to start from and what to do with it.
 #[derive(Debug)]
@@ -118,8 +118,9 @@ pub fn run(config: Config) -> Result<()> {
     if let Err(e) = receive_corrections(&input.corrections, &mut pending, &mut telemetry) {
         tracing::warn!("{e:#}");
     }
-    counters.corrections += pending
-        .apply_up_to(u64::MAX, counters.highest_kf_id, &mut mosaic, |r| telemetry.rejected(Topic::Corrections, &r));
+    counters.corrections += pending.apply_up_to(u64::MAX, counters.highest_kf_id, &mut mosaic, |r| {
+        telemetry.rejected(Topic::Corrections, &crate::pending::rejection(r))
+    });
     let written = write_results(&mosaic, &counters, &out_dir, preview_width, end_of_stream);
     match (failure, written) {
         (None, Ok(())) => {
@@ -140,7 +141,9 @@ fn receive_corrections(
     telemetry: &mut TelemetryPublisher,
 ) -> Result<()> {
     while let Some(sample) = subscriber.receive().context("receive a pose correction")? {
-        let checked = validate::correction(sample.payload()).and_then(|_| pending.push(*sample.payload()));
+        let record = sample.payload();
+        let checked = validate::correction(record)
+            .and_then(|pose| pending.push(crate::pending::correction(record, pose)).map_err(crate::pending::rejection));
         if let Err(rejection) = checked {
             telemetry.rejected(Topic::Corrections, &rejection);
         }
@@ -206,7 +209,7 @@ fn take_depth(
         receive_corrections(&input.corrections, pending, telemetry)?;
         let newest = counters.highest_kf_id.max(Some(header.meta.kf_id));
         counters.corrections += pending.apply_up_to(header.meta.corrections_generation, newest, mosaic, |r| {
-            telemetry.rejected(Topic::Corrections, &r)
+            telemetry.rejected(Topic::Corrections, &crate::pending::rejection(r))
         });
         let start = monotonic_ns();
         let report = match mosaic.insert(&keyframe) {

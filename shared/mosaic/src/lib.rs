@@ -19,6 +19,7 @@
 mod carve;
 mod normals;
 mod params;
+pub mod pending;
 mod render;
 mod store;
 mod summary;

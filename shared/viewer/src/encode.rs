@@ -19,7 +19,7 @@ use bdis_mosaic::{KeyframeCloud, Mosaic, keyframe_normals};
 pub const MAP_MAGIC: &[u8; 8] = b"BDISMAP1";
 pub const KEYFRAME_HEADER_BYTES: usize = 4 * (4 + 6 + 16);
 
-fn put_u32(out: &mut Vec<u8>, v: u32) {
+pub(crate) fn put_u32(out: &mut Vec<u8>, v: u32) {
     out.extend_from_slice(&v.to_le_bytes());
 }
 
@@ -36,32 +36,48 @@ pub fn encode_map(mosaic: &Mosaic, out: &mut Vec<u8>) {
     put_u32(out, shown.len() as u32);
     put_u32(out, 0);
     let gap = mosaic.params.depth_gap_px.max(1);
-    let (mut grid, mut normals) = (Vec::new(), Vec::new());
+    let mut scratch = BlockScratch::default();
     for k in shown {
-        let c = &k.intrinsics;
-        put_u32(out, k.kf_id as u32);
-        put_u32(out, (k.kf_id >> 32) as u32);
-        put_u32(out, k.points.len() as u32);
-        put_f32(out, gap as f64 / c.fx);
-        for v in [c.fx, c.fy, c.cx, c.cy, f64::from(c.width), f64::from(c.height)] {
-            put_f32(out, v);
+        encode_block(k, gap, &mut scratch, out);
+    }
+}
+
+/// Reused between blocks: the grid and the normals of one keyframe.
+#[derive(Debug, Default)]
+pub struct BlockScratch {
+    grid: Vec<u32>,
+    normals: Vec<[f32; 3]>,
+}
+
+/// One keyframe's block (the layout above), appended to `out`.
+pub fn encode_block(k: &KeyframeCloud, gap: usize, scratch: &mut BlockScratch, out: &mut Vec<u8>) {
+    let c = &k.intrinsics;
+    put_u32(out, k.kf_id as u32);
+    put_u32(out, (k.kf_id >> 32) as u32);
+    put_u32(out, k.points.len() as u32);
+    put_f32(out, gap.max(1) as f64 / c.fx);
+    for v in [c.fx, c.fy, c.cx, c.cy, f64::from(c.width), f64::from(c.height)] {
+        put_f32(out, v);
+    }
+    put_matrix(out, &k.world_from_camera);
+    for p in &k.points {
+        for v in p.xyz {
+            out.extend_from_slice(&v.to_le_bytes());
         }
-        for v in k.world_from_camera.to_homogeneous().as_slice() {
-            // nalgebra stores matrices column-major, as three.js reads them.
-            put_f32(out, *v);
-        }
-        for p in &k.points {
-            for v in p.xyz {
-                out.extend_from_slice(&v.to_le_bytes());
-            }
-        }
-        keyframe_normals(k, gap, &mut grid, &mut normals);
-        for n in &normals {
-            out.extend(n.map(|v| (v * 127.0).round().clamp(-127.0, 127.0) as i8 as u8));
-        }
-        for p in &k.points {
-            out.extend_from_slice(&p.rgb);
-        }
-        out.resize(out.len().next_multiple_of(4), 0);
+    }
+    keyframe_normals(k, gap, &mut scratch.grid, &mut scratch.normals);
+    for n in &scratch.normals {
+        out.extend(n.map(|v| (v * 127.0).round().clamp(-127.0, 127.0) as i8 as u8));
+    }
+    for p in &k.points {
+        out.extend_from_slice(&p.rgb);
+    }
+    out.resize(out.len().next_multiple_of(4), 0);
+}
+
+/// A pose as 16 f32, column-major (as nalgebra stores it and three.js reads it).
+pub fn put_matrix(out: &mut Vec<u8>, pose: &nalgebra::Isometry3<f64>) {
+    for v in pose.to_homogeneous().as_slice() {
+        put_f32(out, *v);
     }
 }

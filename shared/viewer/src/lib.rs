@@ -6,11 +6,14 @@
 
 mod assets;
 mod encode;
+pub mod health;
+pub mod hub;
+pub mod live;
 mod run;
 mod server;
 
-pub use encode::{KEYFRAME_HEADER_BYTES, MAP_MAGIC, encode_map};
-pub use run::RunView;
+pub use encode::{BlockScratch, KEYFRAME_HEADER_BYTES, MAP_MAGIC, encode_block, encode_map, put_matrix};
+pub use run::{PathPose, RunView};
 pub use server::{Site, bind};
 
 use std::path::PathBuf;
@@ -31,3 +34,6 @@ pub enum ViewerError {
     #[error("cannot listen on {addr}: {what}")]
     Listen { addr: String, what: String },
 }
+
+#[cfg(test)]
+mod tests;

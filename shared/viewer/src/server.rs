@@ -6,6 +6,7 @@ use std::net::SocketAddr;
 
 use tiny_http::{Header, Method, Request, Response, Server, StatusCode};
 
+use crate::hub::{Doorbell, start_writer};
 use crate::{RunView, ViewerError, assets::ASSETS};
 
 /// Everything the page may load comes from this origin; nothing from a CDN, no fonts from the web.
@@ -19,11 +20,13 @@ pub fn bind(addr: &str) -> Result<(Server, SocketAddr), ViewerError> {
     Ok((server, local))
 }
 
-/// What the server shows: a finished run (the live pipeline comes with the viewer service).
+/// What the server shows: a finished run, or a live pipeline (the page then opens `/ws`).
 #[derive(Debug)]
 pub struct Site {
-    run: RunView,
+    run: Option<RunView>,
     run_json: Vec<u8>,
+    /// Live: where a browser that opened the WebSocket is handed to the live state's owner.
+    doorbell: Option<Doorbell>,
     orbit_controls: Vec<u8>,
 }
 
@@ -35,7 +38,18 @@ impl Site {
     pub fn new(run: RunView) -> Result<Self, ViewerError> {
         let run_json = serde_json::to_vec(&run.summary)
             .map_err(|e| ViewerError::File { path: run.dir.clone(), what: format!("cannot describe the run: {e}") })?;
-        Ok(Self { run, run_json, orbit_controls: crate::assets::orbit_controls() })
+        Ok(Self { run: Some(run), run_json, doorbell: None, orbit_controls: crate::assets::orbit_controls() })
+    }
+
+    /// A live pipeline called `name`: `/api/run` says so, and `/ws` streams the live state (see [`crate::live`]).
+    pub fn live(name: &str, doorbell: Doorbell) -> Self {
+        let run_json = serde_json::json!({
+            "live": true, "name": name, "path": [], "keyframes": [], "map_keyframes": 0, "map_points": 0,
+            "latency": null, "has_depth_preview": false, "has_map_preview": false,
+        })
+        .to_string()
+        .into_bytes();
+        Self { run: None, run_json, doorbell: Some(doorbell), orbit_controls: crate::assets::orbit_controls() }
     }
 
     /// The body and content type for `path`, or None (404).
@@ -47,9 +61,9 @@ impl Site {
         match path {
             "/vendor/three/OrbitControls.js" => Some((&self.orbit_controls, "text/javascript; charset=utf-8")),
             "/api/run" => Some((&self.run_json, "application/json")),
-            "/api/map" => Some((&self.run.map_blocks, "application/octet-stream")),
-            "/api/depth.png" => self.run.depth_preview_png.as_deref().map(|b| (b, "image/png")),
-            "/api/map.png" => self.run.map_preview_png.as_deref().map(|b| (b, "image/png")),
+            "/api/map" => self.run.as_ref().map(|r| (r.map_blocks.as_slice(), "application/octet-stream")),
+            "/api/depth.png" => self.run.as_ref()?.depth_preview_png.as_deref().map(|b| (b, "image/png")),
+            "/api/map.png" => self.run.as_ref()?.map_preview_png.as_deref().map(|b| (b, "image/png")),
             _ => None,
         }
     }
@@ -70,6 +84,11 @@ impl Site {
             let body: &[u8] = b"read-only: GET and HEAD only\n";
             return request.respond(Response::new(StatusCode(405), headers, body, Some(body.len()), None));
         }
+        if request.url() == "/ws"
+            && let Some(doorbell) = &self.doorbell
+        {
+            return open_websocket(request, doorbell, headers);
+        }
         let (status, body, kind): (u16, &[u8], &str) = match self.lookup(request.url()) {
             Some((body, kind)) => (200, body, kind),
             None => (404, b"not found\n", "text/plain; charset=utf-8"),
@@ -89,4 +108,26 @@ impl Site {
             }
         }
     }
+}
+
+fn request_header<'a>(request: &'a Request, name: &'static str) -> Option<&'a str> {
+    request.headers().iter().find(|h| h.field.equiv(name)).map(|h| h.value.as_str())
+}
+
+/// The WebSocket handshake (RFC 6455), then the connection is handed to a writer thread and the hub.
+fn open_websocket(request: Request, doorbell: &Doorbell, mut headers: Vec<Header>) -> std::io::Result<()> {
+    let upgrade = request_header(&request, "Upgrade").is_some_and(|v| v.eq_ignore_ascii_case("websocket"));
+    let Some(key) = request_header(&request, "Sec-WebSocket-Key").filter(|_| upgrade).map(str::to_owned) else {
+        let body: &[u8] = b"a WebSocket: send Upgrade: websocket and Sec-WebSocket-Key\n";
+        return request.respond(Response::new(StatusCode(400), headers, body, Some(body.len()), None));
+    };
+    headers.extend(header("Upgrade", "websocket"));
+    headers.extend(header("Connection", "Upgrade"));
+    headers.extend(header("Sec-WebSocket-Accept", &tungstenite::handshake::derive_accept_key(key.as_bytes())));
+    let empty: &[u8] = &[];
+    let stream = request.upgrade("websocket", Response::new(StatusCode(101), headers, empty, Some(0), None));
+    let watcher = start_writer(stream)?;
+    // The live state's owner has ended (the run is over): the browser sees the socket close.
+    let _ = doorbell.send(watcher);
+    Ok(())
 }
