@@ -41,9 +41,7 @@ fn tags(updates: &[Update]) -> Vec<String> {
 
 #[test]
 fn a_keyframe_goes_to_the_page_once_then_is_trimmed_and_moved() {
-    let mut params = MosaicParams::default();
-    params.min_disparity_px = 1.0;
-    let mut m = Mosaic::new(params);
+    let mut m = Mosaic::new(MosaicParams { min_disparity_px: 1.0, ..Default::default() });
     let mut live = LiveMap::default();
     let mut out = Vec::new();
     plane(&mut m, 0, Isometry3::identity());
