@@ -31,6 +31,10 @@ pub struct IsolationArgs {
     /// Folder for the runs and isolation.json (default: runs/<UTC time>-isolation).
     #[arg(long)]
     out: Option<PathBuf>,
+    /// Run the live viewer too, beside the dense side (on a free local port), to measure what it costs the
+    /// tracker; its own CPU is in each run's latency report.
+    #[arg(long)]
+    view: bool,
 }
 
 /// The tracker's figures of one benchmark run.
@@ -67,7 +71,7 @@ struct Spread {
 pub fn bench_isolation(args: IsolationArgs) -> Result<ExitCode> {
     anyhow::ensure!((1..=50).contains(&args.pairs), "--pairs: give 1 to 50");
     let settings = args.settings.clone().unwrap_or_else(|| args.sequence.join("settings.yaml"));
-    let full = plan_for_sequence(
+    let mut full = plan_for_sequence(
         crate::plan::PlanInput::new(&args.sequence, Some(&settings)),
         bdis_source::Pacing::OnDemand,
         false,
@@ -75,6 +79,9 @@ pub fn bench_isolation(args: IsolationArgs) -> Result<ExitCode> {
         true,
         &[],
     )?;
+    if args.view {
+        crate::plan::add_viewer(&mut full, "127.0.0.1:0")?;
+    }
     let mut alone = full.clone();
     alone.services.retain(|s| s.name == "acquisition" || s.name == "tracking");
     let root = make_run_dir(args.out.as_deref(), "isolation")?;

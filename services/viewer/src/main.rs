@@ -18,10 +18,11 @@ struct Args {
     /// Address to serve the page on; the default serves this machine only. Port 0 picks a free port.
     #[arg(long, default_value = "127.0.0.1:8470")]
     listen: String,
-    /// The newest depth keyframe is sent at most this wide (pixels) and this often (seconds).
+    /// The newest depth keyframe (left image and depth) is sent at most this wide, pixels.
     #[arg(long, default_value_t = 480)]
     image_width: usize,
-    #[arg(long, default_value_t = 0.25)]
+    /// ... and at most this often, seconds (an image pair is ~0.46 MB at 320×240, most of what the page is sent).
+    #[arg(long, default_value_t = 0.5)]
     image_period: f64,
     /// The mosaic's map parameters (`--map-param NAME=VALUE`, as `bdis-mosaic` takes them; the launcher passes
     /// the mosaic's own), so the viewer's replica of the map is the same map.
