@@ -586,3 +586,32 @@ fn watch_in_chromium(url: &str) -> (u64, Vec<u8>) {
     chromium.wait().ok();
     (drawn, png)
 }
+
+#[test]
+fn a_viewer_that_cannot_run_does_not_stop_the_run() {
+    let tmp = TempDir::new("viewdead");
+    let sequence = tmp.path().join("colon");
+    render_small_colon(&sequence, 24);
+    // Another program holds the port: every viewer instance fails at start.
+    let taken = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let addr = taken.local_addr().unwrap().to_string();
+    let run_dir = tmp.path().join("run");
+    let out = run_with_timeout(
+        Command::new(bdis_slam())
+            .args(["run", "--track", "--sequence"])
+            .arg(&sequence)
+            .arg("--settings")
+            .arg(sequence.join("settings.yaml"))
+            .args(["--view", "--listen", &addr, "--ipc-prefix", &prefix("vdead"), "--out"])
+            .arg(&run_dir),
+        Duration::from_secs(180),
+    );
+    assert!(out.status.success(), "the run failed with its viewer: {}", text(&out.stderr));
+    let latency: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(run_dir.join("latency.json")).unwrap()).unwrap();
+    let events = latency["events"].to_string();
+    assert!(events.contains("viewer") && events.contains("not essential"), "{events}");
+    // The map was made all the same.
+    assert!(bdis_core::formats::ply::read(&run_dir.join("map.ply")).unwrap().positions.len() > 1000);
+    drop(taken);
+}

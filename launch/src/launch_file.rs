@@ -25,6 +25,7 @@
 //! handover = "keyframes"   # a replacement instance (swap, restart) starts with --standby and is activated after
 //!                          # the last keyframe its downstream already has (the stereo service)
 //! replacement_args = ["--resume"]   # for instances after the first (the mosaic resumes from its checkpoint)
+//! essential = false        # (default true) when it fails for good the run goes on without it (the viewer)
 //! [service.restart]
 //! policy = "on-failure"    # never (default) | on-failure | always
 //! max_restarts = 5         # at most this many restarts within window_s; one more failure fails the run
@@ -123,6 +124,14 @@ pub struct ServiceSpec {
     /// Extra arguments for every instance after the first (a restart, a swap), e.g. the mosaic's `--resume`.
     #[serde(default)]
     pub replacement_args: Vec<String>,
+    /// Whether the run stands or falls with this service (the default). One that only watches (the viewer) is
+    /// not: when it fails for good — out of restarts, or with `never` — the run goes on without it.
+    #[serde(default = "essential_by_default")]
+    pub essential: bool,
+}
+
+fn essential_by_default() -> bool {
+    true
 }
 
 #[derive(Debug, Clone, Copy, Serialize, Deserialize, PartialEq, Eq, Default)]

@@ -84,6 +84,7 @@ pub fn plan_for_sequence(
         liveness_s: None,
         handover: None,
         replacement_args: Vec::new(),
+        essential: true,
     };
     let mut services = vec![spec("acquisition", "bdis-acquisition", acquisition_args, 0)];
     if track {
@@ -185,6 +186,8 @@ pub fn add_viewer(plan: &mut bdis_slam::launch_file::LaunchFile, listen: &str) -
         liveness_s: None,
         handover: None,
         replacement_args: Vec::new(),
+        // It only watches: its failing for good must not end a surgery's run.
+        essential: false,
     };
     viewer.restart.policy = bdis_slam::launch_file::RestartPolicy::OnFailure;
     plan.services.push(viewer);

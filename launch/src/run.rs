@@ -203,15 +203,19 @@ pub fn execute(
     order.extend(replaced);
     sup.stop_in_order(&order, t.grace)?;
     // After a stop request, a service that needed SIGKILL was logged above; the run still ends as stopped (130).
-    if failure.is_none()
-        && !stop_requested
-        && let Some(c) = slots
-            .iter()
-            .filter_map(|s| s.current.or(s.instances.last().copied()))
-            .map(|i| &sup.children[i])
-            .find(|c| !c.retired && !c.succeeded())
-    {
-        failure = Some(format!("{} failed ({}): {}", c.name, c.exit_text(), c.last_error_line().unwrap_or_default()));
+    if failure.is_none() && !stop_requested {
+        for slot in slots.iter() {
+            let Some(c) = slot.current.or(slot.instances.last().copied()).map(|i| &sup.children[i]) else { continue };
+            if c.retired || c.succeeded() {
+                continue;
+            }
+            let line = format!("{} failed ({}): {}", c.name, c.exit_text(), c.last_error_line().unwrap_or_default());
+            if slot.service.spec.essential {
+                failure = Some(line);
+                break;
+            }
+            go_on_without(&line, &mut events);
+        }
     }
     // Crashed children leave their nodes behind; reclaim them now rather than at the next run's start.
     sup.cleanup_dead();
@@ -329,6 +333,13 @@ enum FlowEnd {
     Failed(String),
 }
 
+/// A service the run does not depend on (it only watches) has failed for good: noted, and the run goes on.
+fn go_on_without(line: &str, events: &mut Vec<String>) {
+    let line = format!("{line}; it is not essential: the run goes on without it");
+    tracing::warn!("{line}");
+    events.push(line);
+}
+
 /// Lets the stream flow until every service has ended: restarts under each service's policy, liveness deadlines,
 /// drain deadlines once upstream has ended, and control requests.
 fn flow(
@@ -388,7 +399,7 @@ fn flow(
                 }
                 let recent = slots[k].recent_restarts.len();
                 if recent >= restart.max_restarts as usize {
-                    return Ok(FlowEnd::Failed(format!(
+                    let line = format!(
                         "{} ended {} times within {:.0} s ({} this time): giving up after {} restarts — {}",
                         slots[k].name(),
                         recent + 1,
@@ -396,7 +407,12 @@ fn flow(
                         c.exit_text(),
                         recent,
                         c.last_error_line().unwrap_or_default()
-                    )));
+                    );
+                    if slots[k].service.spec.essential {
+                        return Ok(FlowEnd::Failed(line));
+                    }
+                    go_on_without(&line, events);
+                    continue;
                 }
                 let delay = restart.backoff(recent);
                 let line = format!(
@@ -413,12 +429,12 @@ fn flow(
                 events.push(line);
                 slots[k].restart_at = Some(now + delay);
             } else if !c.succeeded() && !slots[k].stopping {
-                return Ok(FlowEnd::Failed(format!(
-                    "{} failed ({}): {}",
-                    c.name,
-                    c.exit_text(),
-                    c.last_error_line().unwrap_or_default()
-                )));
+                let line =
+                    format!("{} failed ({}): {}", c.name, c.exit_text(), c.last_error_line().unwrap_or_default());
+                if slots[k].service.spec.essential {
+                    return Ok(FlowEnd::Failed(line));
+                }
+                go_on_without(&line, events);
             }
         }
 

@@ -201,27 +201,28 @@ pub fn run(config: Config) -> Result<()> {
         tracing::warn!("{e:#}");
     }
     pending.apply_up_to(u64::MAX, newest_kf_id, &mut replica, |_| {});
-    let written = run_dir.map(|d| d.join("map.bin")).filter(|f| f.exists()).map(|f| bdis_mosaic::load(&f));
-    let last_map = match written {
-        Some(Ok(map)) => map,
-        Some(Err(e)) => {
-            tracing::warn!("the last map: {e}");
-            replica
-        }
-        None => replica,
-    };
     updates.clear();
-    live.sync(&last_map, &mut updates);
-    let tags: Vec<String> = updates
-        .iter()
-        .filter_map(|u| match u {
-            Update::Binary(b) => Some(String::from_utf8_lossy(&b[..4]).into_owned()),
-            Update::Text(_) => None,
-        })
-        .collect();
-    tracing::info!("the mosaic's last map differs from the replica by {} messages: {tags:?}", updates.len());
+    live.sync(&replica, &mut updates);
     for update in updates.drain(..) {
         hub.broadcast(message(update));
+    }
+    let written = run_dir.map(|d| d.join("map.bin")).filter(|f| f.exists()).map(|f| bdis_mosaic::load(&f));
+    match written {
+        Some(Ok(last_map)) => {
+            live.sync(&last_map, &mut updates);
+            // Nothing, when the replica is the mosaic's map (it is built the same way from the same topics).
+            if !updates.is_empty() {
+                tracing::warn!(
+                    "the mosaic's written map differs from the replica: {} messages to the page",
+                    updates.len()
+                );
+            }
+            for update in updates.drain(..) {
+                hub.broadcast(message(update));
+            }
+        }
+        Some(Err(e)) => tracing::warn!("the last map: {e}"),
+        None => {}
     }
     hub.broadcast(message(health.report(last_health.elapsed().as_secs_f64())));
     tracing::info!(
