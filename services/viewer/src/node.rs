@@ -57,6 +57,9 @@ fn state_name(state: u32) -> &'static str {
 
 pub fn run(config: Config) -> Result<()> {
     let Config { listen, image_width, image_period, map_params, run_dir, name, ipc_prefix } = config;
+    // The address first: a port that is taken or an address that is not one is refused before shared memory is
+    // touched.
+    let (server, addr) = bdis_viewer::bind(&listen)?;
     let ipc = Ipc::open(&name, &ipc_prefix)?;
     let depth = ipc.depth()?;
     let depth_subscriber = ipc.depth_subscriber(&depth)?;
@@ -77,7 +80,6 @@ pub fn run(config: Config) -> Result<()> {
         .and_then(|d| d.file_name())
         .map_or_else(|| ipc_prefix.clone(), |n| n.to_string_lossy().into_owned());
     let site = bdis_viewer::Site::live(&run_name, doorbell);
-    let (server, addr) = bdis_viewer::bind(&listen)?;
     std::thread::Builder::new()
         .name("viewer-http".into())
         .spawn(move || site.serve(&server))
