@@ -16,7 +16,6 @@ use bdis_mosaic::{DepthKeyframe, Mosaic, MosaicParams};
 use bdis_node::Flow;
 use bdis_viewer::PathPose;
 use bdis_viewer::health::{Beat, BeatKind, Health};
-use bdis_viewer::hub::Hub;
 use bdis_viewer::live::{LiveMap, Update, image_update};
 use iceoryx2::prelude::*;
 use tungstenite::Message;
@@ -74,7 +73,7 @@ pub fn run(config: Config) -> Result<()> {
     let telemetry_service = ipc.telemetry()?;
     let health_subscriber = ipc.telemetry_subscriber(&telemetry_service)?;
 
-    let (mut hub, doorbell) = Hub::new();
+    let (mut hub, doorbell) = bdis_viewer::hub::hub();
     let run_name = run_dir
         .as_ref()
         .and_then(|d| d.file_name())

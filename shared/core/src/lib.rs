@@ -3,8 +3,12 @@
 //! Conventions (see DESIGN.md): camera x right, y down, z forward; a pose is `world_from_camera` of the left
 //! camera as `Isometry3<f64>`; disparity `d = x_left − x_right`, depth `z = bf / d`; lengths in the calibration's
 //! unit (millimetres for endoscopes).
+//!
+//! Also [`fanout`]: watchers outside the pipeline (browsers, navigation workstations), each fed from a bounded
+//! queue by a thread of its own, let go rather than waited for.
 
 pub mod calib;
+pub mod fanout;
 pub mod formats;
 pub mod geometry;
 pub mod settings;
