@@ -9,39 +9,18 @@ use std::net::{TcpListener, TcpStream};
 use std::process::{Command, Stdio};
 use std::time::Duration;
 
+use bdis_testkit::service::{assert_one_clear_line, refused, take_shm_leftovers};
+
 fn prefix(tag: &str) -> String {
     format!("bviewcli{tag}{}_", std::process::id())
 }
 
-/// The files of the run `prefix` in /dev/shm.
-fn shm_files(prefix: &str) -> Vec<String> {
-    std::fs::read_dir("/dev/shm")
-        .into_iter()
-        .flatten()
-        .flatten()
-        .map(|e| e.file_name().to_string_lossy().into_owned())
-        .filter(|n| n.starts_with(prefix))
-        .collect()
-}
-
 fn run(tag: &str, args: &[&str]) -> (Option<i32>, String) {
-    let run_prefix = prefix(tag);
-    let out = Command::new(env!("CARGO_BIN_EXE_bdis-viewer"))
-        .args(args)
-        .env("BDIS_IPC_PREFIX", &run_prefix)
-        .output()
-        .unwrap();
-    let left = shm_files(&run_prefix);
-    assert!(left.is_empty(), "refused input must not touch shared memory: {left:?}");
-    (out.status.code(), String::from_utf8_lossy(&out.stderr).trim().to_string())
+    refused(env!("CARGO_BIN_EXE_bdis-viewer"), &prefix(tag), args)
 }
 
 fn one_clear_line(code: Option<i32>, err: &str, names: &str) {
-    assert_eq!(code, Some(1), "{err}");
-    assert!(err.starts_with("bdis-viewer: error: "), "{err}");
-    assert!(err.contains(names), "the line names `{names}`: {err}");
-    assert_eq!(err.lines().count(), 1, "{err}");
-    assert!(!err.contains("panicked"), "{err}");
+    assert_one_clear_line("bdis-viewer", code, err, names);
 }
 
 #[test]
@@ -120,11 +99,7 @@ fn alone_it_serves_its_page_read_only_and_stops_cleanly_on_sigterm() {
     let mut rest = String::new();
     log.read_to_string(&mut rest).unwrap();
     let status = child.wait().unwrap();
-    // iceoryx2 keeps the run's global management file after the last node; the launcher removes it after a run.
-    let left: Vec<String> = shm_files(&run_prefix).into_iter().filter(|n| !n.ends_with("global_mgmt")).collect();
-    for name in shm_files(&run_prefix) {
-        let _ = std::fs::remove_file(std::path::Path::new("/dev/shm").join(name));
-    }
+    let left = take_shm_leftovers(&run_prefix);
     assert!(status.success(), "{status}: {seen}{rest}");
     assert!(rest.contains("viewer done"), "{seen}{rest}");
     assert!(left.is_empty(), "the stopped viewer left shared memory behind: {left:?}");

@@ -1,5 +1,7 @@
 //! Test support shared by bdis-slam's crates.
 //!
+//! [`service`]: what the service binaries' tests share (refused input, the one clear line, /dev/shm leftovers).
+//!
 //! [`CountingAllocator`] proves that a hot path allocates nothing once warmed up. A test binary installs it:
 //!
 //! ```ignore
@@ -13,6 +15,8 @@
 //!
 //! Counts are per thread: a test measures the thread that runs the hot path, and helpers on other threads (the
 //! bundle-adjustment worker, the test harness) do not disturb it.
+
+pub mod service;
 
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::cell::Cell;
