@@ -30,6 +30,10 @@ pub struct DemoArgs {
     /// Address for `--view` (default: this machine only).
     #[arg(long, default_value = crate::view_cmd::DEFAULT_LISTEN, requires = "view")]
     listen: String,
+    /// Also send the scope's pose and the map over OpenIGTLink (to 3D Slicer or any OpenIGTLink receiver; default
+    /// address 127.0.0.1:18944).
+    #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = crate::plan::DEFAULT_IGTL_LISTEN)]
+    igtl: Option<String>,
 }
 
 pub fn demo(args: DemoArgs) -> Result<ExitCode> {
@@ -60,6 +64,10 @@ pub fn demo(args: DemoArgs) -> Result<ExitCode> {
     if args.view {
         crate::plan::add_viewer(&mut launch, &args.listen)?;
         eprintln!("bdis-slam demo: live view at http://{}/ while it runs", args.listen);
+    }
+    if let Some(listen) = &args.igtl {
+        crate::plan::add_igtl(&mut launch, listen, "polydata")?;
+        eprintln!("bdis-slam demo: OpenIGTLink at {listen} (pose: CameraToWorld; map: MapKf<id>)");
     }
     let (code, result) = execute_and_report(&launch, Path::new("launch.toml"), &run_dir, None)?;
     let find = |name: &str| result.latency.processes.iter().find(|p| p.name == name);

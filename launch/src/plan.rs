@@ -176,9 +176,32 @@ pub fn add_viewer(plan: &mut bdis_slam::launch_file::LaunchFile, listen: &str) -
     for p in mosaic.into_iter().flat_map(|m| m.args.windows(2)).filter(|w| w[0] == "--map-param") {
         args.extend(["--map-param".to_string(), p[1].clone()]);
     }
-    let mut viewer = bdis_slam::launch_file::ServiceSpec {
-        name: "viewer".into(),
-        binary: "bdis-viewer".into(),
+    let viewer = watcher("viewer", "bdis-viewer", args, core);
+    plan.services.push(viewer);
+    Ok(())
+}
+
+/// Where `--igtl` listens when no address is given: OpenIGTLink's port, this machine only.
+pub const DEFAULT_IGTL_LISTEN: &str = "127.0.0.1:18944";
+
+/// Adds the OpenIGTLink output (`bdis-igtl`, serving on `listen`, the map sent as `map`) to a plan that tracks,
+/// on the dense side's core. Like the viewer it only watches: restarted when it crashes, given up without
+/// ending the run when it cannot run at all.
+pub fn add_igtl(plan: &mut bdis_slam::launch_file::LaunchFile, listen: &str, map: &str) -> Result<()> {
+    let Some(core) = plan.services.iter().find(|s| s.binary == "bdis-mosaic").map(|m| m.core) else {
+        anyhow::bail!("--igtl needs the tracker and the map: run with --track");
+    };
+    let igtl = watcher("igtl", "bdis-igtl", vec!["--listen".into(), listen.into(), "--map".into(), map.into()], core);
+    plan.services.push(igtl);
+    Ok(())
+}
+
+/// A service that only watches the pipeline (the viewer, the OpenIGTLink output): restarted when it crashes, and
+/// its failing for good must not end a surgery's run.
+fn watcher(name: &str, binary: &str, args: Vec<String>, core: Option<usize>) -> bdis_slam::launch_file::ServiceSpec {
+    let mut spec = bdis_slam::launch_file::ServiceSpec {
+        name: name.into(),
+        binary: binary.into(),
         args,
         core,
         env: Default::default(),
@@ -186,10 +209,8 @@ pub fn add_viewer(plan: &mut bdis_slam::launch_file::LaunchFile, listen: &str) -
         liveness_s: None,
         handover: None,
         replacement_args: Vec::new(),
-        // It only watches: its failing for good must not end a surgery's run.
         essential: false,
     };
-    viewer.restart.policy = bdis_slam::launch_file::RestartPolicy::OnFailure;
-    plan.services.push(viewer);
-    Ok(())
+    spec.restart.policy = bdis_slam::launch_file::RestartPolicy::OnFailure;
+    spec
 }

@@ -83,6 +83,15 @@ pub struct RunArgs {
     /// Address for --view (default: this machine only).
     #[arg(long, default_value = crate::view_cmd::DEFAULT_LISTEN, requires = "view")]
     listen: String,
+    /// With --track: the scope's pose per frame and the map per keyframe over OpenIGTLink to a navigation
+    /// workstation (3D Slicer: OpenIGTLinkIF, client, this address). Default address: 127.0.0.1:18944, this
+    /// machine only; an open port shows the scope's path and a 3-D map of the patient's tissue.
+    #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = crate::plan::DEFAULT_IGTL_LISTEN, requires = "track")]
+    igtl: Option<String>,
+    /// With --igtl: how the map is sent (`polydata`: a point cloud per keyframe; `points`: POINT messages with
+    /// the tissue's colour; `off`).
+    #[arg(long, default_value = "polydata", value_parser = ["polydata", "points", "off"], requires = "igtl")]
+    igtl_map: String,
 }
 
 pub fn run(args: RunArgs) -> Result<ExitCode> {
@@ -211,6 +220,10 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
             if args.view {
                 crate::plan::add_viewer(&mut plan, &args.listen)?;
                 eprintln!("bdis-slam: live view at http://{}/ while it runs", args.listen);
+            }
+            if let Some(listen) = &args.igtl {
+                crate::plan::add_igtl(&mut plan, listen, &args.igtl_map)?;
+                eprintln!("bdis-slam: OpenIGTLink at {listen} (pose: CameraToWorld; map: MapKf<id>)");
             }
             (plan, PathBuf::from("launch.toml"))
         }

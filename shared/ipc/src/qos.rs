@@ -33,14 +33,15 @@ pub const CORRECTIONS_BUFFER: usize = 1024;
 /// launcher's and the tools'; 16 leaves room for the probe, `top` and a standby instance.
 pub const EVENT_MAX_NOTIFIERS: usize = 16;
 pub const EVENT_MAX_LISTENERS: usize = 16;
-pub const TELEMETRY_MAX_SUBSCRIBERS: usize = 3;
+/// Telemetry readers: the launcher, `bdis-slam top`, the viewer and the OpenIGTLink service.
+pub const TELEMETRY_MAX_SUBSCRIBERS: usize = 4;
 /// Records are drained by the launcher every [`TELEMETRY_DRAIN_PERIOD`](super::TELEMETRY_DRAIN_PERIOD); the
 /// buffer holds seconds of them at pipeline rates.
 pub const TELEMETRY_BUFFER: usize = 512;
 /// The launcher's control service (swap requests): the launcher serves, `bdis-slam swap` and tests ask.
 pub const CONTROL_MAX_SERVERS: usize = 1;
 pub const CONTROL_MAX_CLIENTS: usize = 4;
-/// The map snapshot service: the mosaic serves; `bdis-slam snapshot` and a viewer ask.
+/// The map snapshot service: the mosaic serves; `bdis-slam snapshot` and the OpenIGTLink service ask.
 pub const MAP_SNAPSHOT_MAX_SERVERS: usize = 1;
 pub const MAP_SNAPSHOT_MAX_CLIENTS: usize = 2;
 /// The launcher activates standby instances; standby instances waiting for the launcher's activation (at most one per swappable service at a time).

@@ -24,6 +24,19 @@ pub mod doubt {
     pub const ILL_CONDITIONED: u32 = 3;
     pub const APPEARANCE_DISAGREES: u32 = 4;
     pub const LOW_CONTRAST: u32 = 5;
+
+    /// The doubt's name as the tracker's quality log writes it (`few-inliers`, …; "" for none or an unknown
+    /// code), for consumers that report it without linking the tracker.
+    pub fn name(code: u32) -> &'static str {
+        match code {
+            FEW_INLIERS => "few-inliers",
+            LOW_INLIER_RATIO => "low-inlier-ratio",
+            ILL_CONDITIONED => "ill-conditioned",
+            APPEARANCE_DISAGREES => "appearance-disagrees",
+            LOW_CONTRAST => "low-contrast",
+            _ => "",
+        }
+    }
 }
 
 /// How a pose was first found ([`PoseRecord::method`]).

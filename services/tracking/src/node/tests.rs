@@ -131,3 +131,18 @@ fn frames_in_poses_and_keyframes_out_over_shared_memory() {
 fn qos_poses_buffer() -> usize {
     bdis_ipc::qos::POSES_BUFFER
 }
+
+/// The contract's doubt names (what consumers such as the OpenIGTLink output report) are the tracker's own.
+#[test]
+fn every_doubt_travels_under_the_trackers_name_for_it() {
+    for d in [
+        Doubt::FewInliers,
+        Doubt::LowInlierRatio,
+        Doubt::IllConditioned,
+        Doubt::AppearanceDisagrees,
+        Doubt::LowContrast,
+    ] {
+        assert_eq!(doubt::name(doubt_code(Some(d))), d.name());
+    }
+    assert_eq!(doubt::name(doubt_code(None)), "");
+}
