@@ -305,10 +305,16 @@ impl LatencyAggregator {
             .hops
             .iter()
             .filter_map(|((topic, to), h)| {
+                // A process declares one output topic; the tracker's is keyframes, and its poses and corrections
+                // come from the same process.
+                let declared = match topic.as_str() {
+                    "poses" | "corrections" => "keyframes",
+                    other => other,
+                };
                 let from = self
                     .processes
                     .iter()
-                    .find(|(_, p)| &p.output_topic == topic)
+                    .find(|(_, p)| p.output_topic == topic.as_str() || p.output_topic == declared)
                     .map_or_else(|| "?".to_string(), |(n, _)| n.clone());
                 Percentiles::of(h).map(|latency_us| HopReport {
                     from,

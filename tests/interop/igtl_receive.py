@@ -68,7 +68,7 @@ def decode(header, body):
     if generic:
         message = MessageBase()
     message.unpack(fields, body)
-    out = {"type": kind, "device": message.device_name, "timestamp": message.timestamp,
+    out = {"type": kind, "device": message.device_name, "timestamp": message.timestamp, "bytes": len(header) + len(body),
            "header_version": message.header_version, "message_id": message.message_id,
            "metadata": dict(message.metadata)}
     if kind == "TRANSFORM":

@@ -145,3 +145,23 @@ fn the_plot_has_a_bar_per_process_and_hop_scaled_by_p50() {
         .collect();
     assert!(widths[1] > widths[0], "the slower process has the longer bar: {widths:?}");
 }
+
+#[test]
+fn poses_and_corrections_are_hops_from_the_process_that_publishes_keyframes() {
+    let mut agg = LatencyAggregator::new();
+    agg.record(&rec("tracking", TelemetryKind::Ready, 0, [0; 4], "frames", "keyframes"));
+    agg.record(&rec("igtl", TelemetryKind::Ready, 0, [0; 4], "poses", ""));
+    let t0 = 1_000_000_000u64;
+    agg.record(&rec("tracking", TelemetryKind::Message, 1, [t0, t0, t0 + 10, t0 + 5_000_000], "frames", "keyframes"));
+    agg.record(&rec(
+        "igtl",
+        TelemetryKind::Message,
+        1,
+        [t0, t0 + 5_000_000, t0 + 5_100_000, t0 + 5_200_000],
+        "poses",
+        "",
+    ));
+    let report = agg.report();
+    let hop = report.hops.iter().find(|h| h.topic == "poses").unwrap();
+    assert_eq!((hop.from.as_str(), hop.to.as_str()), ("tracking", "igtl"));
+}

@@ -54,11 +54,14 @@ struct Output {
     map_out: MapOut,
     scope: DeviceName,
     state_device: DeviceName,
-    last_pose: Option<Outgoing>,
-    last_state: Option<(u32, u32, Outgoing)>,
+    /// The newest record with a pose, and the newest state (state, doubt): what a receiver is sent first.
+    last_pose: Option<PoseRecord>,
+    /// The record at which the state (state, doubt) last changed.
+    last_state: Option<PoseRecord>,
     mirror: MapMirror,
     changes: Vec<Change>,
-    /// Reused text of the metadata values.
+    /// Reused text of the state message and the metadata values.
+    text: String,
     frame_time: String,
     frame: String,
     /// Wall clock minus monotonic clock, ns: turns a frame's capture time into the header's time of day.
@@ -94,6 +97,7 @@ impl Output {
             last_state: None,
             mirror: MapMirror::default(),
             changes: Vec::new(),
+            text: String::with_capacity(64),
             frame_time: String::with_capacity(32),
             frame: String::with_capacity(24),
             wall_minus_monotonic_ns: wall_minus_monotonic_ns(),
@@ -109,27 +113,51 @@ impl Output {
         self.wall_time(bdis_ipc::clock::monotonic_ns())
     }
 
-    /// The messages of one pose record: its TRANSFORM when it has a pose, and the state when it changed.
+    /// The messages of one pose record: its TRANSFORM when it has a pose, and the state when it changed. With
+    /// no receiver nothing is encoded (a console without a navigation system pays nothing per frame); the
+    /// record is kept for a receiver that connects later.
     fn pose(&mut self, record: &PoseRecord, receivers: &mut Receivers) {
-        let time = self.wall_time(record.t_capture_ns);
-        let state = state_name(record.state);
-        let why = if record.state == tracking_state::OK { "" } else { doubt::name(record.doubt) };
-        if self.last_state.as_ref().is_none_or(|(s, d, _)| (*s, *d) != (record.state, record.doubt)) {
-            let mut text = String::from(state);
-            if !why.is_empty() {
-                let _ = write!(text, ": {why}");
-            }
-            let message = outgoing(self.encoder.string(&self.state_device, time, &text, &[]));
-            receivers.broadcast(message.clone());
-            self.last_state = Some((record.state, record.doubt, message));
+        let state_changed = self.last_state.is_none_or(|s| (s.state, s.doubt) != (record.state, record.doubt));
+        if state_changed {
+            self.last_state = Some(*record);
         }
-        // A frame without a pose (lost, not yet initialised) has no TRANSFORM: the receiver keeps the last one,
-        // whose state message now says it is stale.
-        let Ok(Some(world_from_camera)) = validate::pose_record(record) else { return };
+        let posed = matches!(validate::pose_record(record), Ok(Some(_)));
+        if posed {
+            self.last_pose = Some(*record);
+        }
+        if receivers.watchers() == 0 {
+            return;
+        }
+        if state_changed {
+            receivers.broadcast(self.state_message(record));
+        }
+        if posed && let Some(message) = self.transform_message(record) {
+            receivers.broadcast(message);
+        }
+    }
+
+    fn state_message(&mut self, record: &PoseRecord) -> Outgoing {
+        let time = self.wall_time(record.t_capture_ns);
+        self.text.clear();
+        self.text.push_str(state_name(record.state));
+        let why = if record.state == tracking_state::OK { "" } else { doubt::name(record.doubt) };
+        if !why.is_empty() {
+            let _ = write!(self.text, ": {why}");
+        }
+        outgoing(self.encoder.string(&self.state_device, time, &self.text, &[]))
+    }
+
+    /// The TRANSFORM of a record with a pose (None without one). Each message sent is one shared buffer, the
+    /// only allocation per frame.
+    fn transform_message(&mut self, record: &PoseRecord) -> Option<Outgoing> {
+        let Ok(Some(world_from_camera)) = validate::pose_record(record) else { return None };
+        let time = self.wall_time(record.t_capture_ns);
         self.frame_time.clear();
         let _ = write!(self.frame_time, "{:.9}", record.t_source_ns as f64 * 1e-9);
         self.frame.clear();
         let _ = write!(self.frame, "{}", record.frame_seq);
+        let state = state_name(record.state);
+        let why = if record.state == tracking_state::OK { "" } else { doubt::name(record.doubt) };
         let status = if record.state == tracking_state::OK { "OK" } else { "INVALID" };
         let metadata = [
             ("TransformStatus", status),
@@ -138,9 +166,7 @@ impl Output {
             ("FrameTime", self.frame_time.as_str()),
             ("Frame", self.frame.as_str()),
         ];
-        let message = outgoing(self.encoder.transform(&self.scope, time, &world_from_camera, &metadata));
-        receivers.broadcast(message.clone());
-        self.last_pose = Some(message);
+        Some(outgoing(self.encoder.transform(&self.scope, time, &world_from_camera, &metadata)))
     }
 
     fn block_message(&mut self, kf_id: u64, time: Timestamp) -> Option<Outgoing> {
@@ -175,8 +201,13 @@ impl Output {
 
     /// What a receiver that connects now is sent first: the state, the newest pose, every block of the map.
     fn replay(&mut self) -> Vec<Outgoing> {
-        let mut out: Vec<Outgoing> = self.last_state.iter().map(|(_, _, m)| m.clone()).collect();
-        out.extend(self.last_pose.iter().cloned());
+        let mut out = Vec::new();
+        if let Some(changed) = self.last_state {
+            out.push(self.state_message(&changed));
+        }
+        if let Some(newest) = self.last_pose {
+            out.extend(self.transform_message(&newest));
+        }
         let time = self.now();
         let ids: Vec<u64> = self.mirror.blocks().map(|(id, _)| id).collect();
         out.extend(ids.into_iter().filter_map(|id| self.block_message(id, time)));
@@ -336,5 +367,80 @@ pub fn run(config: Config) -> Result<()> {
             telemetry.failed();
             Err(e)
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[global_allocator]
+    static GLOBAL: bdis_testkit::CountingAllocator = bdis_testkit::CountingAllocator;
+
+    fn record(seq: u64, state: u32) -> PoseRecord {
+        let pose = nalgebra::Isometry3::new(
+            nalgebra::Vector3::new(seq as f64, 2.0, 3.0),
+            nalgebra::Vector3::new(0.0, 0.01 * seq as f64, 0.0),
+        );
+        PoseRecord {
+            frame_seq: seq,
+            t_capture_ns: 1_000_000_000 + seq * 33_000_000,
+            t_source_ns: seq * 33_000_000,
+            world_from_camera: bdis_ipc::track::pose_to_array(&pose),
+            state,
+            inliers: 300,
+            new_keyframe: u64::MAX,
+            reprojection_rms_px: 0.8,
+            position_sigma_rel: 1e-4,
+            appearance_agreement: 1.0,
+            ..Default::default()
+        }
+    }
+
+    #[test]
+    #[allow(clippy::unwrap_used)]
+    fn a_warmed_up_frame_allocates_nothing_without_a_receiver_and_one_shared_buffer_with_one() {
+        let mut output = Output::new(MapOut::PolyData).unwrap();
+        let (mut receivers, doorbell) = bdis_igtl::server::receivers();
+        for seq in 0..4 {
+            output.pose(&record(seq, tracking_state::OK), &mut receivers);
+        }
+        let before = bdis_testkit::allocations();
+        for seq in 4..40 {
+            output.pose(&record(seq, tracking_state::OK), &mut receivers);
+        }
+        assert_eq!(bdis_testkit::allocations() - before, 0, "no receiver: nothing encoded, nothing allocated");
+
+        let (sent_to, sent) = std::sync::mpsc::channel::<Outgoing>();
+        let watcher = bdis_core::fanout::start_writer(
+            "test-receiver",
+            bdis_igtl::server::RECEIVER_QUEUE,
+            sent_to,
+            |to, m| to.send(m).map_err(|_| std::io::Error::other("gone")),
+            |_| {},
+        )
+        .unwrap();
+        doorbell.send(watcher).unwrap();
+        receivers.admit(|| output.replay());
+        // The newest state and pose first.
+        let first: Vec<Outgoing> = (0..2).map(|_| sent.recv().unwrap()).collect();
+        assert_eq!(&first[0][2..8], b"STRING");
+        assert_eq!(&first[1][2..11], b"TRANSFORM");
+        for seq in 40..44 {
+            output.pose(&record(seq, tracking_state::OK), &mut receivers);
+        }
+        let before = bdis_testkit::allocations();
+        for seq in 44..80 {
+            output.pose(&record(seq, tracking_state::OK), &mut receivers);
+        }
+        assert_eq!(bdis_testkit::allocations() - before, 36, "one shared buffer per frame sent");
+        // A change of state is said once, then the poses go on.
+        output.pose(&record(80, tracking_state::UNCERTAIN), &mut receivers);
+        // Everything broadcast reaches the receiver's writer, in order (it forwards on its own thread).
+        let kinds: Vec<Vec<u8>> = (0..4 + 36 + 2)
+            .map(|_| sent.recv_timeout(std::time::Duration::from_secs(10)).unwrap()[2..14].to_vec())
+            .collect();
+        assert_eq!(&kinds[40][..6], b"STRING");
+        assert_eq!(&kinds[41][..9], b"TRANSFORM");
     }
 }
