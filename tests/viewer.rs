@@ -231,12 +231,20 @@ fn the_page_draws_the_map_the_scope_and_the_depth_in_headless_chromium() {
     let viewer = Viewer::start(run);
     let url = format!("http://{}/", viewer.addr);
 
-    // The page says it drew every keyframe block, and no error.
-    let dom = headless(&url, &["--dump-dom"]);
-    let dom_text = text(&dom.stdout);
-    assert!(!dom_text.contains("data-error"), "{dom_text}");
+    // The page says it drew every keyframe block, and no error. A Chromium started cold (its binary not yet in
+    // the page cache, as on a fresh CI machine) was seen once to end its virtual-time budget before the page's
+    // modules had run: the page is then loaded again, at most twice more; an error in the page fails at once.
     let blocks = decode_map(&http(&viewer.addr, "GET", "/api/map").2).2;
-    assert!(dom_text.contains(&format!("data-ready=\"{blocks}\"")), "the page did not finish: {dom_text}");
+    let ready = format!("data-ready=\"{blocks}\"");
+    let mut dom_text = String::new();
+    for _ in 0..3 {
+        dom_text = text(&headless(&url, &["--dump-dom"]).stdout);
+        assert!(!dom_text.contains("data-error"), "{dom_text}");
+        if dom_text.contains(&ready) {
+            break;
+        }
+    }
+    assert!(dom_text.contains(&ready), "the page did not finish: {dom_text}");
 
     let shot = TempDir::new("shot");
     let png = shot.path().join("view.png");
