@@ -1,0 +1,64 @@
+//! The bridge between two hosts' pipelines: chosen topics carried over one TCP connection, each sample numbered
+//! by what it is (a depth keyframe by its keyframe id, a correction by its generation and keyframe), kept by the
+//! sender until the receiver says it has published it, and sent again after a broken connection. A library that
+//! knows nothing of processes or sockets' owners: the `bdis-bridge` service drives it.
+//!
+//! * [`wire`]: the frames on the connection (hello, sample, acknowledgement), checked as hostile input;
+//! * [`records`]: the topics' headers as bytes, field by field (little-endian, no padding, no layout assumed);
+//! * [`ledger`]: what the sender still owes the receiver, and what the receiver has already published.
+
+pub mod ledger;
+pub mod records;
+pub mod wire;
+
+/// A topic the bridge carries.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub enum Carried {
+    /// Depth keyframes (stereo → mosaic): `bdis.v2.DepthHeader` + payload, numbered by keyframe id.
+    Depth,
+    /// Keyframe pose corrections (tracking → mosaic): `bdis.v1.KeyframePose`, numbered by generation and keyframe.
+    Corrections,
+}
+
+impl Carried {
+    pub const ALL: [Carried; 2] = [Carried::Depth, Carried::Corrections];
+
+    pub fn code(self) -> u8 {
+        match self {
+            Carried::Depth => 1,
+            Carried::Corrections => 2,
+        }
+    }
+
+    pub fn from_code(code: u8) -> Option<Self> {
+        Self::ALL.into_iter().find(|c| c.code() == code)
+    }
+
+    /// The name users give (`--topics depth,corrections`), the topic's short name.
+    pub fn name(self) -> &'static str {
+        match self {
+            Carried::Depth => "depth",
+            Carried::Corrections => "corrections",
+        }
+    }
+
+    pub fn parse(name: &str) -> Option<Self> {
+        Self::ALL.into_iter().find(|c| c.name() == name)
+    }
+}
+
+#[derive(Debug, thiserror::Error, PartialEq, Eq)]
+pub enum BridgeError {
+    #[error("a frame of {0} bytes (at most {max})", max = wire::MAX_FRAME_BYTES)]
+    FrameTooLong(u64),
+    #[error("a frame of unknown kind {0}")]
+    UnknownKind(u8),
+    #[error("a frame for unknown topic {0}")]
+    UnknownTopic(u8),
+    #[error("a {what} frame cut short ({len} bytes)")]
+    Truncated { what: &'static str, len: usize },
+    #[error("protocol version {0} (this bridge speaks {version})", version = wire::VERSION)]
+    Version(u32),
+    #[error("a {0} header of the wrong size")]
+    HeaderSize(&'static str),
+}

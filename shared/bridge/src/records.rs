@@ -1,0 +1,168 @@
+//! The carried topics' headers as bytes, field by field, little-endian: nothing about the in-memory layout (its
+//! padding, the host's byte order) crosses the link. What comes back is checked by the receiver with the same
+//! `bdis_ipc::validate` every consumer runs before it is published.
+
+use bdis_ipc::DepthHeader;
+use bdis_ipc::track::{KeyframeMeta, KeyframePose, StereoIntrinsics};
+
+use crate::BridgeError;
+
+struct Put<'a>(&'a mut Vec<u8>);
+
+impl Put<'_> {
+    fn u64(&mut self, v: u64) -> &mut Self {
+        self.0.extend_from_slice(&v.to_le_bytes());
+        self
+    }
+    fn u32(&mut self, v: u32) -> &mut Self {
+        self.0.extend_from_slice(&v.to_le_bytes());
+        self
+    }
+    fn f64(&mut self, v: f64) -> &mut Self {
+        self.0.extend_from_slice(&v.to_le_bytes());
+        self
+    }
+}
+
+struct Take<'a> {
+    bytes: &'a [u8],
+    at: usize,
+}
+
+impl Take<'_> {
+    fn bytes<const N: usize>(&mut self) -> [u8; N] {
+        let mut out = [0u8; N];
+        if let Some(b) = self.bytes.get(self.at..self.at + N) {
+            out.copy_from_slice(b);
+        }
+        self.at += N;
+        out
+    }
+    fn u64(&mut self) -> u64 {
+        u64::from_le_bytes(self.bytes())
+    }
+    fn u32(&mut self) -> u32 {
+        u32::from_le_bytes(self.bytes())
+    }
+    fn f64(&mut self) -> f64 {
+        f64::from_le_bytes(self.bytes())
+    }
+}
+
+fn put_meta(p: &mut Put<'_>, m: &KeyframeMeta) {
+    p.u64(m.kf_id);
+    for &v in &m.world_from_camera {
+        p.f64(v);
+    }
+    let i = &m.intrinsics;
+    p.f64(i.fx).f64(i.fy).f64(i.cx).f64(i.cy).f64(i.bf).u64(m.corrections_generation);
+}
+
+fn take_meta(t: &mut Take<'_>) -> KeyframeMeta {
+    let kf_id = t.u64();
+    let world_from_camera = std::array::from_fn(|_| t.f64());
+    let intrinsics = StereoIntrinsics { fx: t.f64(), fy: t.f64(), cx: t.f64(), cy: t.f64(), bf: t.f64() };
+    KeyframeMeta { kf_id, world_from_camera, intrinsics, corrections_generation: t.u64() }
+}
+
+/// Bytes of a depth header on the wire.
+pub const DEPTH_HEADER_BYTES: usize = (1 + 7 + 5 + 1) * 8 + 3 * 8 + 8 * 4;
+
+pub fn put_depth_header(out: &mut Vec<u8>, h: &DepthHeader) {
+    let mut p = Put(out);
+    put_meta(&mut p, &h.meta);
+    p.u64(h.frame_seq).u64(h.t_capture_ns).u64(h.t_publish_ns);
+    p.u32(h.width).u32(h.height).u32(h.disparity_offset).u32(h.confidence_offset).u32(h.rgb_offset);
+    p.u32(h.algorithm).u32(h.flags).u32(h.density_permille);
+}
+
+pub fn depth_header(bytes: &[u8]) -> Result<DepthHeader, BridgeError> {
+    if bytes.len() != DEPTH_HEADER_BYTES {
+        return Err(BridgeError::HeaderSize("depth"));
+    }
+    let mut t = Take { bytes, at: 0 };
+    let meta = take_meta(&mut t);
+    Ok(DepthHeader {
+        meta,
+        frame_seq: t.u64(),
+        t_capture_ns: t.u64(),
+        t_publish_ns: t.u64(),
+        width: t.u32(),
+        height: t.u32(),
+        disparity_offset: t.u32(),
+        confidence_offset: t.u32(),
+        rgb_offset: t.u32(),
+        algorithm: t.u32(),
+        flags: t.u32(),
+        density_permille: t.u32(),
+    })
+}
+
+/// Bytes of a correction on the wire.
+pub const CORRECTION_BYTES: usize = 8 + 7 * 8 + 8 + 4 + 4;
+
+pub fn put_correction(out: &mut Vec<u8>, c: &KeyframePose) {
+    let mut p = Put(out);
+    p.u64(c.kf_id);
+    for &v in &c.world_from_camera {
+        p.f64(v);
+    }
+    p.u64(c.generation).u32(c.culled).u32(c.reserved);
+}
+
+pub fn correction(bytes: &[u8]) -> Result<KeyframePose, BridgeError> {
+    if bytes.len() != CORRECTION_BYTES {
+        return Err(BridgeError::HeaderSize("correction"));
+    }
+    let mut t = Take { bytes, at: 0 };
+    Ok(KeyframePose {
+        kf_id: t.u64(),
+        world_from_camera: std::array::from_fn(|_| t.f64()),
+        generation: t.u64(),
+        culled: t.u32(),
+        reserved: t.u32(),
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn every_field_crosses_unchanged() {
+        let h = DepthHeader {
+            meta: KeyframeMeta {
+                kf_id: 77,
+                world_from_camera: [1.0, 2.0, 3.0, 0.1, 0.2, 0.3, 0.9],
+                intrinsics: StereoIntrinsics { fx: 260.0, fy: 261.0, cx: 159.5, cy: 119.5, bf: 1300.0 },
+                corrections_generation: 12,
+            },
+            frame_seq: 300,
+            t_capture_ns: 1,
+            t_publish_ns: 2,
+            width: 320,
+            height: 240,
+            disparity_offset: 0,
+            confidence_offset: 307_200,
+            rgb_offset: 614_400,
+            algorithm: DepthHeader::BDIS,
+            flags: 0,
+            density_permille: 768,
+        };
+        let mut bytes = Vec::new();
+        put_depth_header(&mut bytes, &h);
+        assert_eq!(bytes.len(), DEPTH_HEADER_BYTES);
+        assert_eq!(depth_header(&bytes), Ok(h));
+        assert!(depth_header(&bytes[1..]).is_err());
+        let c = KeyframePose {
+            kf_id: 5,
+            world_from_camera: [0.5, -1.0, 2.0, 0.0, 0.0, 0.0, 1.0],
+            generation: 9,
+            culled: 1,
+            reserved: 0,
+        };
+        let mut bytes = Vec::new();
+        put_correction(&mut bytes, &c);
+        assert_eq!(correction(&bytes), Ok(c));
+    }
+}
