@@ -330,8 +330,12 @@ impl LatencyAggregator {
             .filter_map(|(name, p)| {
                 // The tracker publishes poses and keyframes (its telemetry names the keyframes topic); the map's
                 // owner consumes depth and publishes nothing. Probes only watch.
+                // A bridge's sending side (bdis-bridge send) also consumes depth and publishes nothing here: what
+                // it measures is the depth handed to the link (the map is made on the other host).
                 let path = if p.output_topic == "keyframes" && p.input_topic == "frames" {
                     "capture → pose"
+                } else if p.input_topic == "depth" && p.output_topic.is_empty() && name.starts_with("bridge") {
+                    "capture → depth onto the bridge"
                 } else if p.input_topic == "depth" && p.output_topic.is_empty() && !name.starts_with("probe") {
                     "capture → map"
                 } else {

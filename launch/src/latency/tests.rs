@@ -165,3 +165,14 @@ fn poses_and_corrections_are_hops_from_the_process_that_publishes_keyframes() {
     let hop = report.hops.iter().find(|h| h.topic == "poses").unwrap();
     assert_eq!((hop.from.as_str(), hop.to.as_str()), ("tracking", "igtl"));
 }
+
+#[test]
+fn a_bridge_sending_depth_is_not_taken_for_the_map() {
+    let mut agg = LatencyAggregator::new();
+    agg.record(&rec("bridge", TelemetryKind::Ready, 0, [0; 4], "depth", ""));
+    let t0 = 1_000_000_000u64;
+    agg.record(&rec("bridge", TelemetryKind::Message, 1, [t0, t0 + 1_000, t0 + 2_000, t0 + 3_000], "depth", ""));
+    let report = agg.report();
+    assert_eq!(report.end_to_end.len(), 1);
+    assert_eq!(report.end_to_end[0].path, "capture → depth onto the bridge");
+}

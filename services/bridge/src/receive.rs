@@ -1,0 +1,269 @@
+//! The consuming host's side: listens for the sender, says hello with what it has already published, and
+//! publishes each new sample into this host's shared memory with the topic's own QoS — checked first, as every
+//! consumer checks what it receives — then acknowledges it. A sample it already published (sent again after a
+//! broken connection) is acknowledged and not published twice. A new connection replaces the old one (the sender
+//! restarted). It ends after it has published the end of the depth stream.
+
+use std::io::Write;
+use std::net::{TcpListener, TcpStream};
+use std::time::Duration;
+
+use anyhow::{Context, Result};
+use bdis_bridge::ledger::Inbox;
+use bdis_bridge::wire::{self, Frame, FrameReader, SampleId};
+use bdis_bridge::{BridgeError, Carried, records};
+use bdis_ipc::telemetry::MessageTiming;
+use bdis_ipc::validate::{self, Reason, Rejection};
+use bdis_ipc::{DepthHeader, Ipc, KeyframePose, TelemetryPublisher, Topic, event_id};
+use iceoryx2::port::notifier::Notifier;
+use iceoryx2::port::publisher::Publisher;
+use iceoryx2::prelude::*;
+use iceoryx2::waitset::WaitSetRunResult;
+
+use crate::node::{Common, PeerState, SocketFd, read_available};
+
+const WRITE_TIMEOUT: Duration = Duration::from_secs(10);
+
+type DepthPublisher = Publisher<ipc::Service, [u8], DepthHeader>;
+
+struct DepthOut {
+    service: bdis_ipc::DepthService,
+    /// Made for the first keyframe, with the largest payload it can take.
+    publisher: Option<(DepthPublisher, usize)>,
+    events: Notifier<ipc::Service>,
+}
+
+struct Outputs {
+    depth: Option<DepthOut>,
+    corrections: Option<(Publisher<ipc::Service, KeyframePose, ()>, Notifier<ipc::Service>)>,
+}
+
+struct Connection {
+    stream: TcpStream,
+    reader: FrameReader,
+    /// Samples of this connection handled so far (published, or recognised as already published).
+    handled: u64,
+}
+
+/// What handling one sample came to.
+enum Handled {
+    Published,
+    Again,
+    EndOfStream,
+    Refused(Rejection),
+}
+
+fn protocol(e: BridgeError) -> Rejection {
+    Rejection::new(Reason::Layout, 0, format!("bridge: {e}"))
+}
+
+fn publish_depth(
+    ipc: &Ipc,
+    out: &mut DepthOut,
+    what: SampleId,
+    link_delays_us: &mut Vec<u64>,
+    header: &[u8],
+    payload: &[u8],
+    telemetry: &mut TelemetryPublisher,
+) -> Result<Handled> {
+    let t_receive_ns = bdis_ipc::clock::monotonic_ns();
+    // Meaningful where both hosts share a clock (two systems on one machine); across machines it also holds
+    // the clocks' offset.
+    link_delays_us.push(t_receive_ns.saturating_sub(what.t_sent_ns) / 1000);
+    let mut h = match records::depth_header(header) {
+        Ok(h) => h,
+        Err(e) => return Ok(Handled::Refused(protocol(e))),
+    };
+    if h.is_end_of_stream() {
+        let publisher = match &out.publisher {
+            Some((p, _)) => p,
+            None => &out.publisher.insert((ipc.depth_publisher(&out.service, 1)?, 1)).0,
+        };
+        h.t_publish_ns = bdis_ipc::clock::monotonic_ns();
+        bdis_node::send_end_of_stream(publisher, h)?;
+        bdis_ipc::notify(&out.events, event_id::END_OF_STREAM)?;
+        return Ok(Handled::EndOfStream);
+    }
+    // The publisher is made for the first keyframe's size (the stream's images do not change size).
+    if out.publisher.as_ref().is_none_or(|(_, max)| payload.len() > *max) {
+        out.publisher = None;
+        out.publisher = Some((ipc.depth_publisher(&out.service, payload.len())?, payload.len()));
+    }
+    let Some((publisher, _)) = &out.publisher else { return Ok(Handled::Again) };
+    let mut loan = publisher.loan_slice_uninit(payload.len()).context("loan a depth keyframe")?;
+    bdis_node::copy_into(loan.payload_mut(), payload);
+    // SAFETY: copy_into wrote every byte of the loan (it is exactly the payload's length).
+    let mut sample = unsafe { loan.assume_init() };
+    // Checked where the consumers will read it: in shared memory, whose float arrays are aligned (the bytes as
+    // they came off the socket are not).
+    if let Err(rejection) = validate::depth(&h, sample.payload()) {
+        return Ok(Handled::Refused(rejection));
+    }
+    h.t_publish_ns = bdis_ipc::clock::monotonic_ns();
+    *sample.user_header_mut() = h;
+    sample.send().with_context(|| format!("publish depth keyframe {}", h.meta.kf_id))?;
+    bdis_ipc::notify(&out.events, event_id::NEW_SAMPLE)?;
+    let timing = MessageTiming {
+        frame_seq: h.meta.kf_id,
+        t_capture_ns: h.t_capture_ns,
+        // As a source: what crossed the link has no upstream publisher on this host (the link's own delay is
+        // logged at the end).
+        t_upstream_publish_ns: 0,
+        t_receive_ns,
+        t_done_ns: bdis_ipc::clock::monotonic_ns(),
+    };
+    telemetry.message(timing, 0);
+    Ok(Handled::Published)
+}
+
+fn publish_correction(
+    out: &(Publisher<ipc::Service, KeyframePose, ()>, Notifier<ipc::Service>),
+    header: &[u8],
+) -> Result<Handled> {
+    let record = match records::correction(header) {
+        Ok(r) => r,
+        Err(e) => return Ok(Handled::Refused(protocol(e))),
+    };
+    if let Err(rejection) = validate::correction(&record) {
+        return Ok(Handled::Refused(rejection));
+    }
+    out.0.send_copy(record).context("publish a correction")?;
+    bdis_ipc::notify(&out.1, event_id::NEW_SAMPLE)?;
+    Ok(Handled::Published)
+}
+
+pub fn run(common: Common, listen: &str) -> Result<()> {
+    let Common { topics, name, ipc_prefix } = common;
+    // The address first: refused before shared memory is touched.
+    let listener = TcpListener::bind(listen).with_context(|| format!("cannot listen on {listen}"))?;
+    listener.set_nonblocking(true).context("a non-blocking listener")?;
+    let ipc = Ipc::open(&name, &ipc_prefix)?;
+    let mut outputs = Outputs {
+        depth: if topics.contains(&Carried::Depth) {
+            Some(DepthOut { service: ipc.depth()?, publisher: None, events: ipc.notifier(&ipc.events(Topic::Depth)?)? })
+        } else {
+            None
+        },
+        corrections: if topics.contains(&Carried::Corrections) {
+            let service = ipc.corrections()?;
+            let publisher = service.publisher_builder().create().context("create the corrections publisher")?;
+            Some((publisher, ipc.notifier(&ipc.events(Topic::Corrections)?)?))
+        } else {
+            None
+        },
+    };
+    let output_topic = if outputs.depth.is_some() { Topic::Depth } else { Topic::Corrections };
+    let mut telemetry = TelemetryPublisher::new(&ipc, &name, None, Some(output_topic))?;
+    let waitset = WaitSetBuilder::new().create::<ipc::Service>().map_err(bdis_node::NodeError::WaitSet)?;
+    let listener_fd = SocketFd::of(&listener).context("the listener's descriptor")?;
+    let _accepting = waitset.attach_notification(&listener_fd).map_err(bdis_node::NodeError::Attach)?;
+    let _keepalive = waitset.attach_interval(bdis_node::WAKE_DEADLINE).map_err(bdis_node::NodeError::Attach)?;
+    tracing::info!("receiving {} on {}", topics.iter().map(|t| t.name()).collect::<Vec<_>>().join(", "), listen);
+    telemetry.ready();
+
+    let mut inbox = Inbox::default();
+    let mut current: Option<Connection> = None;
+    let (mut published, mut again, mut refused) = (0u64, 0u64, 0u64);
+    let mut ended = false;
+    let mut hello = Vec::new();
+    let mut link_delays_us: Vec<u64> = Vec::new();
+    while !ended {
+        let fd = current.as_ref().and_then(|c| SocketFd::of(&c.stream));
+        let guard = match &fd {
+            Some(fd) => Some(waitset.attach_notification(fd).map_err(bdis_node::NodeError::Attach)?),
+            None => None,
+        };
+        let run =
+            waitset.wait_and_process_once(|_| CallbackProgression::Continue).map_err(bdis_node::NodeError::Wait)?;
+        drop(guard);
+        if matches!(run, WaitSetRunResult::TerminationRequest | WaitSetRunResult::Interrupt) {
+            break;
+        }
+        telemetry.keepalive();
+
+        // A sender that connects replaces the one before (it restarted): it is told what is already published.
+        while let Ok((stream, peer)) = listener.accept() {
+            hello.clear();
+            wire::hello(&mut hello, &inbox.hello(&topics));
+            let said = stream.set_nodelay(true).and_then(|()| stream.set_write_timeout(Some(WRITE_TIMEOUT)));
+            let said = said.and_then(|()| (&stream).write_all(&hello)).and_then(|()| stream.set_nonblocking(true));
+            match said {
+                Ok(()) => {
+                    tracing::info!("sender connected from {peer}");
+                    current = Some(Connection { stream, reader: FrameReader::default(), handled: 0 });
+                }
+                Err(e) => tracing::warn!("a sender from {peer} could not be greeted: {e}"),
+            }
+        }
+        let Some(connection) = current.as_mut() else { continue };
+        let state = read_available(&mut connection.stream, &mut connection.reader);
+        let before = connection.handled;
+        let mut broken = state == PeerState::Closed;
+        loop {
+            let frame = match connection.reader.next_frame() {
+                Ok(Some(frame)) => frame,
+                Ok(None) => break,
+                Err(e) => {
+                    telemetry.rejected(Topic::Depth, &protocol(e));
+                    broken = true;
+                    break;
+                }
+            };
+            let Frame::Sample { what, header, payload } = frame else {
+                broken = true;
+                break;
+            };
+            connection.handled += 1;
+            if !inbox.fresh(what.topic, what.id) {
+                again += 1;
+                continue;
+            }
+            let handled = match (what.topic, &mut outputs) {
+                (Carried::Depth, Outputs { depth: Some(out), .. }) => {
+                    publish_depth(&ipc, out, what, &mut link_delays_us, header, payload, &mut telemetry)?
+                }
+                (Carried::Corrections, Outputs { corrections: Some(out), .. }) => publish_correction(out, header)?,
+                (topic, _) => Handled::Refused(Rejection::new(
+                    Reason::Layout,
+                    what.id,
+                    format!("bridge: {} is not carried here", topic.name()),
+                )),
+            };
+            match handled {
+                Handled::Published => published += 1,
+                Handled::Again => again += 1,
+                Handled::EndOfStream => ended = true,
+                Handled::Refused(rejection) => {
+                    refused += 1;
+                    let topic = if what.topic == Carried::Depth { Topic::Depth } else { Topic::Corrections };
+                    telemetry.rejected(topic, &rejection);
+                }
+            }
+            inbox.published(what.topic, what.id);
+        }
+        if connection.handled != before {
+            let mut ack = Vec::with_capacity(16);
+            wire::ack(&mut ack, connection.handled);
+            let sent = connection
+                .stream
+                .set_nonblocking(false)
+                .and_then(|()| connection.stream.write_all(&ack))
+                .and_then(|()| connection.stream.set_nonblocking(true));
+            broken |= sent.is_err();
+        }
+        if broken && !ended {
+            tracing::warn!("the sender's connection ended; waiting for it to come back");
+            current = None;
+        }
+    }
+    link_delays_us.sort_unstable();
+    let at = |q: f64| link_delays_us.get(((link_delays_us.len() as f64 - 1.0) * q).round() as usize).copied();
+    tracing::info!(
+        "bridge receiver done: {published} published, {again} already had, {refused} refused; depth keyframes \
+         sent → received p50 {:?} µs, p99 {:?} µs",
+        at(0.5),
+        at(0.99)
+    );
+    telemetry.finished();
+    Ok(())
+}

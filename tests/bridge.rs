@@ -1,0 +1,212 @@
+#![allow(clippy::unwrap_used, clippy::expect_used)] // test code: a panic is the failure report
+//! Beyond one host (issue #21): the pipeline split over two iceoryx2 systems that share no memory — two
+//! shared-memory prefixes, each run by its own launcher from its own launch file, standing for two hosts — and
+//! joined only by `bdis-bridge` over TCP on loopback. Host A runs acquisition, tracking and the stereo service;
+//! host B the mosaic. The map B writes is byte for byte the map of the same run on one host, and a `kill -9` of
+//! either side of the bridge mid-run loses no keyframe once the launcher has restarted it.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::sync::OnceLock;
+use std::time::Duration;
+
+use common::{TempDir, bdis_slam, prefix, render_small_colon, text, track_run};
+
+/// One small rendered colon flight for every test here.
+fn sequence() -> &'static Path {
+    static SEQUENCE: OnceLock<TempDir> = OnceLock::new();
+    SEQUENCE
+        .get_or_init(|| {
+            let tmp = TempDir::new("bridgeseq");
+            render_small_colon(&tmp.path().join("colon"), 48);
+            tmp
+        })
+        .path()
+}
+
+fn free_port() -> u16 {
+    std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port()
+}
+
+/// Host A's and host B's launch files as shipped, but paced at 10 Hz, the bridge on `port`.
+fn launch_files(dir: &Path, port: u16) -> (PathBuf, PathBuf) {
+    let seq = sequence().join("colon");
+    let settings = seq.join("settings.yaml");
+    let (seq, settings) = (seq.display(), settings.display());
+    let a = format!(
+        r#"[run]
+name = "host-a"
+[[service]]
+name = "acquisition"
+binary = "bdis-acquisition"
+args = ["--sequence", "{seq}", "--settings", "{settings}", "--pacing", "on-demand:10hz"]
+core = 0
+[[service]]
+name = "tracking"
+binary = "bdis-tracking"
+args = ["--settings", "{settings}"]
+core = 0
+[[service]]
+name = "stereo"
+binary = "bdis-stereo"
+args = ["--settings", "{settings}", "--input", "keyframes"]
+core = 1
+handover = "keyframes"
+[service.restart]
+policy = "on-failure"
+[[service]]
+name = "bridge"
+binary = "bdis-bridge"
+args = ["send", "--to", "127.0.0.1:{port}"]
+core = 1
+[service.restart]
+policy = "on-failure"
+backoff_initial_s = 0.1
+"#
+    );
+    let b = format!(
+        r#"[run]
+name = "host-b"
+drain_timeout_s = 60.0
+[[service]]
+name = "bridge"
+binary = "bdis-bridge"
+args = ["receive", "--listen", "127.0.0.1:{port}"]
+core = 1
+[service.restart]
+policy = "on-failure"
+backoff_initial_s = 0.1
+[[service]]
+name = "mosaic"
+binary = "bdis-mosaic"
+args = ["--save-every", "4"]
+core = 1
+"#
+    );
+    std::fs::write(dir.join("a.toml"), a).unwrap();
+    std::fs::write(dir.join("b.toml"), b).unwrap();
+    (dir.join("a.toml"), dir.join("b.toml"))
+}
+
+/// Starts a launcher on `launch` under its own prefix, with the shipped launch files' variables set.
+fn start(launch: &Path, tag: &str, out: &Path, port: u16) -> Child {
+    let seq = sequence().join("colon");
+    Command::new(bdis_slam())
+        .arg("run")
+        .arg(launch)
+        .args(["--ipc-prefix", &prefix(tag), "--out"])
+        .arg(out)
+        .env("BDIS_SEQUENCE", &seq)
+        .env("BDIS_SETTINGS", seq.join("settings.yaml"))
+        .env("BDIS_BRIDGE_PEER", format!("127.0.0.1:{port}"))
+        .env("BDIS_BRIDGE_LISTEN", format!("127.0.0.1:{port}"))
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap()
+}
+
+fn finish(child: Child, what: &str) -> String {
+    let out = child.wait_with_output().unwrap();
+    let said = format!("{}\n{}", text(&out.stdout), text(&out.stderr));
+    assert!(out.status.success(), "{what}:\n{said}");
+    said
+}
+
+fn keyframes_in(run: &Path, file: &str, key: &str) -> u64 {
+    let summary: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(run.join(file)).unwrap()).unwrap();
+    summary[key].as_u64().unwrap_or_else(|| panic!("{file}: {key}: {summary}"))
+}
+
+/// Runs the split pipeline; with `kill` ("send" or "receive"), that side of the bridge is killed with SIGKILL
+/// once host B's mosaic has taken in a few keyframes. Returns (A's run folder, B's run folder, what the
+/// launchers said).
+fn split_run(tmp: &Path, tag: &str, kill: Option<&str>) -> (PathBuf, PathBuf, String) {
+    let port = free_port();
+    // The shipped placement (launch/two-hosts-*.toml, on-demand) for the map; the same services paced at 10 Hz
+    // for a kill, so that it falls mid-run on a machine of any speed.
+    let (a_toml, b_toml) = match kill {
+        None => {
+            let launch = Path::new(env!("CARGO_MANIFEST_DIR")).join("launch");
+            (launch.join("two-hosts-a.toml"), launch.join("two-hosts-b.toml"))
+        }
+        Some(_) => launch_files(tmp, port),
+    };
+    let (run_a, run_b) = (tmp.join("a"), tmp.join("b"));
+    let host_b = start(&b_toml, &format!("{tag}b"), &run_b, port);
+    let host_a = start(&a_toml, &format!("{tag}a"), &run_a, port);
+    let mut said = String::new();
+    if let Some(role) = kill {
+        let log = if role == "send" { run_a.join("logs/bridge.log") } else { run_b.join("logs/bridge.log") };
+        let mosaic_log = run_b.join("logs/mosaic.log");
+        // Wait until B's mosaic has three keyframes: the kill falls mid-run.
+        let deadline = std::time::Instant::now() + Duration::from_secs(120);
+        while std::fs::read_to_string(&mosaic_log).unwrap_or_default().matches("keyframe ").count() < 3 {
+            assert!(std::time::Instant::now() < deadline, "the mosaic on host B never started mapping");
+            std::thread::sleep(Duration::from_millis(50));
+        }
+        let pid = pid_of(&log, if role == "send" { "bdis-bridge send" } else { "bdis-bridge receive" });
+        Command::new("kill").args(["-KILL", &pid.to_string()]).status().unwrap();
+        said.push_str(&format!("killed the {role} side, pid {pid}\n"));
+    }
+    said.push_str(&finish(host_a, "host A"));
+    said.push_str(&finish(host_b, "host B"));
+    (run_a, run_b, said)
+}
+
+/// The pid of the running `bdis-bridge` whose arguments hold `command`'s role and whose run folder is the one
+/// `log` is in (the launcher gives each service `BDIS_RUN_DIR`).
+fn pid_of(log: &Path, command: &str) -> u32 {
+    for entry in std::fs::read_dir("/proc").unwrap().flatten() {
+        let Ok(pid) = entry.file_name().to_string_lossy().parse::<u32>() else { continue };
+        let Ok(cmdline) = std::fs::read(entry.path().join("cmdline")) else { continue };
+        let cmdline = String::from_utf8_lossy(&cmdline).replace('\0', " ");
+        let Some(binary) = cmdline.split(' ').next() else { continue };
+        let run_dir = log.parent().and_then(|l| l.parent()).unwrap();
+        if cmdline.contains(&command["bdis-bridge".len()..])
+            && binary.ends_with("bdis-bridge")
+            && std::fs::read_to_string(entry.path().join("environ"))
+                .map(|e| e.contains(&run_dir.display().to_string()))
+                .unwrap_or(false)
+        {
+            return pid;
+        }
+    }
+    panic!("no `{command}` of {} running", log.display())
+}
+
+#[test]
+fn the_map_made_on_the_far_host_is_byte_for_byte_the_single_host_map() {
+    let tmp = TempDir::new("bridge");
+    let seq = sequence().join("colon");
+    let single = tmp.path().join("single");
+    track_run(&seq, &seq.join("settings.yaml"), &single, "brone", &[]);
+    let (run_a, run_b, said) = split_run(tmp.path(), "brsplit", None);
+    let made = keyframes_in(&run_a, "tracking.json", "keyframes_created");
+    assert_eq!(keyframes_in(&run_b, "mosaic.json", "keyframes_inserted"), made, "{said}");
+    let far = std::fs::read(run_b.join("map.ply")).unwrap();
+    let near = std::fs::read(single.join("map.ply")).unwrap();
+    assert!(
+        far == near,
+        "host B's map.ply ({} bytes) differs from the single host's ({} bytes)",
+        far.len(),
+        near.len()
+    );
+    // Nothing crossed but what the bridge carries: host A has no map, host B no trajectory.
+    assert!(!run_a.join("map.ply").exists() && !run_b.join("trajectory.tum").exists());
+}
+
+#[test]
+fn a_killed_sender_or_receiver_loses_no_keyframe_once_restarted() {
+    for role in ["send", "receive"] {
+        let tmp = TempDir::new(&format!("bridgekill{role}"));
+        let (run_a, run_b, said) = split_run(tmp.path(), &format!("brk{role}"), Some(role));
+        assert!(said.contains("bridge restarted"), "the launcher restarted the {role} side:\n{said}");
+        let made = keyframes_in(&run_a, "tracking.json", "keyframes_created");
+        let mapped = keyframes_in(&run_b, "mosaic.json", "keyframes_inserted");
+        assert_eq!(mapped, made, "kill -9 of the {role} side: keyframes lost\n{said}");
+    }
+}
