@@ -335,7 +335,7 @@ impl LatencyAggregator {
                 let path = if p.output_topic == "keyframes" && p.input_topic == "frames" {
                     "capture → pose"
                 } else if p.input_topic == "depth" && p.output_topic.is_empty() && name.starts_with("bridge") {
-                    "capture → depth onto the bridge"
+                    "capture → bridge"
                 } else if p.input_topic == "depth" && p.output_topic.is_empty() && !name.starts_with("probe") {
                     "capture → map"
                 } else {

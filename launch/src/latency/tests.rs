@@ -174,5 +174,5 @@ fn a_bridge_sending_depth_is_not_taken_for_the_map() {
     agg.record(&rec("bridge", TelemetryKind::Message, 1, [t0, t0 + 1_000, t0 + 2_000, t0 + 3_000], "depth", ""));
     let report = agg.report();
     assert_eq!(report.end_to_end.len(), 1);
-    assert_eq!(report.end_to_end[0].path, "capture → depth onto the bridge");
+    assert_eq!(report.end_to_end[0].path, "capture → bridge");
 }

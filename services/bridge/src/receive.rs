@@ -9,6 +9,7 @@ use std::net::{TcpListener, TcpStream};
 use std::time::Duration;
 
 use anyhow::{Context, Result};
+use bdis_bridge::clock::ClockOffset;
 use bdis_bridge::ledger::Inbox;
 use bdis_bridge::wire::{self, Frame, FrameReader, SampleId};
 use bdis_bridge::{BridgeError, Carried, records};
@@ -38,6 +39,13 @@ struct Outputs {
     corrections: Option<(Publisher<ipc::Service, KeyframePose, ()>, Notifier<ipc::Service>)>,
 }
 
+/// The sender's clock in this host's, and the depth keyframes' delays on the link beyond its shortest.
+#[derive(Default)]
+struct LinkTime {
+    clock: ClockOffset,
+    delays_us: Vec<u64>,
+}
+
 struct Connection {
     stream: TcpStream,
     reader: FrameReader,
@@ -61,19 +69,21 @@ fn publish_depth(
     ipc: &Ipc,
     out: &mut DepthOut,
     what: SampleId,
-    link_delays_us: &mut Vec<u64>,
+    link: &mut LinkTime,
     header: &[u8],
     payload: &[u8],
     telemetry: &mut TelemetryPublisher,
 ) -> Result<Handled> {
     let t_receive_ns = bdis_ipc::clock::monotonic_ns();
-    // Meaningful where both hosts share a clock (two systems on one machine); across machines it also holds
-    // the clocks' offset.
-    link_delays_us.push(t_receive_ns.saturating_sub(what.t_sent_ns) / 1000);
+    link.clock.observe(what.t_sent_ns, t_receive_ns);
+    // The link's delay beyond its shortest (the part of it the clocks' offset does not hide).
+    link.delays_us.push((link.clock.here(what.t_sent_ns).abs_diff(t_receive_ns)) / 1000);
     let mut h = match records::depth_header(header) {
         Ok(h) => h,
         Err(e) => return Ok(Handled::Refused(protocol(e))),
     };
+    // The capture time in this host's clock: this host's latency report measures capture → map.
+    h.t_capture_ns = link.clock.here(h.t_capture_ns);
     if h.is_end_of_stream() {
         let publisher = match &out.publisher {
             Some((p, _)) => p,
@@ -166,7 +176,7 @@ pub fn run(common: Common, listen: &str) -> Result<()> {
     let (mut published, mut again, mut refused) = (0u64, 0u64, 0u64);
     let mut ended = false;
     let mut hello = Vec::new();
-    let mut link_delays_us: Vec<u64> = Vec::new();
+    let mut link = LinkTime::default();
     while !ended {
         let fd = current.as_ref().and_then(|c| SocketFd::of(&c.stream));
         let guard = match &fd {
@@ -220,7 +230,7 @@ pub fn run(common: Common, listen: &str) -> Result<()> {
             }
             let handled = match (what.topic, &mut outputs) {
                 (Carried::Depth, Outputs { depth: Some(out), .. }) => {
-                    publish_depth(&ipc, out, what, &mut link_delays_us, header, payload, &mut telemetry)?
+                    publish_depth(&ipc, out, what, &mut link, header, payload, &mut telemetry)?
                 }
                 (Carried::Corrections, Outputs { corrections: Some(out), .. }) => publish_correction(out, header)?,
                 (topic, _) => Handled::Refused(Rejection::new(
@@ -256,11 +266,13 @@ pub fn run(common: Common, listen: &str) -> Result<()> {
             current = None;
         }
     }
-    link_delays_us.sort_unstable();
-    let at = |q: f64| link_delays_us.get(((link_delays_us.len() as f64 - 1.0) * q).round() as usize).copied();
+    link.delays_us.sort_unstable();
+    let at = |q: f64| link.delays_us.get(((link.delays_us.len() as f64 - 1.0) * q).round() as usize).copied();
     tracing::info!(
-        "bridge receiver done: {published} published, {again} already had, {refused} refused; depth keyframes \
-         sent → received p50 {:?} µs, p99 {:?} µs",
+        "bridge receiver done: {published} published, {again} already had, {refused} refused; the sender's clock \
+         {:?} µs from this one's (with the link's shortest delay); depth keyframes' delay beyond the shortest p50 \
+         {:?} µs, p99 {:?} µs",
+        link.clock.offset_ns().map(|o| o / 1000),
         at(0.5),
         at(0.99)
     );

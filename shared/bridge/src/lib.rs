@@ -5,8 +5,10 @@
 //!
 //! * [`wire`]: the frames on the connection (hello, sample, acknowledgement), checked as hostile input;
 //! * [`records`]: the topics' headers as bytes, field by field (little-endian, no padding, no layout assumed);
-//! * [`ledger`]: what the sender still owes the receiver, and what the receiver has already published.
+//! * [`ledger`]: what the sender still owes the receiver, and what the receiver has already published;
+//! * [`clock`]: the sender's clock in the receiver's, for the times the samples carry.
 
+pub mod clock;
 pub mod ledger;
 pub mod records;
 pub mod wire;
