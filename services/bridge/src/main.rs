@@ -12,14 +12,15 @@ mod send;
 
 use clap::{Parser, Subcommand};
 
-/// Bridge service: the pipeline's depth keyframes and pose corrections between two hosts over TCP.
+/// Bridge service: the pipeline's depth keyframes, pose corrections and poses between two hosts over TCP.
 #[derive(Debug, Parser)]
 #[command(name = "bdis-bridge", version)]
 struct Args {
     #[command(subcommand)]
     role: Role,
-    /// The topics to carry, comma-separated: depth, corrections (both sides must name the same).
-    #[arg(long, global = true, value_delimiter = ',', default_value = "depth,corrections")]
+    /// The topics to carry, comma-separated: depth, corrections, poses (both sides must name the same; the map
+    /// needs depth and corrections, a viewer or the OpenIGTLink output on the far host also poses).
+    #[arg(long, global = true, value_delimiter = ',', default_value = "depth,corrections,poses")]
     topics: Vec<String>,
     /// Name of this process in the run.
     #[arg(long, global = true, env = "BDIS_SERVICE_NAME", default_value = "bridge")]
@@ -58,7 +59,7 @@ fn main() -> std::process::ExitCode {
         let mut topics = Vec::new();
         for name in &args.topics {
             let topic = bdis_bridge::Carried::parse(name.trim()).ok_or_else(|| {
-                anyhow::anyhow!("--topics: `{name}` is not a topic the bridge carries (depth, corrections)")
+                anyhow::anyhow!("--topics: `{name}` is not a topic the bridge carries (depth, corrections, poses)")
             })?;
             if !topics.contains(&topic) {
                 topics.push(topic);

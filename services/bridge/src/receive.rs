@@ -2,7 +2,7 @@
 //! publishes each new sample into this host's shared memory with the topic's own QoS — checked first, as every
 //! consumer checks what it receives — then acknowledges it. A sample it already published (sent again after a
 //! broken connection) is acknowledged and not published twice. A new connection replaces the old one (the sender
-//! restarted). It ends after it has published the end of the depth stream.
+//! restarted). It ends after it has published the end of every carried stream that has one (depth, poses).
 
 use std::io::Write;
 use std::net::{TcpListener, TcpStream};
@@ -14,8 +14,9 @@ use bdis_bridge::ledger::Inbox;
 use bdis_bridge::wire::{self, Frame, FrameReader, SampleId};
 use bdis_bridge::{BridgeError, Carried, records};
 use bdis_ipc::telemetry::MessageTiming;
+use bdis_ipc::track::tracking_state;
 use bdis_ipc::validate::{self, Reason, Rejection};
-use bdis_ipc::{DepthHeader, Ipc, KeyframePose, TelemetryPublisher, Topic, event_id};
+use bdis_ipc::{DepthHeader, Ipc, KeyframePose, PoseRecord, TelemetryPublisher, Topic, event_id};
 use iceoryx2::port::notifier::Notifier;
 use iceoryx2::port::publisher::Publisher;
 use iceoryx2::prelude::*;
@@ -34,9 +35,13 @@ struct DepthOut {
     events: Notifier<ipc::Service>,
 }
 
+/// A publisher of fixed-size records and the notifier that wakes its consumers.
+type RecordOut<T> = (Publisher<ipc::Service, T, ()>, Notifier<ipc::Service>);
+
 struct Outputs {
     depth: Option<DepthOut>,
-    corrections: Option<(Publisher<ipc::Service, KeyframePose, ()>, Notifier<ipc::Service>)>,
+    corrections: Option<RecordOut<KeyframePose>>,
+    poses: Option<RecordOut<PoseRecord>>,
 }
 
 /// The sender's clock in this host's, and the depth keyframes' delays on the link beyond its shortest.
@@ -126,10 +131,28 @@ fn publish_depth(
     Ok(Handled::Published)
 }
 
-fn publish_correction(
-    out: &(Publisher<ipc::Service, KeyframePose, ()>, Notifier<ipc::Service>),
-    header: &[u8],
-) -> Result<Handled> {
+fn publish_pose(out: &RecordOut<PoseRecord>, header: &[u8], link: &mut LinkTime, what: SampleId) -> Result<Handled> {
+    let mut record = match records::pose(header) {
+        Ok(r) => r,
+        Err(e) => return Ok(Handled::Refused(protocol(e))),
+    };
+    link.clock.observe(what.t_sent_ns, bdis_ipc::clock::monotonic_ns());
+    if record.state == tracking_state::END_OF_STREAM {
+        out.0.send_copy(record).context("publish the end of the poses")?;
+        bdis_ipc::notify(&out.1, event_id::END_OF_STREAM)?;
+        return Ok(Handled::EndOfStream);
+    }
+    if let Err(rejection) = validate::pose_record(&record) {
+        return Ok(Handled::Refused(rejection));
+    }
+    record.t_capture_ns = link.clock.here(record.t_capture_ns);
+    record.t_publish_ns = bdis_ipc::clock::monotonic_ns();
+    out.0.send_copy(record).context("publish a pose")?;
+    bdis_ipc::notify(&out.1, event_id::NEW_SAMPLE)?;
+    Ok(Handled::Published)
+}
+
+fn publish_correction(out: &RecordOut<KeyframePose>, header: &[u8]) -> Result<Handled> {
     let record = match records::correction(header) {
         Ok(r) => r,
         Err(e) => return Ok(Handled::Refused(protocol(e))),
@@ -161,8 +184,19 @@ pub fn run(common: Common, listen: &str) -> Result<()> {
         } else {
             None
         },
+        poses: if topics.contains(&Carried::Poses) {
+            let service = ipc.poses()?;
+            let publisher = service.publisher_builder().create().context("create the poses publisher")?;
+            Some((publisher, ipc.notifier(&ipc.events(Topic::Poses)?)?))
+        } else {
+            None
+        },
     };
-    let output_topic = if outputs.depth.is_some() { Topic::Depth } else { Topic::Corrections };
+    let output_topic = match (&outputs.depth, &outputs.poses) {
+        (Some(_), _) => Topic::Depth,
+        (None, Some(_)) => Topic::Poses,
+        (None, None) => Topic::Corrections,
+    };
     let mut telemetry = TelemetryPublisher::new(&ipc, &name, None, Some(output_topic))?;
     let waitset = WaitSetBuilder::new().create::<ipc::Service>().map_err(bdis_node::NodeError::WaitSet)?;
     let listener_fd = SocketFd::of(&listener).context("the listener's descriptor")?;
@@ -175,6 +209,8 @@ pub fn run(common: Common, listen: &str) -> Result<()> {
     let mut current: Option<Connection> = None;
     let (mut published, mut again, mut refused) = (0u64, 0u64, 0u64);
     let mut ended = false;
+    // The ends of the depth and pose streams, published; it is done when every carried one has ended.
+    let mut ends = (false, false);
     let mut hello = Vec::new();
     let mut link = LinkTime::default();
     while !ended {
@@ -233,6 +269,7 @@ pub fn run(common: Common, listen: &str) -> Result<()> {
                     publish_depth(&ipc, out, what, &mut link, header, payload, &mut telemetry)?
                 }
                 (Carried::Corrections, Outputs { corrections: Some(out), .. }) => publish_correction(out, header)?,
+                (Carried::Poses, Outputs { poses: Some(out), .. }) => publish_pose(out, header, &mut link, what)?,
                 (topic, _) => Handled::Refused(Rejection::new(
                     Reason::Layout,
                     what.id,
@@ -242,10 +279,21 @@ pub fn run(common: Common, listen: &str) -> Result<()> {
             match handled {
                 Handled::Published => published += 1,
                 Handled::Again => again += 1,
-                Handled::EndOfStream => ended = true,
+                Handled::EndOfStream => {
+                    match what.topic {
+                        Carried::Depth => ends.0 = true,
+                        Carried::Poses => ends.1 = true,
+                        Carried::Corrections => {}
+                    }
+                    ended = (ends.0 || outputs.depth.is_none()) && (ends.1 || outputs.poses.is_none());
+                }
                 Handled::Refused(rejection) => {
                     refused += 1;
-                    let topic = if what.topic == Carried::Depth { Topic::Depth } else { Topic::Corrections };
+                    let topic = match what.topic {
+                        Carried::Depth => Topic::Depth,
+                        Carried::Corrections => Topic::Corrections,
+                        Carried::Poses => Topic::Poses,
+                    };
                     telemetry.rejected(topic, &rejection);
                 }
             }

@@ -14,7 +14,8 @@ use bdis_bridge::ledger::{CorrectionIds, Entry, Outbox};
 use bdis_bridge::wire::{self, Frame, FrameReader, ResumePoints, SampleId};
 use bdis_bridge::{Carried, records};
 use bdis_ipc::telemetry::MessageTiming;
-use bdis_ipc::{DepthHeader, Ipc, KeyframePose, TelemetryPublisher, Topic};
+use bdis_ipc::track::tracking_state;
+use bdis_ipc::{DepthHeader, Ipc, KeyframePose, PoseRecord, TelemetryPublisher, Topic};
 use iceoryx2::port::listener::Listener;
 use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::prelude::*;
@@ -38,11 +39,13 @@ type Input<T, H> = (Subscriber<ipc::Service, T, H>, Listener<ipc::Service>);
 struct Inputs {
     depth: Option<Input<[u8], DepthHeader>>,
     corrections: Option<Input<KeyframePose, ()>>,
+    poses: Option<Input<PoseRecord, ()>>,
 }
 
 impl Inputs {
     fn listeners(&self) -> impl Iterator<Item = &Listener<ipc::Service>> {
-        self.depth.iter().map(|(_, l)| l).chain(self.corrections.iter().map(|(_, l)| l))
+        let corrections = self.corrections.iter().map(|(_, l)| l);
+        self.depth.iter().map(|(_, l)| l).chain(corrections).chain(self.poses.iter().map(|(_, l)| l))
     }
 }
 
@@ -92,15 +95,22 @@ fn connect(addr: SocketAddr, topics: &[Carried]) -> Result<(Connection, ResumePo
     Ok((Connection { stream, reader }, hello))
 }
 
-/// Takes everything published on the inputs into the outbox; returns whether the depth stream ended.
+/// The streams that have an end (depth, poses) and whether it has been taken in.
+#[derive(Debug, Default, Clone, Copy)]
+struct Ends {
+    depth: bool,
+    poses: bool,
+}
+
+/// Takes everything published on the inputs into the outbox, noting the ends of streams in `ends`.
 fn take_inputs(
     inputs: &Inputs,
     outbox: &mut Outbox,
     ids: &mut CorrectionIds,
     telemetry: &mut TelemetryPublisher,
     scratch: &mut Vec<u8>,
-) -> Result<bool> {
-    let mut ended = false;
+    ends: &mut Ends,
+) -> Result<()> {
     // Corrections first: those a keyframe was made after were published before it.
     if let Some((subscriber, _)) = &inputs.corrections {
         while let Some(sample) = subscriber.receive().context("receive a correction")? {
@@ -128,7 +138,7 @@ fn take_inputs(
             wire::sample(&mut frame, what, scratch, payload);
             outbox.push(Entry { topic: Carried::Depth, id, frame });
             if end {
-                ended = true;
+                ends.depth = true;
             } else {
                 let timing = MessageTiming {
                     frame_seq: header.meta.kf_id,
@@ -141,7 +151,21 @@ fn take_inputs(
             }
         }
     }
-    Ok(ended)
+    if let Some((subscriber, _)) = &inputs.poses {
+        while let Some(sample) = subscriber.receive().context("receive a pose")? {
+            let record = *sample.payload();
+            let end = record.state == tracking_state::END_OF_STREAM;
+            let id = if end { u64::MAX } else { record.frame_seq };
+            scratch.clear();
+            records::put_pose(scratch, &record);
+            let mut frame = Vec::with_capacity(scratch.len() + 32);
+            let what = SampleId { topic: Carried::Poses, id, t_sent_ns: bdis_ipc::clock::monotonic_ns() };
+            wire::sample(&mut frame, what, scratch, &[]);
+            outbox.push(Entry { topic: Carried::Poses, id, frame });
+            ends.poses |= end;
+        }
+    }
+    Ok(())
 }
 
 /// Reads the receiver's acknowledgements and writes what it has not been sent; `Closed` when the connection broke.
@@ -195,8 +219,19 @@ pub fn run(common: Common, to: &str, budget_bytes: usize) -> Result<()> {
         } else {
             None
         },
+        poses: if topics.contains(&Carried::Poses) {
+            let service = ipc.poses()?;
+            let subscriber = service.subscriber_builder().create().context("create the poses subscriber")?;
+            Some((subscriber, ipc.listener(&ipc.events(Topic::Poses)?)?))
+        } else {
+            None
+        },
     };
-    let input_topic = if inputs.depth.is_some() { Topic::Depth } else { Topic::Corrections };
+    let input_topic = match (&inputs.depth, &inputs.poses) {
+        (Some(_), _) => Topic::Depth,
+        (None, Some(_)) => Topic::Poses,
+        (None, None) => Topic::Corrections,
+    };
     let mut telemetry = TelemetryPublisher::new(&ipc, &name, Some(input_topic), None)?;
     let waitset = WaitSetBuilder::new().create::<ipc::Service>().map_err(bdis_node::NodeError::WaitSet)?;
     let mut input_guards = Vec::new();
@@ -231,7 +266,13 @@ pub fn run(common: Common, to: &str, budget_bytes: usize) -> Result<()> {
 
     let mut ids = CorrectionIds::default();
     let mut scratch = Vec::new();
-    let mut ended = false;
+    let mut ends = Ends::default();
+    // Done when every carried stream that has an end has ended and the receiver has everything.
+    let all_ended = |e: Ends| {
+        (e.depth || inputs.depth.is_none())
+            && (e.poses || inputs.poses.is_none())
+            && (inputs.depth.is_some() || inputs.poses.is_some())
+    };
     let mut connected: Option<Connection> = Some(connection);
     let mut next_attempt = Instant::now();
     let mut reconnects = 0u64;
@@ -257,7 +298,8 @@ pub fn run(common: Common, to: &str, budget_bytes: usize) -> Result<()> {
             let _ = bdis_ipc::drain_events(listener);
         }
         telemetry.keepalive();
-        ended |= take_inputs(&inputs, &mut outbox, &mut ids, &mut telemetry, &mut scratch)?;
+        take_inputs(&inputs, &mut outbox, &mut ids, &mut telemetry, &mut scratch, &mut ends)?;
+        let ended = all_ended(ends);
 
         if connected.is_none() && Instant::now() >= next_attempt {
             match connect(addr, &topics) {

@@ -233,7 +233,10 @@ mod tests {
         inbox.published(Carried::Depth, 3);
         assert_eq!(inbox.resume_after(Carried::Depth), Some(5));
         assert!(inbox.fresh(Carried::Depth, 6) && inbox.fresh(Carried::Corrections, 1));
-        assert_eq!(inbox.hello(&Carried::ALL), vec![(Carried::Depth, Some(5)), (Carried::Corrections, None)]);
+        assert_eq!(
+            inbox.hello(&[Carried::Depth, Carried::Corrections]),
+            vec![(Carried::Depth, Some(5)), (Carried::Corrections, None)]
+        );
         let mut ids = CorrectionIds::default();
         let a = [ids.next(3), ids.next(3), ids.next(4)];
         assert!(a[0] < a[1] && a[1] < a[2]);

@@ -20,15 +20,18 @@ pub enum Carried {
     Depth,
     /// Keyframe pose corrections (tracking → mosaic): `bdis.v1.KeyframePose`, numbered by generation and keyframe.
     Corrections,
+    /// The pose of every frame (tracking → viewer, OpenIGTLink output): `bdis.v2.PoseRecord`, numbered by frame.
+    Poses,
 }
 
 impl Carried {
-    pub const ALL: [Carried; 2] = [Carried::Depth, Carried::Corrections];
+    pub const ALL: [Carried; 3] = [Carried::Depth, Carried::Corrections, Carried::Poses];
 
     pub fn code(self) -> u8 {
         match self {
             Carried::Depth => 1,
             Carried::Corrections => 2,
+            Carried::Poses => 3,
         }
     }
 
@@ -41,6 +44,7 @@ impl Carried {
         match self {
             Carried::Depth => "depth",
             Carried::Corrections => "corrections",
+            Carried::Poses => "poses",
         }
     }
 

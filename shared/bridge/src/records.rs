@@ -3,7 +3,7 @@
 //! `bdis_ipc::validate` every consumer runs before it is published.
 
 use bdis_ipc::DepthHeader;
-use bdis_ipc::track::{KeyframeMeta, KeyframePose, StereoIntrinsics};
+use bdis_ipc::track::{KeyframeMeta, KeyframePose, PoseRecord, StereoIntrinsics};
 
 use crate::BridgeError;
 
@@ -124,6 +124,45 @@ pub fn correction(bytes: &[u8]) -> Result<KeyframePose, BridgeError> {
     })
 }
 
+/// Bytes of a pose record on the wire.
+pub const POSE_BYTES: usize = 4 * 8 + 7 * 8 + 2 * 4 + 2 * 8 + 4 * 4 + 3 * 8;
+
+pub fn put_pose(out: &mut Vec<u8>, r: &PoseRecord) {
+    let mut p = Put(out);
+    p.u64(r.frame_seq).u64(r.t_capture_ns).u64(r.t_source_ns).u64(r.t_publish_ns);
+    for &v in &r.world_from_camera {
+        p.f64(v);
+    }
+    p.u32(r.state).u32(r.inliers).u64(r.new_keyframe).u64(r.cpu_ns);
+    p.u32(r.matched).u32(r.doubt).u32(r.method).u32(r.prior_rejected);
+    p.f64(r.reprojection_rms_px).f64(r.position_sigma_rel).f64(r.appearance_agreement);
+}
+
+pub fn pose(bytes: &[u8]) -> Result<PoseRecord, BridgeError> {
+    if bytes.len() != POSE_BYTES {
+        return Err(BridgeError::HeaderSize("pose"));
+    }
+    let mut t = Take { bytes, at: 0 };
+    Ok(PoseRecord {
+        frame_seq: t.u64(),
+        t_capture_ns: t.u64(),
+        t_source_ns: t.u64(),
+        t_publish_ns: t.u64(),
+        world_from_camera: std::array::from_fn(|_| t.f64()),
+        state: t.u32(),
+        inliers: t.u32(),
+        new_keyframe: t.u64(),
+        cpu_ns: t.u64(),
+        matched: t.u32(),
+        doubt: t.u32(),
+        method: t.u32(),
+        prior_rejected: t.u32(),
+        reprojection_rms_px: t.f64(),
+        position_sigma_rel: t.f64(),
+        appearance_agreement: t.f64(),
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -164,5 +203,27 @@ mod tests {
         let mut bytes = Vec::new();
         put_correction(&mut bytes, &c);
         assert_eq!(correction(&bytes), Ok(c));
+        let r = PoseRecord {
+            frame_seq: 17,
+            t_capture_ns: 3,
+            t_source_ns: 4,
+            t_publish_ns: 5,
+            world_from_camera: [1.0, 2.0, 3.0, 0.0, 0.0, 0.0, 1.0],
+            state: 4,
+            inliers: 200,
+            new_keyframe: u64::MAX,
+            cpu_ns: 9_000_000,
+            matched: 230,
+            doubt: 5,
+            method: 3,
+            prior_rejected: 1,
+            reprojection_rms_px: 0.9,
+            position_sigma_rel: 1e-4,
+            appearance_agreement: 0.97,
+        };
+        let mut bytes = Vec::new();
+        put_pose(&mut bytes, &r);
+        assert_eq!(bytes.len(), POSE_BYTES);
+        assert_eq!(pose(&bytes), Ok(r));
     }
 }
