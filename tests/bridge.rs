@@ -30,68 +30,35 @@ fn free_port() -> u16 {
     std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port()
 }
 
-/// Host A's and host B's launch files as shipped, but paced at 10 Hz, the bridge on `port`.
-fn launch_files(dir: &Path, port: u16) -> (PathBuf, PathBuf) {
-    let seq = sequence().join("colon");
-    let settings = seq.join("settings.yaml");
-    let (seq, settings) = (seq.display(), settings.display());
-    let a = format!(
-        r#"[run]
-name = "host-a"
-[[service]]
-name = "acquisition"
-binary = "bdis-acquisition"
-args = ["--sequence", "{seq}", "--settings", "{settings}", "--pacing", "on-demand:10hz"]
-core = 0
-[[service]]
-name = "tracking"
-binary = "bdis-tracking"
-args = ["--settings", "{settings}"]
-core = 0
-[[service]]
-name = "stereo"
-binary = "bdis-stereo"
-args = ["--settings", "{settings}", "--input", "keyframes"]
-core = 1
-handover = "keyframes"
-[service.restart]
-policy = "on-failure"
-[[service]]
-name = "bridge"
-binary = "bdis-bridge"
-args = ["send", "--to", "127.0.0.1:{port}"]
-core = 1
-[service.restart]
-policy = "on-failure"
-backoff_initial_s = 0.1
-"#
-    );
-    let b = format!(
-        r#"[run]
-name = "host-b"
-drain_timeout_s = 60.0
-[[service]]
-name = "bridge"
-binary = "bdis-bridge"
-args = ["receive", "--listen", "127.0.0.1:{port}"]
-core = 1
-[service.restart]
-policy = "on-failure"
-backoff_initial_s = 0.1
-[[service]]
-name = "mosaic"
-binary = "bdis-mosaic"
-args = ["--save-every", "4"]
-core = 1
-[[service]]
-name = "probe"
-binary = "bdis-slam"
-args = ["probe", "poses"]
-core = 1
-"#
-    );
-    std::fs::write(dir.join("a.toml"), a).unwrap();
-    std::fs::write(dir.join("b.toml"), b).unwrap();
+/// The two placements, as launch files in launch/: the map on host B (depth crosses), or the stereo service and
+/// the map on host B (keyframes cross).
+#[derive(Debug, Clone, Copy)]
+enum Placement {
+    Map,
+    StereoAndMap,
+}
+
+impl Placement {
+    fn files(self) -> (PathBuf, PathBuf) {
+        let launch = Path::new(env!("CARGO_MANIFEST_DIR")).join("launch");
+        match self {
+            Placement::Map => (launch.join("two-hosts-a.toml"), launch.join("two-hosts-b.toml")),
+            Placement::StereoAndMap => (launch.join("two-hosts-stereo-a.toml"), launch.join("two-hosts-stereo-b.toml")),
+        }
+    }
+}
+
+/// A placement's launch files as shipped, but paced at 10 Hz (so that a kill falls mid-run on a machine of any
+/// speed) and with a probe of the poses on host B.
+fn paced_launch_files(dir: &Path, placement: Placement) -> (PathBuf, PathBuf) {
+    let (a, b) = placement.files();
+    let a_text = std::fs::read_to_string(a).unwrap().replace(r#""on-demand""#, r#""on-demand:10hz""#);
+    assert!(a_text.contains("on-demand:10hz"));
+    let mut b_text = std::fs::read_to_string(b).unwrap();
+    b_text
+        .push_str("\n[[service]]\nname = \"probe\"\nbinary = \"bdis-slam\"\nargs = [\"probe\", \"poses\"]\ncore = 1\n");
+    std::fs::write(dir.join("a.toml"), a_text).unwrap();
+    std::fs::write(dir.join("b.toml"), b_text).unwrap();
     (dir.join("a.toml"), dir.join("b.toml"))
 }
 
@@ -129,16 +96,11 @@ fn keyframes_in(run: &Path, file: &str, key: &str) -> u64 {
 /// Runs the split pipeline; with `kill` ("send" or "receive"), that side of the bridge is killed with SIGKILL
 /// once host B's mosaic has taken in a few keyframes. Returns (A's run folder, B's run folder, what the
 /// launchers said).
-fn split_run(tmp: &Path, tag: &str, kill: Option<&str>) -> (PathBuf, PathBuf, String) {
+fn split_run(tmp: &Path, tag: &str, placement: Placement, kill: Option<&str>) -> (PathBuf, PathBuf, String) {
     let port = free_port();
-    // The shipped placement (launch/two-hosts-*.toml, on-demand) for the map; the same services paced at 10 Hz
-    // for a kill, so that it falls mid-run on a machine of any speed.
     let (a_toml, b_toml) = match kill {
-        None => {
-            let launch = Path::new(env!("CARGO_MANIFEST_DIR")).join("launch");
-            (launch.join("two-hosts-a.toml"), launch.join("two-hosts-b.toml"))
-        }
-        Some(_) => launch_files(tmp, port),
+        None => placement.files(),
+        Some(_) => paced_launch_files(tmp, placement),
     };
     let (run_a, run_b) = (tmp.join("a"), tmp.join("b"));
     let host_b = start(&b_toml, &format!("{tag}b"), &run_b, port);
@@ -189,40 +151,50 @@ fn the_map_made_on_the_far_host_is_byte_for_byte_the_single_host_map() {
     let seq = sequence().join("colon");
     let single = tmp.path().join("single");
     track_run(&seq, &seq.join("settings.yaml"), &single, "brone", &[]);
-    let (run_a, run_b, said) = split_run(tmp.path(), "brsplit", None);
-    let made = keyframes_in(&run_a, "tracking.json", "keyframes_created");
-    assert_eq!(keyframes_in(&run_b, "mosaic.json", "keyframes_inserted"), made, "{said}");
-    let far = std::fs::read(run_b.join("map.ply")).unwrap();
     let near = std::fs::read(single.join("map.ply")).unwrap();
-    assert!(
-        far == near,
-        "host B's map.ply ({} bytes) differs from the single host's ({} bytes)",
-        far.len(),
-        near.len()
-    );
-    // Nothing crossed but what the bridge carries: host A has no map, host B no trajectory.
-    assert!(!run_a.join("map.ply").exists() && !run_b.join("trajectory.tum").exists());
+    for (placement, tag) in [(Placement::Map, "brmap"), (Placement::StereoAndMap, "brstereo")] {
+        let dir = tmp.path().join(tag);
+        std::fs::create_dir_all(&dir).unwrap();
+        let (run_a, run_b, said) = split_run(&dir, tag, placement, None);
+        let made = keyframes_in(&run_a, "tracking.json", "keyframes_created");
+        assert_eq!(keyframes_in(&run_b, "mosaic.json", "keyframes_inserted"), made, "{placement:?}: {said}");
+        let far = std::fs::read(run_b.join("map.ply")).unwrap();
+        assert!(
+            far == near,
+            "{placement:?}: host B's map.ply ({} bytes) differs from the single host's ({} bytes)",
+            far.len(),
+            near.len()
+        );
+        // Nothing crossed but what the bridge carries: host A has no map, host B no trajectory.
+        assert!(!run_a.join("map.ply").exists() && !run_b.join("trajectory.tum").exists(), "{placement:?}");
+    }
 }
 
 #[test]
 fn a_killed_sender_or_receiver_loses_no_keyframe_once_restarted() {
-    for role in ["send", "receive"] {
+    let cases = [
+        (Placement::Map, "send"),
+        (Placement::Map, "receive"),
+        (Placement::StereoAndMap, "send"),
+        (Placement::StereoAndMap, "receive"),
+    ];
+    for (placement, role) in cases {
         let tmp = TempDir::new(&format!("bridgekill{role}"));
-        let (run_a, run_b, said) = split_run(tmp.path(), &format!("brk{role}"), Some(role));
-        assert!(said.contains("bridge restarted"), "the launcher restarted the {role} side:\n{said}");
+        let (run_a, run_b, said) = split_run(tmp.path(), &format!("brk{role}"), placement, Some(role));
+        assert!(said.contains("bridge restarted"), "{placement:?}: the launcher restarted the {role} side:\n{said}");
         let made = keyframes_in(&run_a, "tracking.json", "keyframes_created");
         let mapped = keyframes_in(&run_b, "mosaic.json", "keyframes_inserted");
-        assert_eq!(mapped, made, "kill -9 of the {role} side: keyframes lost\n{said}");
+        assert_eq!(mapped, made, "{placement:?}, kill -9 of the {role} side: keyframes lost\n{said}");
         // The poses crossed too, to their end, in order; a receiver that died is sent again what it had not
         // acknowledged, so none is missing then (a sender that died misses those published while it was down:
         // poses have no history to redo them from).
         let poses: serde_json::Value =
             serde_json::from_str(&std::fs::read_to_string(run_b.join("probe.json")).unwrap()).unwrap();
-        assert_eq!(poses["end_of_stream"], true, "{poses}");
-        assert_eq!(poses["frame_seqs_in_order"], true, "{poses}");
+        assert_eq!(poses["end_of_stream"], true, "{placement:?}: {poses}");
+        assert_eq!(poses["frame_seqs_in_order"], true, "{placement:?}: {poses}");
         if role == "receive" {
             let frames = keyframes_in(&run_a, "tracking.json", "frames");
-            assert_eq!(poses["records"].as_u64(), Some(frames), "{poses}");
+            assert_eq!(poses["records"].as_u64(), Some(frames), "{placement:?}: {poses}");
         }
     }
 }

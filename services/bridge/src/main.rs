@@ -18,8 +18,9 @@ use clap::{Parser, Subcommand};
 struct Args {
     #[command(subcommand)]
     role: Role,
-    /// The topics to carry, comma-separated: depth, corrections, poses (both sides must name the same; the map
-    /// needs depth and corrections, a viewer or the OpenIGTLink output on the far host also poses).
+    /// The topics to carry, comma-separated: keyframes, depth, corrections, poses (both sides must name the same).
+    /// The mosaic on the far host needs depth and corrections — or keyframes and corrections with the stereo
+    /// service there too —, a viewer or the OpenIGTLink output there also poses.
     #[arg(long, global = true, value_delimiter = ',', default_value = "depth,corrections,poses")]
     topics: Vec<String>,
     /// Name of this process in the run.
@@ -59,7 +60,9 @@ fn main() -> std::process::ExitCode {
         let mut topics = Vec::new();
         for name in &args.topics {
             let topic = bdis_bridge::Carried::parse(name.trim()).ok_or_else(|| {
-                anyhow::anyhow!("--topics: `{name}` is not a topic the bridge carries (depth, corrections, poses)")
+                anyhow::anyhow!(
+                    "--topics: `{name}` is not a topic the bridge carries (keyframes, depth, corrections, poses)"
+                )
             })?;
             if !topics.contains(&topic) {
                 topics.push(topic);

@@ -2,7 +2,8 @@
 //! publishes each new sample into this host's shared memory with the topic's own QoS — checked first, as every
 //! consumer checks what it receives — then acknowledges it. A sample it already published (sent again after a
 //! broken connection) is acknowledged and not published twice. A new connection replaces the old one (the sender
-//! restarted). It ends after it has published the end of every carried stream that has one (depth, poses).
+//! restarted). It ends after it has published the end of every carried stream that has one (keyframes, depth,
+//! poses).
 
 use std::io::Write;
 use std::net::{TcpListener, TcpStream};
@@ -16,7 +17,7 @@ use bdis_bridge::{BridgeError, Carried, records};
 use bdis_ipc::telemetry::MessageTiming;
 use bdis_ipc::track::tracking_state;
 use bdis_ipc::validate::{self, Reason, Rejection};
-use bdis_ipc::{DepthHeader, Ipc, KeyframePose, PoseRecord, TelemetryPublisher, Topic, event_id};
+use bdis_ipc::{DepthHeader, Ipc, KeyframeHeader, KeyframePose, PoseRecord, TelemetryPublisher, Topic, event_id};
 use iceoryx2::port::notifier::Notifier;
 use iceoryx2::port::publisher::Publisher;
 use iceoryx2::prelude::*;
@@ -38,13 +39,23 @@ struct DepthOut {
 /// A publisher of fixed-size records and the notifier that wakes its consumers.
 type RecordOut<T> = (Publisher<ipc::Service, T, ()>, Notifier<ipc::Service>);
 
+type KeyframePublisher = Publisher<ipc::Service, [u8], KeyframeHeader>;
+
+struct KeyframesOut {
+    service: bdis_ipc::KeyframesService,
+    /// Made for the first keyframe, with the largest payload it can take.
+    publisher: Option<(KeyframePublisher, usize)>,
+    events: Notifier<ipc::Service>,
+}
+
 struct Outputs {
+    keyframes: Option<KeyframesOut>,
     depth: Option<DepthOut>,
     corrections: Option<RecordOut<KeyframePose>>,
     poses: Option<RecordOut<PoseRecord>>,
 }
 
-/// The sender's clock in this host's, and the depth keyframes' delays on the link beyond its shortest.
+/// The sender's clock in this host's, and the (depth) keyframes' delays on the link beyond its shortest.
 #[derive(Default)]
 struct LinkTime {
     clock: ClockOffset,
@@ -131,6 +142,60 @@ fn publish_depth(
     Ok(Handled::Published)
 }
 
+fn publish_keyframe(
+    ipc: &Ipc,
+    out: &mut KeyframesOut,
+    what: SampleId,
+    link: &mut LinkTime,
+    header: &[u8],
+    payload: &[u8],
+    telemetry: &mut TelemetryPublisher,
+) -> Result<Handled> {
+    let t_receive_ns = bdis_ipc::clock::monotonic_ns();
+    link.clock.observe(what.t_sent_ns, t_receive_ns);
+    link.delays_us.push((link.clock.here(what.t_sent_ns).abs_diff(t_receive_ns)) / 1000);
+    let mut h = match records::keyframe_header(header) {
+        Ok(h) => h,
+        Err(e) => return Ok(Handled::Refused(protocol(e))),
+    };
+    h.frame.t_capture_ns = link.clock.here(h.frame.t_capture_ns);
+    if h.frame.flags & bdis_ipc::FrameHeader::END_OF_STREAM != 0 {
+        let publisher = match &out.publisher {
+            Some((p, _)) => p,
+            None => &out.publisher.insert((ipc.keyframe_publisher(&out.service, 1)?, 1)).0,
+        };
+        h.frame.t_publish_ns = bdis_ipc::clock::monotonic_ns();
+        bdis_node::send_end_of_stream(publisher, h)?;
+        bdis_ipc::notify(&out.events, event_id::END_OF_STREAM)?;
+        return Ok(Handled::EndOfStream);
+    }
+    if out.publisher.as_ref().is_none_or(|(_, max)| payload.len() > *max) {
+        out.publisher = None;
+        out.publisher = Some((ipc.keyframe_publisher(&out.service, payload.len())?, payload.len()));
+    }
+    let Some((publisher, _)) = &out.publisher else { return Ok(Handled::Again) };
+    let mut loan = publisher.loan_slice_uninit(payload.len()).context("loan a keyframe")?;
+    bdis_node::copy_into(loan.payload_mut(), payload);
+    // SAFETY: copy_into wrote every byte of the loan (it is exactly the payload's length).
+    let mut sample = unsafe { loan.assume_init() };
+    if let Err(rejection) = validate::keyframe(&h, sample.payload()) {
+        return Ok(Handled::Refused(rejection));
+    }
+    h.frame.t_publish_ns = bdis_ipc::clock::monotonic_ns();
+    *sample.user_header_mut() = h;
+    sample.send().with_context(|| format!("publish keyframe {}", h.meta.kf_id))?;
+    bdis_ipc::notify(&out.events, event_id::NEW_SAMPLE)?;
+    let timing = MessageTiming {
+        frame_seq: h.meta.kf_id,
+        t_capture_ns: h.frame.t_capture_ns,
+        t_upstream_publish_ns: 0,
+        t_receive_ns,
+        t_done_ns: bdis_ipc::clock::monotonic_ns(),
+    };
+    telemetry.message(timing, 0);
+    Ok(Handled::Published)
+}
+
 fn publish_pose(out: &RecordOut<PoseRecord>, header: &[u8], link: &mut LinkTime, what: SampleId) -> Result<Handled> {
     let mut record = match records::pose(header) {
         Ok(r) => r,
@@ -172,6 +237,15 @@ pub fn run(common: Common, listen: &str) -> Result<()> {
     listener.set_nonblocking(true).context("a non-blocking listener")?;
     let ipc = Ipc::open(&name, &ipc_prefix)?;
     let mut outputs = Outputs {
+        keyframes: if topics.contains(&Carried::Keyframes) {
+            Some(KeyframesOut {
+                service: ipc.keyframes()?,
+                publisher: None,
+                events: ipc.notifier(&ipc.events(Topic::Keyframes)?)?,
+            })
+        } else {
+            None
+        },
         depth: if topics.contains(&Carried::Depth) {
             Some(DepthOut { service: ipc.depth()?, publisher: None, events: ipc.notifier(&ipc.events(Topic::Depth)?)? })
         } else {
@@ -192,10 +266,11 @@ pub fn run(common: Common, listen: &str) -> Result<()> {
             None
         },
     };
-    let output_topic = match (&outputs.depth, &outputs.poses) {
-        (Some(_), _) => Topic::Depth,
-        (None, Some(_)) => Topic::Poses,
-        (None, None) => Topic::Corrections,
+    let output_topic = match (&outputs.keyframes, &outputs.depth, &outputs.poses) {
+        (Some(_), _, _) => Topic::Keyframes,
+        (None, Some(_), _) => Topic::Depth,
+        (None, None, Some(_)) => Topic::Poses,
+        (None, None, None) => Topic::Corrections,
     };
     let mut telemetry = TelemetryPublisher::new(&ipc, &name, None, Some(output_topic))?;
     let waitset = WaitSetBuilder::new().create::<ipc::Service>().map_err(bdis_node::NodeError::WaitSet)?;
@@ -209,8 +284,8 @@ pub fn run(common: Common, listen: &str) -> Result<()> {
     let mut current: Option<Connection> = None;
     let (mut published, mut again, mut refused) = (0u64, 0u64, 0u64);
     let mut ended = false;
-    // The ends of the depth and pose streams, published; it is done when every carried one has ended.
-    let mut ends = (false, false);
+    // The ends of the depth, pose and keyframe streams, published; it is done when every carried one has ended.
+    let mut ends = (false, false, false);
     let mut hello = Vec::new();
     let mut link = LinkTime::default();
     while !ended {
@@ -270,6 +345,9 @@ pub fn run(common: Common, listen: &str) -> Result<()> {
                 }
                 (Carried::Corrections, Outputs { corrections: Some(out), .. }) => publish_correction(out, header)?,
                 (Carried::Poses, Outputs { poses: Some(out), .. }) => publish_pose(out, header, &mut link, what)?,
+                (Carried::Keyframes, Outputs { keyframes: Some(out), .. }) => {
+                    publish_keyframe(&ipc, out, what, &mut link, header, payload, &mut telemetry)?
+                }
                 (topic, _) => Handled::Refused(Rejection::new(
                     Reason::Layout,
                     what.id,
@@ -283,13 +361,17 @@ pub fn run(common: Common, listen: &str) -> Result<()> {
                     match what.topic {
                         Carried::Depth => ends.0 = true,
                         Carried::Poses => ends.1 = true,
+                        Carried::Keyframes => ends.2 = true,
                         Carried::Corrections => {}
                     }
-                    ended = (ends.0 || outputs.depth.is_none()) && (ends.1 || outputs.poses.is_none());
+                    ended = (ends.0 || outputs.depth.is_none())
+                        && (ends.1 || outputs.poses.is_none())
+                        && (ends.2 || outputs.keyframes.is_none());
                 }
                 Handled::Refused(rejection) => {
                     refused += 1;
                     let topic = match what.topic {
+                        Carried::Keyframes => Topic::Keyframes,
                         Carried::Depth => Topic::Depth,
                         Carried::Corrections => Topic::Corrections,
                         Carried::Poses => Topic::Poses,
@@ -318,7 +400,7 @@ pub fn run(common: Common, listen: &str) -> Result<()> {
     let at = |q: f64| link.delays_us.get(((link.delays_us.len() as f64 - 1.0) * q).round() as usize).copied();
     tracing::info!(
         "bridge receiver done: {published} published, {again} already had, {refused} refused; the sender's clock \
-         {:?} µs from this one's (with the link's shortest delay); depth keyframes' delay beyond the shortest p50 \
+         {:?} µs from this one's (with the link's shortest delay); keyframes' delay beyond the shortest p50 \
          {:?} µs, p99 {:?} µs",
         link.clock.offset_ns().map(|o| o / 1000),
         at(0.5),

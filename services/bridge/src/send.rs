@@ -15,7 +15,7 @@ use bdis_bridge::wire::{self, Frame, FrameReader, ResumePoints, SampleId};
 use bdis_bridge::{Carried, records};
 use bdis_ipc::telemetry::MessageTiming;
 use bdis_ipc::track::tracking_state;
-use bdis_ipc::{DepthHeader, Ipc, KeyframePose, PoseRecord, TelemetryPublisher, Topic};
+use bdis_ipc::{DepthHeader, Ipc, KeyframeHeader, KeyframePose, PoseRecord, TelemetryPublisher, Topic};
 use iceoryx2::port::listener::Listener;
 use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::prelude::*;
@@ -37,6 +37,7 @@ const WRITE_TIMEOUT: Duration = Duration::from_secs(10);
 type Input<T, H> = (Subscriber<ipc::Service, T, H>, Listener<ipc::Service>);
 
 struct Inputs {
+    keyframes: Option<Input<[u8], KeyframeHeader>>,
     depth: Option<Input<[u8], DepthHeader>>,
     corrections: Option<Input<KeyframePose, ()>>,
     poses: Option<Input<PoseRecord, ()>>,
@@ -45,7 +46,9 @@ struct Inputs {
 impl Inputs {
     fn listeners(&self) -> impl Iterator<Item = &Listener<ipc::Service>> {
         let corrections = self.corrections.iter().map(|(_, l)| l);
-        self.depth.iter().map(|(_, l)| l).chain(corrections).chain(self.poses.iter().map(|(_, l)| l))
+        let keyframes = self.keyframes.iter().map(|(_, l)| l);
+        let poses = self.poses.iter().map(|(_, l)| l);
+        self.depth.iter().map(|(_, l)| l).chain(corrections).chain(keyframes).chain(poses)
     }
 }
 
@@ -98,6 +101,7 @@ fn connect(addr: SocketAddr, topics: &[Carried]) -> Result<(Connection, ResumePo
 /// The streams that have an end (depth, poses) and whether it has been taken in.
 #[derive(Debug, Default, Clone, Copy)]
 struct Ends {
+    keyframes: bool,
     depth: bool,
     poses: bool,
 }
@@ -122,6 +126,33 @@ fn take_inputs(
             let what = SampleId { topic: Carried::Corrections, id, t_sent_ns: bdis_ipc::clock::monotonic_ns() };
             wire::sample(&mut frame, what, scratch, &[]);
             outbox.push(Entry { topic: Carried::Corrections, id, frame });
+        }
+    }
+    if let Some((subscriber, _)) = &inputs.keyframes {
+        while let Some(sample) = subscriber.receive().context("receive a keyframe")? {
+            let t_receive_ns = bdis_ipc::clock::monotonic_ns();
+            let header = *sample.user_header();
+            let end = header.frame.flags & bdis_ipc::FrameHeader::END_OF_STREAM != 0;
+            let id = if end { u64::MAX } else { header.meta.kf_id };
+            scratch.clear();
+            records::put_keyframe_header(scratch, &header);
+            let payload = sample.payload();
+            let mut frame = Vec::with_capacity(scratch.len() + payload.len() + 32);
+            let what = SampleId { topic: Carried::Keyframes, id, t_sent_ns: bdis_ipc::clock::monotonic_ns() };
+            wire::sample(&mut frame, what, scratch, payload);
+            outbox.push(Entry { topic: Carried::Keyframes, id, frame });
+            if end {
+                ends.keyframes = true;
+            } else {
+                let timing = MessageTiming {
+                    frame_seq: header.meta.kf_id,
+                    t_capture_ns: header.frame.t_capture_ns,
+                    t_upstream_publish_ns: header.frame.t_publish_ns,
+                    t_receive_ns,
+                    t_done_ns: bdis_ipc::clock::monotonic_ns(),
+                };
+                telemetry.message(timing, outbox.overflowed);
+            }
         }
     }
     if let Some((subscriber, _)) = &inputs.depth {
@@ -206,6 +237,14 @@ pub fn run(common: Common, to: &str, budget_bytes: usize) -> Result<()> {
     let addr = resolve(to)?;
     let ipc = Ipc::open(&name, &ipc_prefix)?;
     let inputs = Inputs {
+        // History: a sender that restarted is handed the tracker's last keyframes again, and sends on those the
+        // receiver does not have.
+        keyframes: if topics.contains(&Carried::Keyframes) {
+            let service = ipc.keyframes()?;
+            Some((ipc.keyframe_subscriber(&service)?, ipc.listener(&ipc.events(Topic::Keyframes)?)?))
+        } else {
+            None
+        },
         depth: if topics.contains(&Carried::Depth) {
             let service = ipc.depth()?;
             Some((ipc.depth_subscriber(&service)?, ipc.listener(&ipc.events(Topic::Depth)?)?))
@@ -227,10 +266,11 @@ pub fn run(common: Common, to: &str, budget_bytes: usize) -> Result<()> {
             None
         },
     };
-    let input_topic = match (&inputs.depth, &inputs.poses) {
-        (Some(_), _) => Topic::Depth,
-        (None, Some(_)) => Topic::Poses,
-        (None, None) => Topic::Corrections,
+    let input_topic = match (&inputs.keyframes, &inputs.depth, &inputs.poses) {
+        (Some(_), _, _) => Topic::Keyframes,
+        (None, Some(_), _) => Topic::Depth,
+        (None, None, Some(_)) => Topic::Poses,
+        (None, None, None) => Topic::Corrections,
     };
     let mut telemetry = TelemetryPublisher::new(&ipc, &name, Some(input_topic), None)?;
     let waitset = WaitSetBuilder::new().create::<ipc::Service>().map_err(bdis_node::NodeError::WaitSet)?;
@@ -271,7 +311,8 @@ pub fn run(common: Common, to: &str, budget_bytes: usize) -> Result<()> {
     let all_ended = |e: Ends| {
         (e.depth || inputs.depth.is_none())
             && (e.poses || inputs.poses.is_none())
-            && (inputs.depth.is_some() || inputs.poses.is_some())
+            && (e.keyframes || inputs.keyframes.is_none())
+            && (inputs.depth.is_some() || inputs.poses.is_some() || inputs.keyframes.is_some())
     };
     let mut connected: Option<Connection> = Some(connection);
     let mut next_attempt = Instant::now();

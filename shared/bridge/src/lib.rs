@@ -16,6 +16,9 @@ pub mod wire;
 /// A topic the bridge carries.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
 pub enum Carried {
+    /// Keyframes with their images (tracking → stereo): `bdis.v3.KeyframeHeader` + payload, numbered by keyframe
+    /// id — what crosses when the stereo service runs on the far host.
+    Keyframes,
     /// Depth keyframes (stereo → mosaic): `bdis.v2.DepthHeader` + payload, numbered by keyframe id.
     Depth,
     /// Keyframe pose corrections (tracking → mosaic): `bdis.v1.KeyframePose`, numbered by generation and keyframe.
@@ -25,13 +28,14 @@ pub enum Carried {
 }
 
 impl Carried {
-    pub const ALL: [Carried; 3] = [Carried::Depth, Carried::Corrections, Carried::Poses];
+    pub const ALL: [Carried; 4] = [Carried::Keyframes, Carried::Depth, Carried::Corrections, Carried::Poses];
 
     pub fn code(self) -> u8 {
         match self {
             Carried::Depth => 1,
             Carried::Corrections => 2,
             Carried::Poses => 3,
+            Carried::Keyframes => 4,
         }
     }
 
@@ -45,6 +49,7 @@ impl Carried {
             Carried::Depth => "depth",
             Carried::Corrections => "corrections",
             Carried::Poses => "poses",
+            Carried::Keyframes => "keyframes",
         }
     }
 

@@ -2,8 +2,8 @@
 //! padding, the host's byte order) crosses the link. What comes back is checked by the receiver with the same
 //! `bdis_ipc::validate` every consumer runs before it is published.
 
-use bdis_ipc::DepthHeader;
 use bdis_ipc::track::{KeyframeMeta, KeyframePose, PoseRecord, StereoIntrinsics};
+use bdis_ipc::{DepthHeader, FrameHeader, KeyframeHeader};
 
 use crate::BridgeError;
 
@@ -96,6 +96,42 @@ pub fn depth_header(bytes: &[u8]) -> Result<DepthHeader, BridgeError> {
         flags: t.u32(),
         density_permille: t.u32(),
     })
+}
+
+/// Bytes of a keyframe header on the wire: the frame's header, then what the keyframe is.
+pub const KEYFRAME_HEADER_BYTES: usize = 4 * 8 + 10 * 4 + (1 + 7 + 5 + 1) * 8;
+
+pub fn put_keyframe_header(out: &mut Vec<u8>, h: &KeyframeHeader) {
+    let mut p = Put(out);
+    let f = &h.frame;
+    p.u64(f.frame_seq).u64(f.t_capture_ns).u64(f.t_publish_ns).u64(f.t_source_ns);
+    p.u32(f.width).u32(f.height).u32(f.left_gray_offset).u32(f.right_gray_offset).u32(f.left_rgb_offset);
+    p.u32(f.gray_stride).u32(f.rgb_stride).u32(f.flags).u32(f.source_index).u32(f.mask_offset);
+    put_meta(&mut p, &h.meta);
+}
+
+pub fn keyframe_header(bytes: &[u8]) -> Result<KeyframeHeader, BridgeError> {
+    if bytes.len() != KEYFRAME_HEADER_BYTES {
+        return Err(BridgeError::HeaderSize("keyframe"));
+    }
+    let mut t = Take { bytes, at: 0 };
+    let frame = FrameHeader {
+        frame_seq: t.u64(),
+        t_capture_ns: t.u64(),
+        t_publish_ns: t.u64(),
+        t_source_ns: t.u64(),
+        width: t.u32(),
+        height: t.u32(),
+        left_gray_offset: t.u32(),
+        right_gray_offset: t.u32(),
+        left_rgb_offset: t.u32(),
+        gray_stride: t.u32(),
+        rgb_stride: t.u32(),
+        flags: t.u32(),
+        source_index: t.u32(),
+        mask_offset: t.u32(),
+    };
+    Ok(KeyframeHeader { frame, meta: take_meta(&mut t) })
 }
 
 /// Bytes of a correction on the wire.
@@ -221,6 +257,29 @@ mod tests {
             position_sigma_rel: 1e-4,
             appearance_agreement: 0.97,
         };
+        let k = KeyframeHeader {
+            frame: FrameHeader {
+                frame_seq: 44,
+                t_capture_ns: 1,
+                t_publish_ns: 2,
+                t_source_ns: 3,
+                width: 320,
+                height: 240,
+                left_gray_offset: 0,
+                right_gray_offset: 76_800,
+                left_rgb_offset: 153_600,
+                gray_stride: 320,
+                rgb_stride: 960,
+                flags: FrameHeader::HAS_MASK,
+                source_index: 45,
+                mask_offset: 384_000,
+            },
+            meta: h.meta,
+        };
+        let mut bytes = Vec::new();
+        put_keyframe_header(&mut bytes, &k);
+        assert_eq!(bytes.len(), KEYFRAME_HEADER_BYTES);
+        assert_eq!(keyframe_header(&bytes), Ok(k));
         let mut bytes = Vec::new();
         put_pose(&mut bytes, &r);
         assert_eq!(bytes.len(), POSE_BYTES);

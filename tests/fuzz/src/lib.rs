@@ -245,6 +245,10 @@ pub fn bridge_stream(data: &[u8]) {
                             let c = bdis_bridge::records::correction(header);
                             assert_eq!(c.is_ok(), header.len() == bdis_bridge::records::CORRECTION_BYTES);
                         }
+                        bdis_bridge::Carried::Keyframes => {
+                            let k = bdis_bridge::records::keyframe_header(header);
+                            assert_eq!(k.is_ok(), header.len() == bdis_bridge::records::KEYFRAME_HEADER_BYTES);
+                        }
                         bdis_bridge::Carried::Poses => {
                             let p = bdis_bridge::records::pose(header);
                             assert_eq!(p.is_ok(), header.len() == bdis_bridge::records::POSE_BYTES);
