@@ -1,7 +1,7 @@
 #![allow(clippy::unwrap_used, clippy::expect_used)] // test code: a panic is the failure report
 //! Beyond one host (issue #21): the pipeline split over two iceoryx2 systems that share no memory — two
 //! shared-memory prefixes, each run by its own launcher from its own launch file, standing for two hosts — and
-//! joined only by `bdis-bridge` over TCP on loopback. Host A runs acquisition, tracking and the stereo service;
+//! joined only by `bdis-bridge` over Zenoh (TCP) on loopback. Host A runs acquisition, tracking and the stereo service;
 //! host B the mosaic. The map B writes is byte for byte the map of the same run on one host, and a `kill -9` of
 //! either side of the bridge mid-run loses no keyframe once the launcher has restarted it.
 

@@ -6,6 +6,7 @@
 //! nothing and publishes nothing twice. The raw frame stream is never carried (two 1080p frames at 30 fps are
 //! beyond a hospital's gigabit link): put acquisition and tracking on the same host.
 
+mod link;
 mod node;
 mod receive;
 mod send;

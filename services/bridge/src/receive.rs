@@ -1,18 +1,16 @@
-//! The consuming host's side: listens for the sender, says hello with what it has already published, and
-//! publishes each new sample into this host's shared memory with the topic's own QoS — checked first, as every
-//! consumer checks what it receives — then acknowledges it. A sample it already published (sent again after a
-//! broken connection) is acknowledged and not published twice. A new connection replaces the old one (the sender
-//! restarted). It ends after it has published the end of every carried stream that has one (keyframes, depth,
-//! poses).
+//! The consuming host's side: listens for the sender, begins a conversation with a HELLO that says what it has
+//! already published (at its start, and whenever the sender asks), and publishes each new sample into this host's
+//! shared memory with the topic's own QoS — checked first, as every consumer checks what it receives — then
+//! acknowledges it. A sample it already published (sent again in a later conversation) is acknowledged and not
+//! published twice. It ends after it has published the end of every carried stream that has one (keyframes,
+//! depth, poses) and the sender, which waits for the last acknowledgement, has gone.
 
-use std::io::Write;
-use std::net::{TcpListener, TcpStream};
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result};
 use bdis_bridge::clock::ClockOffset;
 use bdis_bridge::ledger::Inbox;
-use bdis_bridge::wire::{self, Frame, FrameReader, SampleId};
+use bdis_bridge::wire::{self, Frame, SampleId};
 use bdis_bridge::{BridgeError, Carried, records};
 use bdis_ipc::telemetry::MessageTiming;
 use bdis_ipc::track::tracking_state;
@@ -23,9 +21,11 @@ use iceoryx2::port::publisher::Publisher;
 use iceoryx2::prelude::*;
 use iceoryx2::waitset::WaitSetRunResult;
 
-use crate::node::{Common, PeerState, SocketFd, read_available};
+use crate::link::{Arrival, Link, Side};
+use crate::node::Common;
 
-const WRITE_TIMEOUT: Duration = Duration::from_secs(10);
+/// After the ends of the streams: how long the sender has to take the last acknowledgement and go.
+const SENDER_LEAVES: Duration = Duration::from_secs(10);
 
 type DepthPublisher = Publisher<ipc::Service, [u8], DepthHeader>;
 
@@ -62,11 +62,31 @@ struct LinkTime {
     delays_us: Vec<u64>,
 }
 
-struct Connection {
-    stream: TcpStream,
-    reader: FrameReader,
-    /// Samples of this connection handled so far (published, or recognised as already published).
+/// The receiver's side of a conversation.
+struct Conversation {
+    epoch: u64,
+    /// Samples of this conversation handled so far (published, or recognised as already published).
     handled: u64,
+}
+
+impl Conversation {
+    /// Begins a new conversation: a HELLO with what is already published, under an epoch no earlier one had.
+    fn begin(link: &Link, previous: Option<u64>, inbox: &Inbox, topics: &[Carried]) -> Result<Conversation> {
+        // The clock makes epochs differ between runs and restarts; the previous one + 1 within a run.
+        let epoch = previous.map_or_else(|| bdis_ipc::clock::monotonic_ns() ^ (u64::from(std::process::id()) << 40), |e| e.wrapping_add(1));
+        let mut hello = Vec::with_capacity(64);
+        wire::epoch(&mut hello, epoch);
+        wire::hello(&mut hello, &inbox.hello(topics));
+        link.send(hello)?;
+        Ok(Conversation { epoch, handled: 0 })
+    }
+
+    fn acknowledge(&self, link: &Link) -> Result<()> {
+        let mut ack = Vec::with_capacity(24);
+        wire::epoch(&mut ack, self.epoch);
+        wire::ack(&mut ack, self.handled);
+        link.send(ack)
+    }
 }
 
 /// What handling one sample came to.
@@ -233,8 +253,7 @@ fn publish_correction(out: &RecordOut<KeyframePose>, header: &[u8]) -> Result<Ha
 pub fn run(common: Common, listen: &str) -> Result<()> {
     let Common { topics, name, ipc_prefix } = common;
     // The address first: refused before shared memory is touched.
-    let listener = TcpListener::bind(listen).with_context(|| format!("cannot listen on {listen}"))?;
-    listener.set_nonblocking(true).context("a non-blocking listener")?;
+    let mut link = Link::open(Side::Receiver, "--listen", listen)?;
     let ipc = Ipc::open(&name, &ipc_prefix)?;
     let mut outputs = Outputs {
         keyframes: if topics.contains(&Carried::Keyframes) {
@@ -274,79 +293,77 @@ pub fn run(common: Common, listen: &str) -> Result<()> {
     };
     let mut telemetry = TelemetryPublisher::new(&ipc, &name, None, Some(output_topic))?;
     let waitset = WaitSetBuilder::new().create::<ipc::Service>().map_err(bdis_node::NodeError::WaitSet)?;
-    let listener_fd = SocketFd::of(&listener).context("the listener's descriptor")?;
-    let _accepting = waitset.attach_notification(&listener_fd).map_err(bdis_node::NodeError::Attach)?;
+    let link_fd = link.wake_fd().context("the link's wake-up descriptor")?;
+    let _link_guard = waitset.attach_notification(&link_fd).map_err(bdis_node::NodeError::Attach)?;
     let _keepalive = waitset.attach_interval(bdis_node::WAKE_DEADLINE).map_err(bdis_node::NodeError::Attach)?;
     tracing::info!("receiving {} on {}", topics.iter().map(|t| t.name()).collect::<Vec<_>>().join(", "), listen);
     telemetry.ready();
 
     let mut inbox = Inbox::default();
-    let mut current: Option<Connection> = None;
-    let (mut published, mut again, mut refused) = (0u64, 0u64, 0u64);
-    let mut ended = false;
-    // The ends of the depth, pose and keyframe streams, published; it is done when every carried one has ended.
+    // A sender already running (this receiver restarted) is told at once; one that starts later asks.
+    let mut conversation = Conversation::begin(&link, None, &inbox, &topics)?;
+    let (mut published, mut again, mut refused, mut conversations) = (0u64, 0u64, 0u64, 1u64);
+    // When every carried stream with an end has ended: from then the sender has a while to take the last
+    // acknowledgement and go.
+    let mut ended_at: Option<Instant> = None;
+    // The ends of the depth, pose and keyframe streams, published.
     let mut ends = (false, false, false);
-    let mut hello = Vec::new();
-    let mut link = LinkTime::default();
-    while !ended {
-        let fd = current.as_ref().and_then(|c| SocketFd::of(&c.stream));
-        let guard = match &fd {
-            Some(fd) => Some(waitset.attach_notification(fd).map_err(bdis_node::NodeError::Attach)?),
-            None => None,
-        };
+    let mut sender_left = false;
+    let mut link_time = LinkTime::default();
+    loop {
         let run =
             waitset.wait_and_process_once(|_| CallbackProgression::Continue).map_err(bdis_node::NodeError::Wait)?;
-        drop(guard);
         if matches!(run, WaitSetRunResult::TerminationRequest | WaitSetRunResult::Interrupt) {
             break;
         }
         telemetry.keepalive();
-
-        // A sender that connects replaces the one before (it restarted): it is told what is already published.
-        while let Ok((stream, peer)) = listener.accept() {
-            hello.clear();
-            wire::hello(&mut hello, &inbox.hello(&topics));
-            let said = stream.set_nodelay(true).and_then(|()| stream.set_write_timeout(Some(WRITE_TIMEOUT)));
-            let said = said.and_then(|()| (&stream).write_all(&hello)).and_then(|()| stream.set_nonblocking(true));
-            match said {
-                Ok(()) => {
-                    tracing::info!("sender connected from {peer}");
-                    current = Some(Connection { stream, reader: FrameReader::default(), handled: 0 });
+        let before = conversation.handled;
+        for arrival in link.arrivals() {
+            let bytes = match arrival {
+                Arrival::Message(bytes) => bytes,
+                Arrival::PeerCame => {
+                    sender_left = false;
+                    continue;
                 }
-                Err(e) => tracing::warn!("a sender from {peer} could not be greeted: {e}"),
-            }
-        }
-        let Some(connection) = current.as_mut() else { continue };
-        let state = read_available(&mut connection.stream, &mut connection.reader);
-        let before = connection.handled;
-        let mut broken = state == PeerState::Closed;
-        loop {
-            let frame = match connection.reader.next_frame() {
-                Ok(Some(frame)) => frame,
-                Ok(None) => break,
+                Arrival::PeerLeft => {
+                    sender_left = true;
+                    continue;
+                }
+            };
+            let (epoch, what, header, payload) = match wire::message(&bytes) {
+                Ok((_, Frame::WantHello)) => {
+                    conversation = Conversation::begin(&link, Some(conversation.epoch), &inbox, &topics)?;
+                    conversations += 1;
+                    continue;
+                }
+                Ok((epoch, Frame::Sample { what, header, payload })) => (epoch, what, header, payload),
+                Ok((_, other)) => {
+                    tracing::warn!("the link carried a {other:?} to the receiver; ignored");
+                    continue;
+                }
                 Err(e) => {
+                    refused += 1;
                     telemetry.rejected(Topic::Depth, &protocol(e));
-                    broken = true;
-                    break;
+                    continue;
                 }
             };
-            let Frame::Sample { what, header, payload } = frame else {
-                broken = true;
-                break;
-            };
-            connection.handled += 1;
+            // Counted only in its own conversation: one sent before the current HELLO is not what the sender
+            // counts now (it comes again in this one if it is still owed).
+            if epoch == conversation.epoch {
+                conversation.handled += 1;
+            }
             if !inbox.fresh(what.topic, what.id) {
                 again += 1;
                 continue;
             }
             let handled = match (what.topic, &mut outputs) {
                 (Carried::Depth, Outputs { depth: Some(out), .. }) => {
-                    publish_depth(&ipc, out, what, &mut link, header, payload, &mut telemetry)?
+                    publish_depth(&ipc, out, what, &mut link_time, header, payload, &mut telemetry)?
                 }
                 (Carried::Corrections, Outputs { corrections: Some(out), .. }) => publish_correction(out, header)?,
-                (Carried::Poses, Outputs { poses: Some(out), .. }) => publish_pose(out, header, &mut link, what)?,
+                (Carried::Poses, Outputs { poses: Some(out), .. }) => publish_pose(out, header, &mut link_time, what)?,
                 (Carried::Keyframes, Outputs { keyframes: Some(out), .. }) => {
-                    publish_keyframe(&ipc, out, what, &mut link, header, payload, &mut telemetry)?
+                    publish_keyframe(&ipc, out, what, &mut link_time, header, payload, &mut telemetry)?
                 }
                 (topic, _) => Handled::Refused(Rejection::new(
                     Reason::Layout,
@@ -364,9 +381,12 @@ pub fn run(common: Common, listen: &str) -> Result<()> {
                         Carried::Keyframes => ends.2 = true,
                         Carried::Corrections => {}
                     }
-                    ended = (ends.0 || outputs.depth.is_none())
+                    let ended = (ends.0 || outputs.depth.is_none())
                         && (ends.1 || outputs.poses.is_none())
                         && (ends.2 || outputs.keyframes.is_none());
+                    if ended && ended_at.is_none() {
+                        ended_at = Some(Instant::now());
+                    }
                 }
                 Handled::Refused(rejection) => {
                     refused += 1;
@@ -381,28 +401,23 @@ pub fn run(common: Common, listen: &str) -> Result<()> {
             }
             inbox.published(what.topic, what.id);
         }
-        if connection.handled != before {
-            let mut ack = Vec::with_capacity(16);
-            wire::ack(&mut ack, connection.handled);
-            let sent = connection
-                .stream
-                .set_nonblocking(false)
-                .and_then(|()| connection.stream.write_all(&ack))
-                .and_then(|()| connection.stream.set_nonblocking(true));
-            broken |= sent.is_err();
+        if conversation.handled != before {
+            conversation.acknowledge(&link)?;
         }
-        if broken && !ended {
-            tracing::warn!("the sender's connection ended; waiting for it to come back");
-            current = None;
+        if ended_at.is_some_and(|t| sender_left || t.elapsed() > SENDER_LEAVES) {
+            break;
         }
     }
-    link.delays_us.sort_unstable();
-    let at = |q: f64| link.delays_us.get(((link.delays_us.len() as f64 - 1.0) * q).round() as usize).copied();
+    link.close();
+    link_time.delays_us.sort_unstable();
+    let at = |q: f64| {
+        link_time.delays_us.get(((link_time.delays_us.len() as f64 - 1.0) * q).round() as usize).copied()
+    };
     tracing::info!(
-        "bridge receiver done: {published} published, {again} already had, {refused} refused; the sender's clock \
-         {:?} µs from this one's (with the link's shortest delay); keyframes' delay beyond the shortest p50 \
-         {:?} µs, p99 {:?} µs",
-        link.clock.offset_ns().map(|o| o / 1000),
+        "bridge receiver done: {published} published, {again} already had, {refused} refused, {conversations} \
+         conversations; the sender's clock {:?} µs from this one's (with the link's shortest delay); keyframes' \
+         delay beyond the shortest p50 {:?} µs, p99 {:?} µs",
+        link_time.clock.offset_ns().map(|o| o / 1000),
         at(0.5),
         at(0.99)
     );

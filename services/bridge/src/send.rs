@@ -1,17 +1,17 @@
 //! The producing host's side: the carried topics taken from shared memory into the outbox as they are published
-//! (so shared memory's small buffers never overflow while the link is slow or down), written to the receiver in
-//! order, dropped when it says it has published them, written again after a broken connection. Its first
-//! connection tells it what the receiver already has: a sender that restarted reports that as the point it
-//! restored (`ready_restored`), and the launcher has the stereo service redo the keyframes after it from the
-//! tracker's keyframe history, as it does for a restarted mosaic.
+//! (so shared memory's small buffers never overflow while the link is slow or down), sent to the receiver in
+//! order, dropped when it says it has published them, sent again in the next conversation. A conversation begins
+//! with the receiver's HELLO, which says what it already has; the sender asks for one (WANT_HELLO) whenever it
+//! has none — at its start, and when the receiver came or went. Its first HELLO tells it what the receiver
+//! already has: a sender that restarted reports that as the point it restored (`ready_restored`), and the
+//! launcher has the stereo service redo the keyframes after it from the tracker's keyframe history, as it does
+//! for a restarted mosaic.
 
-use std::io::Write;
-use std::net::{SocketAddr, TcpStream, ToSocketAddrs};
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
 use bdis_bridge::ledger::{CorrectionIds, Entry, Outbox};
-use bdis_bridge::wire::{self, Frame, FrameReader, ResumePoints, SampleId};
+use bdis_bridge::wire::{self, Frame, SampleId};
 use bdis_bridge::{Carried, records};
 use bdis_ipc::telemetry::MessageTiming;
 use bdis_ipc::track::tracking_state;
@@ -21,17 +21,13 @@ use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::prelude::*;
 use iceoryx2::waitset::WaitSetRunResult;
 
-use crate::node::{Common, PeerState, SocketFd, read_available};
+use crate::link::{Arrival, Link, Side};
+use crate::node::Common;
 
-/// How long a connection attempt may take, and how long the receiver has to say hello.
-const CONNECT_TIMEOUT: Duration = Duration::from_millis(500);
-const HELLO_TIMEOUT: Duration = Duration::from_secs(10);
-/// While the receiver cannot be reached: how often to try again.
-const RETRY_PERIOD: Duration = Duration::from_millis(250);
-/// The first connection must be made within this (the launcher's readiness deadline is 20 s).
-const FIRST_CONNECTION: Duration = Duration::from_secs(15);
-/// How long a write may block before the connection counts as broken.
-const WRITE_TIMEOUT: Duration = Duration::from_secs(10);
+/// While there is no conversation: how often to ask the receiver for one.
+const ASK_PERIOD: Duration = Duration::from_millis(250);
+/// The first conversation must begin within this (the launcher's readiness deadline is 20 s).
+const FIRST_CONVERSATION: Duration = Duration::from_secs(15);
 
 /// A subscriber and the listener its producer wakes.
 type Input<T, H> = (Subscriber<ipc::Service, T, H>, Listener<ipc::Service>);
@@ -52,50 +48,89 @@ impl Inputs {
     }
 }
 
-/// A connection to the receiver.
-struct Connection {
-    stream: TcpStream,
-    reader: FrameReader,
+/// Where the sender stands with the receiver.
+#[derive(Debug, Default)]
+struct Conversation {
+    /// The receiver's current conversation, once its HELLO came.
+    epoch: Option<u64>,
+    /// When to ask again while there is none.
+    next_ask: Option<Instant>,
+    /// HELLOs taken (conversations begun).
+    hellos: u64,
+    /// What the first HELLO said the receiver had.
+    first: Option<wire::ResumePoints>,
 }
 
-fn resolve(to: &str) -> Result<SocketAddr> {
-    to.to_socket_addrs()
-        .with_context(|| format!("--to {to}: not an address"))?
-        .next()
-        .with_context(|| format!("--to {to}: names no address"))
-}
-
-/// Connects and reads the receiver's HELLO: what it has already published.
-fn connect(addr: SocketAddr, topics: &[Carried]) -> Result<(Connection, ResumePoints)> {
-    let mut stream = TcpStream::connect_timeout(&addr, CONNECT_TIMEOUT)?;
-    stream.set_nodelay(true)?;
-    stream.set_read_timeout(Some(HELLO_TIMEOUT))?;
-    stream.set_write_timeout(Some(WRITE_TIMEOUT))?;
-    let mut reader = FrameReader::default();
-    let deadline = Instant::now() + HELLO_TIMEOUT;
-    let hello = loop {
-        if Instant::now() > deadline {
-            bail!("{addr}: no hello from the receiver");
+impl Conversation {
+    /// Takes what arrived on the link: a HELLO begins a conversation (what the receiver has goes out of the
+    /// outbox), an ACK of the current one drops what it covers, the receiver coming or going ends the
+    /// conversation.
+    fn take(&mut self, link: &mut Link, topics: &[Carried], outbox: &mut Outbox) -> Result<()> {
+        for arrival in link.arrivals() {
+            match arrival {
+                Arrival::PeerCame | Arrival::PeerLeft => {
+                    if self.epoch.take().is_some() {
+                        tracing::info!("the receiver came or went; asking it where it stands");
+                    }
+                    self.next_ask = None;
+                }
+                Arrival::Message(bytes) => match wire::message(&bytes) {
+                    Ok((epoch, Frame::Hello { last })) => {
+                        for topic in topics {
+                            if !last.iter().any(|(t, _)| t == topic) {
+                                bail!("the receiver does not carry {}", topic.name());
+                            }
+                        }
+                        outbox.connected(&last);
+                        if self.hellos == 0 {
+                            self.first = Some(last);
+                        }
+                        self.epoch = Some(epoch);
+                        self.hellos += 1;
+                    }
+                    Ok((epoch, Frame::Ack { published })) => {
+                        if self.epoch == Some(epoch) {
+                            outbox.acknowledged(published);
+                        }
+                    }
+                    Ok((_, other)) => tracing::warn!("the link carried a {other:?} to the sender; ignored"),
+                    Err(e) => tracing::warn!("the link carried a message the sender cannot read: {e}; ignored"),
+                },
+            }
         }
-        let space = reader.space(256);
-        let n = std::io::Read::read(&mut stream, space)?;
-        reader.extend(256, n);
-        if n == 0 {
-            bail!("{addr}: the receiver closed the connection");
-        }
-        match reader.next_frame()? {
-            Some(Frame::Hello { last }) => break last,
-            Some(_) => bail!("{addr}: the receiver did not begin with a hello"),
-            None => {}
-        }
-    };
-    for topic in topics {
-        if !hello.iter().any(|(t, _)| t == topic) {
-            bail!("{addr}: the receiver does not carry {}", topic.name());
-        }
+        Ok(())
     }
-    stream.set_nonblocking(true)?;
-    Ok((Connection { stream, reader }, hello))
+
+    /// Asks for a conversation when there is none and it is time; returns when to wake to ask again.
+    fn ask_if_due(&mut self, link: &Link) -> Result<Option<Duration>> {
+        if self.epoch.is_some() {
+            return Ok(None);
+        }
+        let now = Instant::now();
+        if self.next_ask.is_none_or(|t| now >= t) {
+            let mut message = Vec::with_capacity(16);
+            wire::epoch(&mut message, 0);
+            wire::want_hello(&mut message);
+            link.send(message)?;
+            self.next_ask = Some(now + ASK_PERIOD);
+        }
+        Ok(Some(ASK_PERIOD))
+    }
+
+    /// Sends what the receiver has not been sent in this conversation.
+    fn send(&self, link: &Link, outbox: &mut Outbox) -> Result<()> {
+        let Some(epoch) = self.epoch else { return Ok(()) };
+        let mut sent = 0;
+        for entry in outbox.unsent() {
+            let mut message = Vec::with_capacity(wire::EPOCH_BYTES + entry.frame.len());
+            wire::epoch(&mut message, epoch);
+            message.extend_from_slice(&entry.frame);
+            link.send(message)?;
+            sent += 1;
+        }
+        outbox.mark_sent(sent);
+        Ok(())
+    }
 }
 
 /// The streams that have an end (depth, poses) and whether it has been taken in.
@@ -199,42 +234,10 @@ fn take_inputs(
     Ok(())
 }
 
-/// Reads the receiver's acknowledgements and writes what it has not been sent; `Closed` when the connection broke.
-fn exchange(connection: &mut Connection, outbox: &mut Outbox) -> PeerState {
-    // What arrived is taken in even when the receiver then closed: its last acknowledgement (after the end of
-    // the stream) comes just before it goes.
-    let state = read_available(&mut connection.stream, &mut connection.reader);
-    loop {
-        match connection.reader.next_frame() {
-            Ok(Some(Frame::Ack { published })) => outbox.acknowledged(published),
-            Ok(Some(_)) | Err(_) => return PeerState::Closed,
-            Ok(None) => break,
-        }
-    }
-    if state == PeerState::Closed {
-        return PeerState::Closed;
-    }
-    // Writes block (up to WRITE_TIMEOUT) rather than spin: what cannot be written now stays in the outbox.
-    if connection.stream.set_nonblocking(false).is_err() {
-        return PeerState::Closed;
-    }
-    let mut written = 0;
-    for entry in outbox.unsent() {
-        if connection.stream.write_all(&entry.frame).is_err() {
-            return PeerState::Closed;
-        }
-        written += 1;
-    }
-    outbox.mark_sent(written);
-    if connection.stream.flush().is_err() || connection.stream.set_nonblocking(true).is_err() {
-        return PeerState::Closed;
-    }
-    PeerState::Open
-}
-
 pub fn run(common: Common, to: &str, budget_bytes: usize) -> Result<()> {
     let Common { topics, name, ipc_prefix } = common;
-    let addr = resolve(to)?;
+    // The link first: a malformed address is refused before shared memory is touched.
+    let mut link = Link::open(Side::Sender, "--to", to)?;
     let ipc = Ipc::open(&name, &ipc_prefix)?;
     let inputs = Inputs {
         // History: a sender that restarted is handed the tracker's last keyframes again, and sends on those the
@@ -278,30 +281,37 @@ pub fn run(common: Common, to: &str, budget_bytes: usize) -> Result<()> {
     for listener in inputs.listeners() {
         input_guards.push(waitset.attach_notification(listener).map_err(bdis_node::NodeError::Attach)?);
     }
+    let link_fd = link.wake_fd().context("the link's wake-up descriptor")?;
+    let _link_guard = waitset.attach_notification(&link_fd).map_err(bdis_node::NodeError::Attach)?;
     let _keepalive = waitset.attach_interval(bdis_node::WAKE_DEADLINE).map_err(bdis_node::NodeError::Attach)?;
 
-    // The first connection, before this service says it is ready: what the receiver already has is where a
+    let mut outbox = Outbox::new(budget_bytes);
+    let mut conversation = Conversation::default();
+    // The first conversation, before this service says it is ready: what the receiver already has is where a
     // restarted sender resumes.
     let started = Instant::now();
-    let (connection, hello) = loop {
-        match connect(addr, &topics) {
-            Ok(c) => break c,
-            Err(e) if started.elapsed() < FIRST_CONNECTION => {
-                tracing::debug!("{e:#}; trying again");
-                let retry = waitset.attach_interval(RETRY_PERIOD).map_err(bdis_node::NodeError::Attach)?;
-                let run = waitset.wait_and_process_once(|_| CallbackProgression::Continue);
-                drop(retry);
-                if matches!(run, Ok(WaitSetRunResult::TerminationRequest | WaitSetRunResult::Interrupt)) {
-                    return Ok(());
-                }
-            }
-            Err(e) => return Err(e.context(format!("no receiver at {addr} within {FIRST_CONNECTION:?}"))),
+    let first = loop {
+        conversation.take(&mut link, &topics, &mut outbox)?;
+        if let Some(first) = conversation.first.take() {
+            break first;
+        }
+        if started.elapsed() > FIRST_CONVERSATION {
+            bail!("no receiver answered at {to} within {FIRST_CONVERSATION:?}");
+        }
+        let wake = conversation.ask_if_due(&link)?;
+        let retry = match wake {
+            Some(period) => Some(waitset.attach_interval(period).map_err(bdis_node::NodeError::Attach)?),
+            None => None,
+        };
+        let run = waitset.wait_and_process_once(|_| CallbackProgression::Continue);
+        drop(retry);
+        if matches!(run, Ok(WaitSetRunResult::TerminationRequest | WaitSetRunResult::Interrupt)) {
+            link.close();
+            return Ok(());
         }
     };
-    let mut outbox = Outbox::new(budget_bytes);
-    outbox.connected(&hello);
-    let restored = hello.iter().find(|(t, _)| *t == Carried::Depth).and_then(|(_, id)| *id);
-    tracing::info!("sending {} to {addr}; the receiver has up to keyframe {restored:?}", names(&topics));
+    let restored = first.iter().find(|(t, _)| *t == Carried::Depth).and_then(|(_, id)| *id);
+    tracing::info!("sending {} to {to}; the receiver has up to keyframe {restored:?}", names(&topics));
     telemetry.ready_restored(restored);
 
     let mut ids = CorrectionIds::default();
@@ -314,23 +324,15 @@ pub fn run(common: Common, to: &str, budget_bytes: usize) -> Result<()> {
             && (e.keyframes || inputs.keyframes.is_none())
             && (inputs.depth.is_some() || inputs.poses.is_some() || inputs.keyframes.is_some())
     };
-    let mut connected: Option<Connection> = Some(connection);
-    let mut next_attempt = Instant::now();
-    let mut reconnects = 0u64;
     let stopped = loop {
-        let socket_fd = connected.as_ref().map(|c| SocketFd::of(&c.stream));
-        let socket_guard = match socket_fd.as_ref() {
-            Some(Some(fd)) => Some(waitset.attach_notification(fd).map_err(bdis_node::NodeError::Attach)?),
-            _ => None,
-        };
-        let retry = match connected {
-            None => Some(waitset.attach_interval(RETRY_PERIOD).map_err(bdis_node::NodeError::Attach)?),
-            Some(_) => None,
+        let wake = conversation.ask_if_due(&link)?;
+        let retry = match wake {
+            Some(period) => Some(waitset.attach_interval(period).map_err(bdis_node::NodeError::Attach)?),
+            None => None,
         };
         let run =
             waitset.wait_and_process_once(|_| CallbackProgression::Continue).map_err(bdis_node::NodeError::Wait)?;
         drop(retry);
-        drop(socket_guard);
         if matches!(run, WaitSetRunResult::TerminationRequest | WaitSetRunResult::Interrupt) {
             break true;
         }
@@ -340,39 +342,19 @@ pub fn run(common: Common, to: &str, budget_bytes: usize) -> Result<()> {
         }
         telemetry.keepalive();
         take_inputs(&inputs, &mut outbox, &mut ids, &mut telemetry, &mut scratch, &mut ends)?;
-        let ended = all_ended(ends);
-
-        if connected.is_none() && Instant::now() >= next_attempt {
-            match connect(addr, &topics) {
-                Ok((c, hello)) => {
-                    outbox.connected(&hello);
-                    reconnects += 1;
-                    tracing::info!("reconnected to {addr} ({} samples to send)", outbox.len());
-                    connected = Some(c);
-                }
-                Err(e) => {
-                    tracing::debug!("{e:#}");
-                    next_attempt = Instant::now() + RETRY_PERIOD;
-                }
-            }
-        }
-        if let Some(c) = connected.as_mut()
-            && exchange(c, &mut outbox) == PeerState::Closed
-            && !(ended && outbox.is_empty())
-        {
-            tracing::warn!("the connection to {addr} broke; {} samples kept to send again", outbox.len());
-            connected = None;
-            next_attempt = Instant::now();
-        }
-        if ended && outbox.is_empty() {
+        conversation.take(&mut link, &topics, &mut outbox)?;
+        conversation.send(&link, &mut outbox)?;
+        if all_ended(ends) && outbox.is_empty() {
             break false;
         }
     };
     tracing::info!(
-        "bridge sender done: {} samples left unsent, {} given up over budget, {reconnects} reconnections",
+        "bridge sender done: {} samples left unsent, {} given up over budget, {} conversations after the first",
         outbox.len(),
-        outbox.overflowed
+        outbox.overflowed,
+        conversation.hellos.saturating_sub(1)
     );
+    link.close();
     if !stopped && outbox.overflowed > 0 {
         telemetry.failed();
         bail!("{} samples were given up while the link was down (--outbox-mib)", outbox.overflowed);

@@ -1,6 +1,6 @@
 //! What each side of a bridge remembers. The sender keeps every sample until the receiver says it has published
-//! it ([`Outbox`]); after a broken connection it sends again what is left, less what the receiver's HELLO says it
-//! already has. The receiver publishes a sample only if it is newer than the last of its topic ([`Inbox`]), so a
+//! it ([`Outbox`]); in each new conversation (a receiver's HELLO: it started, or the sender did, or the link came
+//! back) it sends again what is left, less what that HELLO says the receiver already has. The receiver publishes a sample only if it is newer than the last of its topic ([`Inbox`]), so a
 //! sample sent twice is published once. Ids are the samples' own: a depth keyframe's id, the end of a stream
 //! `u64::MAX`, a correction its generation and its place in it ([`CorrectionIds`]).
 
@@ -22,9 +22,9 @@ pub struct Outbox {
     entries: VecDeque<Entry>,
     bytes: usize,
     budget: usize,
-    /// Entries written on the current connection (the first `sent` of `entries`, less those acknowledged).
+    /// Entries written in the current conversation (the first `sent` of `entries`, less those acknowledged).
     sent: usize,
-    /// Acknowledged on the current connection so far.
+    /// Acknowledged in the current conversation so far.
     acked: u64,
     /// Samples given up because the budget was exceeded (the link was down too long).
     pub overflowed: u64,
@@ -59,7 +59,7 @@ impl Outbox {
         }
     }
 
-    /// A new connection: nothing is sent on it yet, and what the receiver already published (its HELLO) is
+    /// A new conversation: nothing is sent in it yet, and what the receiver already published (its HELLO) is
     /// dropped.
     pub fn connected(&mut self, receiver_has: &[(Carried, Option<u64>)]) {
         self.sent = 0;
@@ -72,7 +72,7 @@ impl Outbox {
         }
     }
 
-    /// The entries still to write on this connection.
+    /// The entries still to send in this conversation.
     pub fn unsent(&self) -> impl Iterator<Item = &Entry> {
         self.entries.iter().skip(self.sent)
     }
@@ -81,7 +81,7 @@ impl Outbox {
         self.sent = (self.sent + n).min(self.entries.len());
     }
 
-    /// The receiver has published `published` samples of this connection: those are dropped.
+    /// The receiver has published `published` samples of this conversation: those are dropped.
     pub fn acknowledged(&mut self, published: u64) {
         let newly = published.saturating_sub(self.acked) as usize;
         let newly = newly.min(self.sent);
@@ -186,7 +186,7 @@ mod tests {
     }
 
     #[test]
-    fn a_broken_connection_resends_what_was_not_acknowledged_less_what_the_receiver_has() {
+    fn a_new_conversation_resends_what_was_not_acknowledged_less_what_the_receiver_has() {
         let mut out = Outbox::new(1 << 20);
         for id in 1..=5 {
             out.push(entry(Carried::Depth, id, 10));
@@ -196,7 +196,7 @@ mod tests {
         out.mark_sent(5);
         out.acknowledged(2);
         assert_eq!(out.len(), 3);
-        // The connection breaks; the receiver had published 3 (its ack was lost).
+        // A new conversation (the link broke); the receiver had published 3 (its ack was lost).
         out.connected(&[(Carried::Depth, Some(3))]);
         let ids: Vec<u64> = out.unsent().map(|e| e.id).collect();
         assert_eq!(ids, vec![4, 5]);

@@ -1,9 +1,9 @@
-//! The bridge between two hosts' pipelines: chosen topics carried over one TCP connection, each sample numbered
-//! by what it is (a depth keyframe by its keyframe id, a correction by its generation and keyframe), kept by the
-//! sender until the receiver says it has published it, and sent again after a broken connection. A library that
-//! knows nothing of processes or sockets' owners: the `bdis-bridge` service drives it.
+//! The bridge between two hosts' pipelines: chosen topics carried as Zenoh samples, each numbered by what it is
+//! (a depth keyframe by its keyframe id, a correction by its generation and keyframe), kept by the sender until
+//! the receiver says it has published it, and sent again in the next conversation when the link or either side
+//! was lost. A library that knows nothing of processes or of Zenoh: the `bdis-bridge` service drives it.
 //!
-//! * [`wire`]: the frames on the connection (hello, sample, acknowledgement), checked as hostile input;
+//! * [`wire`]: the messages (want-hello, hello, sample, acknowledgement), checked as hostile input;
 //! * [`records`]: the topics' headers as bytes, field by field (little-endian, no padding, no layout assumed);
 //! * [`ledger`]: what the sender still owes the receiver, and what the receiver has already published;
 //! * [`clock`]: the sender's clock in the receiver's, for the times the samples carry.

@@ -1,24 +1,32 @@
-//! The frames on a bridge connection. Every frame is `[u32 length][u8 kind][body]` (little-endian; the length
-//! counts kind and body), so a reader needs nothing but the bytes to find the next one:
+//! The messages between a bridge's two sides. Each is one Zenoh sample: `[u64 epoch][u32 length][u8 kind][body]`
+//! (little-endian; the length counts kind and body and must be the rest of the message). The epoch names a
+//! conversation: the receiver starts a new one with every HELLO, and counts and acknowledges only the samples of
+//! its current one, so a sample still on its way from before (Zenoh delivers what was in flight) never shifts
+//! the count.
 //!
-//! * `HELLO` (receiver → sender, first): protocol version, then per topic the last id the receiver has published
-//!   (`u64::MAX`: none) — where a sender that restarted resumes;
+//! * `WANT_HELLO` (sender → receiver): the sender has no conversation (it started, or the receiver came or went);
+//! * `HELLO` (receiver → sender): protocol version, then per topic the last id the receiver has published
+//!   (`u64::MAX`: none) — where the sender resumes; its epoch is the new conversation's;
 //! * `SAMPLE` (sender → receiver): topic, id, the time the sender sent it (its CLOCK_MONOTONIC), the header's
 //!   length, the header, the payload;
-//! * `ACK` (receiver → sender): how many samples of this connection the receiver has published, in order.
+//! * `ACK` (receiver → sender): how many samples of this conversation the receiver has handled, in order.
 //!
-//! Everything read is checked before use: a length beyond [`MAX_FRAME_BYTES`], an unknown kind or topic, a body
-//! shorter than its fields is an error, never a panic or an allocation of what a peer claims.
+//! Everything read is checked before use: a length beyond [`MAX_FRAME_BYTES`] or other than the message's, an
+//! unknown kind or topic, a body shorter than its fields is an error, never a panic.
 
 use crate::{BridgeError, Carried};
 
-pub const VERSION: u32 = 1;
+pub const VERSION: u32 = 2;
 /// The longest frame accepted: a 4K depth keyframe (11 bytes a pixel) with room to spare.
 pub const MAX_FRAME_BYTES: u64 = 128 << 20;
 
 const KIND_HELLO: u8 = 1;
 const KIND_SAMPLE: u8 = 2;
 const KIND_ACK: u8 = 3;
+const KIND_WANT_HELLO: u8 = 4;
+
+/// Bytes before a frame in a message: its epoch.
+pub const EPOCH_BYTES: usize = 8;
 
 /// What a sample is, before its header and payload.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -34,6 +42,7 @@ pub type ResumePoints = Vec<(Carried, Option<u64>)>;
 
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub enum Frame<'a> {
+    WantHello,
     Hello { last: ResumePoints },
     Sample { what: SampleId, header: &'a [u8], payload: &'a [u8] },
     Ack { published: u64 },
@@ -49,6 +58,17 @@ fn begin(out: &mut Vec<u8>, kind: u8) -> usize {
 fn end(out: &mut [u8], start: usize) {
     let len = (out.len() - start - 4) as u32;
     out[start..start + 4].copy_from_slice(&len.to_le_bytes());
+}
+
+/// Appends a message's epoch; the frame follows it.
+pub fn epoch(out: &mut Vec<u8>, epoch: u64) {
+    out.extend_from_slice(&epoch.to_le_bytes());
+}
+
+/// Appends a WANT_HELLO.
+pub fn want_hello(out: &mut Vec<u8>) {
+    let start = begin(out, KIND_WANT_HELLO);
+    end(out, start);
 }
 
 /// Appends a HELLO.
@@ -91,54 +111,25 @@ fn topic(code: u8) -> Result<Carried, BridgeError> {
     Carried::from_code(code).ok_or(BridgeError::UnknownTopic(code))
 }
 
-/// Frames out of a byte stream: bytes go in as they arrive, whole frames come out.
-#[derive(Debug, Default)]
-pub struct FrameReader {
-    buf: Vec<u8>,
-    /// Bytes of `buf` already handed out as frames (dropped at the next `extend`).
-    consumed: usize,
-}
-
-impl FrameReader {
-    /// The buffer to read into: `extend(n)` then makes the first `n` bytes of it part of the stream.
-    pub fn space(&mut self, at_least: usize) -> &mut [u8] {
-        if self.consumed > 0 {
-            self.buf.drain(..self.consumed);
-            self.consumed = 0;
-        }
-        let filled = self.buf.len();
-        self.buf.resize(filled + at_least, 0);
-        &mut self.buf[filled..]
+/// One whole message: its epoch and its frame.
+pub fn message(bytes: &[u8]) -> Result<(u64, Frame<'_>), BridgeError> {
+    let epoch = u64::from_le_bytes(le(bytes, 0, "message")?);
+    let rest = &bytes[EPOCH_BYTES..];
+    let len = u64::from(u32::from_le_bytes(le(rest, 0, "length")?));
+    if len > MAX_FRAME_BYTES || len == 0 {
+        return Err(BridgeError::FrameTooLong(len));
     }
-
-    /// After a read into [`space`](Self::space): `n` bytes arrived, the rest of the space is given back.
-    pub fn extend(&mut self, offered: usize, n: usize) {
-        let keep = self.buf.len() - offered + n;
-        self.buf.truncate(keep);
+    let frame = &rest[4..];
+    if frame.len() as u64 != len {
+        return Err(BridgeError::Truncated { what: "message", len: bytes.len() });
     }
-
-    /// The next whole frame, if one has arrived.
-    pub fn next_frame(&mut self) -> Result<Option<Frame<'_>>, BridgeError> {
-        let rest = &self.buf[self.consumed..];
-        let Ok(len_bytes) = le::<4>(rest, 0, "length") else { return Ok(None) };
-        let len = u64::from(u32::from_le_bytes(len_bytes));
-        if len > MAX_FRAME_BYTES || len == 0 {
-            return Err(BridgeError::FrameTooLong(len));
-        }
-        let len = len as usize;
-        if rest.len() < 4 + len {
-            return Ok(None);
-        }
-        let start = self.consumed + 4;
-        self.consumed += 4 + len;
-        let frame = &self.buf[start..start + len];
-        parse(frame).map(Some)
-    }
+    parse(frame).map(|f| (epoch, f))
 }
 
 fn parse(frame: &[u8]) -> Result<Frame<'_>, BridgeError> {
     let (&kind, body) = frame.split_first().ok_or(BridgeError::Truncated { what: "frame", len: 0 })?;
     match kind {
+        KIND_WANT_HELLO => Ok(Frame::WantHello),
         KIND_HELLO => {
             let version = u32::from_le_bytes(le(body, 0, "hello")?);
             if version != VERSION {
@@ -175,70 +166,54 @@ fn parse(frame: &[u8]) -> Result<Frame<'_>, BridgeError> {
 mod tests {
     use super::*;
 
-    fn feed(reader: &mut FrameReader, bytes: &[u8]) {
-        let space = reader.space(bytes.len());
-        space[..bytes.len()].copy_from_slice(bytes);
-        reader.extend(bytes.len(), bytes.len());
+    fn with_epoch(e: u64, frame: impl FnOnce(&mut Vec<u8>)) -> Vec<u8> {
+        let mut out = Vec::new();
+        epoch(&mut out, e);
+        frame(&mut out);
+        out
     }
 
     #[test]
-    fn frames_come_out_whole_whatever_the_reads_cut() {
-        let mut stream = Vec::new();
-        hello(&mut stream, &[(Carried::Depth, Some(41)), (Carried::Corrections, None)]);
+    fn each_message_reads_back_with_its_epoch() {
+        let hello_msg = with_epoch(7, |o| hello(o, &[(Carried::Depth, Some(41)), (Carried::Corrections, None)]));
+        assert_eq!(
+            message(&hello_msg),
+            Ok((7, Frame::Hello { last: vec![(Carried::Depth, Some(41)), (Carried::Corrections, None)] }))
+        );
         let what = SampleId { topic: Carried::Depth, id: 42, t_sent_ns: 7 };
-        sample(&mut stream, what, &[1, 2, 3], &[9; 1000]);
-        ack(&mut stream, 5);
-        // Byte by byte, then all at once: the same frames.
-        for chunk in [1usize, 7, stream.len()] {
-            let mut reader = FrameReader::default();
-            let mut kinds = Vec::new();
-            for piece in stream.chunks(chunk) {
-                feed(&mut reader, piece);
-                while let Some(frame) = reader.next_frame().unwrap() {
-                    kinds.push(match frame {
-                        Frame::Hello { last } => {
-                            assert_eq!(last, vec![(Carried::Depth, Some(41)), (Carried::Corrections, None)]);
-                            1
-                        }
-                        Frame::Sample { what: w, header, payload } => {
-                            assert_eq!((w, header, payload.len()), (what, &[1u8, 2, 3][..], 1000));
-                            2
-                        }
-                        Frame::Ack { published } => {
-                            assert_eq!(published, 5);
-                            3
-                        }
-                    });
-                }
-            }
-            assert_eq!(kinds, vec![1, 2, 3], "chunks of {chunk}");
-        }
+        let sample_msg = with_epoch(8, |o| sample(o, what, &[1, 2, 3], &[9; 1000]));
+        let (e, frame) = message(&sample_msg).unwrap();
+        let Frame::Sample { what: w, header, payload } = frame else { panic!("{frame:?}") };
+        assert_eq!((e, w, header, payload.len()), (8, what, &[1u8, 2, 3][..], 1000));
+        assert_eq!(message(&with_epoch(9, |o| ack(o, 5))), Ok((9, Frame::Ack { published: 5 })));
+        assert_eq!(message(&with_epoch(0, want_hello)), Ok((0, Frame::WantHello)));
     }
 
     #[test]
-    fn hostile_frames_are_errors_not_panics_or_allocations() {
-        let mut reader = FrameReader::default();
-        feed(&mut reader, &u32::MAX.to_le_bytes());
-        assert_eq!(reader.next_frame(), Err(BridgeError::FrameTooLong(u64::from(u32::MAX))));
+    fn hostile_messages_are_errors_not_panics() {
+        let mut m = with_epoch(1, |o| o.extend_from_slice(&u32::MAX.to_le_bytes()));
+        m.push(KIND_ACK);
+        assert_eq!(message(&m), Err(BridgeError::FrameTooLong(u64::from(u32::MAX))));
+        assert!(message(&[1, 2, 3]).is_err());
         for body in [&[9u8][..], &[KIND_SAMPLE, 1, 0], &[KIND_SAMPLE, 77, 0, 0, 0, 0, 0, 0, 0, 0], &[KIND_ACK, 1]] {
-            let mut reader = FrameReader::default();
-            let mut frame = (body.len() as u32).to_le_bytes().to_vec();
-            frame.extend_from_slice(body);
-            feed(&mut reader, &frame);
-            assert!(reader.next_frame().is_err(), "{body:?}");
+            let m = with_epoch(1, |o| {
+                o.extend_from_slice(&(body.len() as u32).to_le_bytes());
+                o.extend_from_slice(body);
+            });
+            assert!(message(&m).is_err(), "{body:?}");
         }
+        // A length that is not the rest of the message, either way.
+        let mut m = with_epoch(1, |o| ack(o, 5));
+        m.push(0);
+        assert!(message(&m).is_err());
+        m.truncate(m.len() - 2);
+        assert!(message(&m).is_err());
         // A header longer than the sample.
-        let mut stream = Vec::new();
-        sample(&mut stream, SampleId { topic: Carried::Depth, id: 1, t_sent_ns: 0 }, &[1; 8], &[]);
-        stream[4 + 1 + 17] = 200;
-        let mut reader = FrameReader::default();
-        feed(&mut reader, &stream);
-        assert!(matches!(reader.next_frame(), Err(BridgeError::Truncated { .. })));
-        let mut stream = Vec::new();
-        hello(&mut stream, &[]);
-        stream[5] = 9;
-        let mut reader = FrameReader::default();
-        feed(&mut reader, &stream);
-        assert_eq!(reader.next_frame(), Err(BridgeError::Version(9)));
+        let mut m = with_epoch(1, |o| sample(o, SampleId { topic: Carried::Depth, id: 1, t_sent_ns: 0 }, &[1; 8], &[]));
+        m[EPOCH_BYTES + 4 + 1 + 17] = 200;
+        assert!(matches!(message(&m), Err(BridgeError::Truncated { .. })));
+        let mut m = with_epoch(1, |o| hello(o, &[]));
+        m[EPOCH_BYTES + 5] = 9;
+        assert_eq!(message(&m), Err(BridgeError::Version(9)));
     }
 }

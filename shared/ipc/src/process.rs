@@ -4,8 +4,13 @@ use std::process::ExitCode;
 
 /// Logs to stderr (the launcher captures it into the run's log folder). `RUST_LOG` overrides the INFO default.
 pub fn init_logging() {
-    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
-        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
+    // Zenoh (the bridge's link) logs its routine at info and its handled failures at warn; the bridge logs what
+    // they mean for the pipeline. `RUST_LOG=info` shows Zenoh's own log.
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| {
+        tracing_subscriber::EnvFilter::new(
+            "info,zenoh=error,zenoh_transport=error,zenoh_link_tcp=error,zenoh_link_commons=error,zenoh_config=error",
+        )
+    });
     // Colours only on a terminal: a service's stderr is its log file, where escape codes are noise.
     let ansi = std::io::IsTerminal::is_terminal(&std::io::stderr());
     let _ = tracing_subscriber::fmt()

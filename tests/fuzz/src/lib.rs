@@ -39,7 +39,7 @@ pub const TARGETS: &[Target] = &[
     ("ipc_correction", correction),
     ("ipc_pose", pose_record),
     ("ipc_telemetry", telemetry),
-    ("bridge_stream", bridge_stream),
+    ("bridge_message", bridge_message),
 ];
 
 fn path() -> &'static Path {
@@ -222,43 +222,28 @@ pub fn launch_file(data: &[u8]) {
     let _ = bdis_slam::launch_file::LaunchFile::parse(t, path());
 }
 
-/// What a bridge receiver or sender reads off its socket (`bdis_bridge::wire`), cut into reads of varying
-/// size: frames come out whole or as an error, and a sample's header decodes only at its exact size.
-pub fn bridge_stream(data: &[u8]) {
-    use bdis_bridge::wire::{Frame, FrameReader};
-    let mut reader = FrameReader::default();
-    let chunk = 1 + usize::from(data.first().copied().unwrap_or(0) % 17);
-    for piece in data.chunks(chunk) {
-        let space = reader.space(piece.len());
-        space[..piece.len()].copy_from_slice(piece);
-        reader.extend(piece.len(), piece.len());
-        loop {
-            match reader.next_frame() {
-                Ok(Some(Frame::Sample { what, header, payload })) => {
-                    assert!(header.len() + payload.len() <= bdis_bridge::wire::MAX_FRAME_BYTES as usize);
-                    match what.topic {
-                        bdis_bridge::Carried::Depth => {
-                            let h = bdis_bridge::records::depth_header(header);
-                            assert_eq!(h.is_ok(), header.len() == bdis_bridge::records::DEPTH_HEADER_BYTES);
-                        }
-                        bdis_bridge::Carried::Corrections => {
-                            let c = bdis_bridge::records::correction(header);
-                            assert_eq!(c.is_ok(), header.len() == bdis_bridge::records::CORRECTION_BYTES);
-                        }
-                        bdis_bridge::Carried::Keyframes => {
-                            let k = bdis_bridge::records::keyframe_header(header);
-                            assert_eq!(k.is_ok(), header.len() == bdis_bridge::records::KEYFRAME_HEADER_BYTES);
-                        }
-                        bdis_bridge::Carried::Poses => {
-                            let p = bdis_bridge::records::pose(header);
-                            assert_eq!(p.is_ok(), header.len() == bdis_bridge::records::POSE_BYTES);
-                        }
-                    }
-                }
-                Ok(Some(_)) => {}
-                Ok(None) => break,
-                // A broken stream ends the connection: nothing after it is read.
-                Err(_) => return,
+/// What a bridge receiver or sender takes off the link (`bdis_bridge::wire`): one message comes out whole or as
+/// an error, and a sample's header decodes only at its exact size.
+pub fn bridge_message(data: &[u8]) {
+    use bdis_bridge::wire::{self, Frame};
+    if let Ok((_, Frame::Sample { what, header, payload })) = wire::message(data) {
+        assert!(header.len() + payload.len() <= wire::MAX_FRAME_BYTES as usize);
+        match what.topic {
+            bdis_bridge::Carried::Depth => {
+                let h = bdis_bridge::records::depth_header(header);
+                assert_eq!(h.is_ok(), header.len() == bdis_bridge::records::DEPTH_HEADER_BYTES);
+            }
+            bdis_bridge::Carried::Corrections => {
+                let c = bdis_bridge::records::correction(header);
+                assert_eq!(c.is_ok(), header.len() == bdis_bridge::records::CORRECTION_BYTES);
+            }
+            bdis_bridge::Carried::Keyframes => {
+                let k = bdis_bridge::records::keyframe_header(header);
+                assert_eq!(k.is_ok(), header.len() == bdis_bridge::records::KEYFRAME_HEADER_BYTES);
+            }
+            bdis_bridge::Carried::Poses => {
+                let p = bdis_bridge::records::pose(header);
+                assert_eq!(p.is_ok(), header.len() == bdis_bridge::records::POSE_BYTES);
             }
         }
     }
@@ -268,7 +253,7 @@ pub fn bridge_stream(data: &[u8]) {
 pub fn generated_seeds(target: &str) -> Vec<Vec<u8>> {
     match target {
         "map_bin" => small_map_bin().into_iter().collect(),
-        "bridge_stream" => vec![bridge_conversation()],
+        "bridge_message" => bridge_messages(),
         _ => Vec::new(),
     }
 }
@@ -300,18 +285,27 @@ fn small_map_bin() -> Option<Vec<u8>> {
     bytes
 }
 
-/// A bridge conversation as both sides write it: a hello, a depth keyframe, a correction, an acknowledgement.
-fn bridge_conversation() -> Vec<u8> {
+/// Messages as both sides write them: a want-hello, a hello, a depth keyframe, a correction, an acknowledgement.
+fn bridge_messages() -> Vec<Vec<u8>> {
     use bdis_bridge::wire::{self, SampleId};
     use bdis_bridge::{Carried, records};
-    let mut out = Vec::new();
-    wire::hello(&mut out, &[(Carried::Depth, Some(3)), (Carried::Corrections, None)]);
-    let mut header = Vec::new();
-    records::put_depth_header(&mut header, &bdis_ipc::DepthHeader { width: 2, height: 1, ..Default::default() });
-    wire::sample(&mut out, SampleId { topic: Carried::Depth, id: 4, t_sent_ns: 1 }, &header, &[0u8; 22]);
-    header.clear();
-    records::put_correction(&mut header, &bdis_ipc::KeyframePose { generation: 1, ..Default::default() });
-    wire::sample(&mut out, SampleId { topic: Carried::Corrections, id: 1 << 20, t_sent_ns: 2 }, &header, &[]);
-    wire::ack(&mut out, 2);
-    out
+    let message = |frame: &dyn Fn(&mut Vec<u8>)| {
+        let mut out = Vec::new();
+        wire::epoch(&mut out, 0x5eed);
+        frame(&mut out);
+        out
+    };
+    let mut depth = Vec::new();
+    records::put_depth_header(&mut depth, &bdis_ipc::DepthHeader { width: 2, height: 1, ..Default::default() });
+    let mut correction = Vec::new();
+    records::put_correction(&mut correction, &bdis_ipc::KeyframePose { generation: 1, ..Default::default() });
+    vec![
+        message(&|o| wire::want_hello(o)),
+        message(&|o| wire::hello(o, &[(Carried::Depth, Some(3)), (Carried::Corrections, None)])),
+        message(&|o| wire::sample(o, SampleId { topic: Carried::Depth, id: 4, t_sent_ns: 1 }, &depth, &[0u8; 22])),
+        message(&|o| {
+            wire::sample(o, SampleId { topic: Carried::Corrections, id: 1 << 20, t_sent_ns: 2 }, &correction, &[])
+        }),
+        message(&|o| wire::ack(o, 2)),
+    ]
 }
