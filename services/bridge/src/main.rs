@@ -1,6 +1,6 @@
 //! `bdis-bridge`: carries chosen topics of a pipeline to a pipeline on another host (or another iceoryx2 system on
 //! this one). On the host that produces them, `bdis-bridge send --to HOST:PORT` takes the topics from shared
-//! memory and sends them over TCP; on the host that consumes them, `bdis-bridge receive --listen ADDR` publishes
+//! memory and sends them over a Zenoh link (TCP); on the host that consumes them, `bdis-bridge receive --listen ADDR` publishes
 //! them into its shared memory with the topics' own QoS, as if their producer ran there. Every sample is kept by
 //! the sender until the receiver has published it, so a broken connection or a restart of either side loses
 //! nothing and publishes nothing twice. The raw frame stream is never carried (two 1080p frames at 30 fps are
@@ -13,7 +13,8 @@ mod send;
 
 use clap::{Parser, Subcommand};
 
-/// Bridge service: the pipeline's depth keyframes, pose corrections and poses between two hosts over TCP.
+/// Bridge service: the pipeline's keyframes, depth keyframes, pose corrections and poses between two hosts over
+/// Zenoh (TCP, peer to peer: the receiver listens, the sender connects; nothing else is opened).
 #[derive(Debug, Parser)]
 #[command(name = "bdis-bridge", version)]
 struct Args {
