@@ -19,7 +19,7 @@ fn sequence() -> &'static Path {
     static SEQUENCE: OnceLock<TempDir> = OnceLock::new();
     SEQUENCE
         .get_or_init(|| {
-            let tmp = TempDir::new("bridgeseq");
+            let tmp = TempDir::new("bridgeseq").removed_at_exit();
             render_small_colon(&tmp.path().join("colon"), 48);
             tmp
         })

@@ -46,7 +46,7 @@ fn synth_hover(dir: &Path, frames: usize, extra: &[&str]) {
 fn renders() -> &'static Renders {
     static RENDERS: OnceLock<Renders> = OnceLock::new();
     RENDERS.get_or_init(|| {
-        let tmp = TempDir::new("instruments");
+        let tmp = TempDir::new("instruments").removed_at_exit();
         let (with_tools, clean) = (tmp.path().join("with-tools"), tmp.path().join("clean"));
         synth_hover(&with_tools, FRAMES, &["--instruments"]);
         synth_hover(&clean, FRAMES, &[]);

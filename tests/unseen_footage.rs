@@ -210,7 +210,7 @@ const CASES: &[Case] = &[
 fn rendered() -> &'static (TempDir, Vec<PathBuf>) {
     static SEQUENCES: OnceLock<(TempDir, Vec<PathBuf>)> = OnceLock::new();
     SEQUENCES.get_or_init(|| {
-        let tmp = TempDir::new("hard");
+        let tmp = TempDir::new("hard").removed_at_exit();
         let dirs = CASES
             .iter()
             .map(|case| {

@@ -20,7 +20,7 @@ use common::{TempDir, bdis_slam, prefix, render_small_colon, run_with_timeout, t
 fn demo_run() -> &'static Path {
     static RUN: OnceLock<TempDir> = OnceLock::new();
     RUN.get_or_init(|| {
-        let tmp = TempDir::new("viewer");
+        let tmp = TempDir::new("viewer").removed_at_exit();
         let out = run_with_timeout(
             Command::new(bdis_slam()).args(["demo", "--frames", "24", "--out"]).arg(tmp.path()),
             Duration::from_secs(180),
