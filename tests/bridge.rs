@@ -3,7 +3,8 @@
 //! shared-memory prefixes, each run by its own launcher from its own launch file, standing for two hosts — and
 //! joined only by `bdis-bridge` over Zenoh (TCP) on loopback. Host A runs acquisition, tracking and the stereo service;
 //! host B the mosaic. The map B writes is byte for byte the map of the same run on one host, and a `kill -9` of
-//! either side of the bridge mid-run loses no keyframe once the launcher has restarted it.
+//! either side of the bridge mid-run loses no keyframe once the launcher has restarted it; mid-run, host A gets
+//! host B's map as a snapshot through the bridge.
 
 mod common;
 
@@ -93,8 +94,8 @@ fn keyframes_in(run: &Path, file: &str, key: &str) -> u64 {
     summary[key].as_u64().unwrap_or_else(|| panic!("{file}: {key}: {summary}"))
 }
 
-/// Runs the split pipeline; with `kill` ("send" or "receive"), that side of the bridge is killed with SIGKILL
-/// once host B's mosaic has taken in a few keyframes. Returns (A's run folder, B's run folder, what the
+/// Runs the split pipeline; with `kill` ("send" or "receive"), host B's map is asked for on host A once B's mosaic
+/// has taken in a few keyframes, then that side of the bridge is killed with SIGKILL. Returns (A's run folder, B's run folder, what the
 /// launchers said).
 fn split_run(tmp: &Path, tag: &str, placement: Placement, kill: Option<&str>) -> (PathBuf, PathBuf, String) {
     let port = free_port();
@@ -115,6 +116,21 @@ fn split_run(tmp: &Path, tag: &str, placement: Placement, kill: Option<&str>) ->
             assert!(std::time::Instant::now() < deadline, "the mosaic on host B never started mapping");
             std::thread::sleep(Duration::from_millis(50));
         }
+        // The map made on host B, asked for on host A (the bridge carries the snapshot's request and answer).
+        let snapshot = run_a.join("snapshot-from-b.ply");
+        let asked = Command::new(bdis_slam())
+            .args(["snapshot", "--run"])
+            .arg(&run_a)
+            .arg("--out")
+            .arg(&snapshot)
+            .output()
+            .unwrap();
+        let answer = text(&asked.stdout);
+        assert!(asked.status.success(), "a snapshot on host A:\n{answer}{}", text(&asked.stderr));
+        let points: u64 = answer.split(": ").nth(1).and_then(|a| a.split(' ').next()).unwrap().parse().unwrap();
+        let keyframes: u64 = answer.split(", ").nth(1).and_then(|a| a.split(' ').next()).unwrap().parse().unwrap();
+        assert!(points > 0 && keyframes >= 3, "host B's map as host A sees it: {answer}");
+        said.push_str(&answer);
         let pid = pid_of(&log, if role == "send" { "bdis-bridge send" } else { "bdis-bridge receive" });
         Command::new("kill").args(["-KILL", &pid.to_string()]).status().unwrap();
         said.push_str(&format!("killed the {role} side, pid {pid}\n"));

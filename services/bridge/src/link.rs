@@ -52,19 +52,47 @@ pub enum Arrival {
     PeerCame,
     /// The other side is gone (it stopped or died, or the link broke).
     PeerLeft,
+    /// The far side asks for this host's map (the receiver with `--map-snapshots`); answered through the query.
+    SnapshotAsked(zenoh::query::Query),
+    /// The far side's answer to [`Link::ask_snapshot`] number `request`: the snapshot's bytes, or why there is
+    /// none (no answer within the time, the far side has no mosaic).
+    SnapshotAnswer { request: u64, answer: Result<Vec<u8>, String> },
 }
+
+/// Where map snapshots are asked for.
+const SNAPSHOT_KEY: &str = "bdis/bridge/map-snapshot";
 
 /// Arrivals queued by Zenoh's threads before the service takes them; beyond this, Zenoh's reader waits.
 const QUEUE: usize = 64;
 
 pub struct Link {
     session: zenoh::Session,
+    deliver: Deliver,
+    snapshots: Option<zenoh::query::Queryable<()>>,
     publisher: zenoh::pubsub::Publisher<'static>,
     _messages: zenoh::pubsub::Subscriber<()>,
     _peer: zenoh::pubsub::Subscriber<()>,
     _token: zenoh::liveliness::LivelinessToken,
     arrivals: mpsc::Receiver<Arrival>,
     wake: UnixStream,
+}
+
+/// Hands an arrival to the service: queued, and the service woken.
+type Deliver = Arc<dyn Fn(Arrival) + Send + Sync>;
+
+/// Sends the `None` answer of a snapshot request whose query ended without a reply.
+struct Unanswered {
+    deliver: Deliver,
+    request: u64,
+    answered: std::sync::atomic::AtomicBool,
+}
+
+impl Drop for Unanswered {
+    fn drop(&mut self) {
+        if !self.answered.load(std::sync::atomic::Ordering::Acquire) {
+            (self.deliver)(Arrival::SnapshotAnswer { request: self.request, answer: Err("no answer".into()) });
+        }
+    }
 }
 
 /// `HOST:PORT` as a Zenoh TCP endpoint.
@@ -126,23 +154,20 @@ impl Link {
         wake.set_nonblocking(true).context("a non-blocking wake-up socket")?;
         wake_tx.set_nonblocking(true).context("a non-blocking wake-up socket")?;
         let (tx, arrivals) = mpsc::sync_channel(QUEUE);
-        let deliver = {
-            let wake_tx = Arc::new(wake_tx);
-            move |arrival: Arrival| {
-                // A closed queue: the service is stopping, nothing to tell.
-                if tx.send(arrival).is_ok() {
-                    // Full: the service has a wake-up waiting already.
-                    let _ = (&*wake_tx).write(&[1]);
-                }
+        let deliver: Deliver = Arc::new(move |arrival: Arrival| {
+            // A closed queue: the service is stopping, nothing to tell.
+            if tx.send(arrival).is_ok() {
+                // Full: the service has a wake-up waiting already.
+                let _ = (&wake_tx).write(&[1]);
             }
-        };
+        });
         let root = "bdis/bridge";
         let publisher = session
             .declare_publisher(format!("{root}/to-{}", side.other().name()))
             .congestion_control(CongestionControl::Block)
             .wait()
             .map_err(|e| anyhow!("the link's publisher: {e}"))?;
-        let on_message = deliver.clone();
+        let on_message = Arc::clone(&deliver);
         let messages = session
             .declare_subscriber(format!("{root}/to-{}", side.name()))
             .callback(move |sample| on_message(Arrival::Message(sample.payload().to_bytes().into_owned())))
@@ -152,11 +177,14 @@ impl Link {
             .liveliness()
             .declare_subscriber(format!("{root}/{}", side.other().name()))
             .history(true)
-            .callback(move |sample| {
-                deliver(match sample.kind() {
-                    SampleKind::Put => Arrival::PeerCame,
-                    SampleKind::Delete => Arrival::PeerLeft,
-                })
+            .callback({
+                let deliver = Arc::clone(&deliver);
+                move |sample| {
+                    deliver(match sample.kind() {
+                        SampleKind::Put => Arrival::PeerCame,
+                        SampleKind::Delete => Arrival::PeerLeft,
+                    })
+                }
             })
             .wait()
             .map_err(|e| anyhow!("the link's watch on the {}: {e}", side.other().name()))?;
@@ -166,7 +194,17 @@ impl Link {
             .declare_token(format!("{root}/{}", side.name()))
             .wait()
             .map_err(|e| anyhow!("the link's liveliness token: {e}"))?;
-        Ok(Link { session, publisher, _messages: messages, _peer: peer, _token: token, arrivals, wake })
+        Ok(Link {
+            session,
+            deliver,
+            snapshots: None,
+            publisher,
+            _messages: messages,
+            _peer: peer,
+            _token: token,
+            arrivals,
+            wake,
+        })
     }
 
     /// What the WaitSet waits on for this link.
@@ -186,10 +224,50 @@ impl Link {
         self.publisher.put(message).wait().map_err(|e| anyhow!("send on the link: {e}"))
     }
 
+    /// Answers the far side's requests for this host's map: each comes as [`Arrival::SnapshotAsked`].
+    pub fn serve_snapshots(&mut self) -> Result<()> {
+        let deliver = Arc::clone(&self.deliver);
+        let queryable = self
+            .session
+            .declare_queryable(SNAPSHOT_KEY)
+            .callback(move |query| deliver(Arrival::SnapshotAsked(query)))
+            .wait()
+            .map_err(|e| anyhow!("the link's snapshot queryable: {e}"))?;
+        self.snapshots = Some(queryable);
+        Ok(())
+    }
+
+    /// Asks the far side for its map; the answer comes as [`Arrival::SnapshotAnswer`] with this `request`
+    /// number, within `within` (or as an error).
+    pub fn ask_snapshot(&self, request: u64, query: Vec<u8>, within: std::time::Duration) -> Result<()> {
+        let pending = Unanswered {
+            deliver: Arc::clone(&self.deliver),
+            request,
+            answered: std::sync::atomic::AtomicBool::new(false),
+        };
+        self.session
+            .get(SNAPSHOT_KEY)
+            .payload(query)
+            .timeout(within)
+            .callback(move |reply| {
+                // The first reply answers; the query's end (dropping this callback) answers "none" otherwise.
+                if pending.answered.swap(true, std::sync::atomic::Ordering::AcqRel) {
+                    return;
+                }
+                let answer = match reply.result() {
+                    Ok(sample) => Ok(sample.payload().to_bytes().into_owned()),
+                    Err(e) => Err(String::from_utf8_lossy(&e.payload().to_bytes()).into_owned()),
+                };
+                (pending.deliver)(Arrival::SnapshotAnswer { request, answer });
+            })
+            .wait()
+            .map_err(|e| anyhow!("ask the far side for its map: {e}"))
+    }
+
     /// Closes the session, after what was sent has gone out.
     pub fn close(self) {
-        let Link { session, publisher, _messages, _peer, _token, .. } = self;
-        drop((publisher, _messages, _peer, _token));
+        let Link { session, publisher, _messages, _peer, _token, snapshots, .. } = self;
+        drop((publisher, _messages, _peer, _token, snapshots));
         if let Err(e) = session.close().wait() {
             tracing::debug!("closing the link: {e}");
         }

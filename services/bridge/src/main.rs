@@ -10,6 +10,7 @@ mod link;
 mod node;
 mod receive;
 mod send;
+mod snapshot;
 
 use clap::{Parser, Subcommand};
 
@@ -25,6 +26,11 @@ struct Args {
     /// service there too —, a viewer or the OpenIGTLink output there also poses.
     #[arg(long, global = true, value_delimiter = ',', default_value = "depth,corrections,poses")]
     topics: Vec<String>,
+    /// Carry the map snapshot too (both sides): the sender's host gets `bdis/v1/map/snapshot` answered by the
+    /// mosaic on the receiver's host, so `bdis-slam snapshot` and the OpenIGTLink output work there. Only where
+    /// no mosaic runs on the sender's host.
+    #[arg(long, global = true)]
+    map_snapshots: bool,
     /// Name of this process in the run.
     #[arg(long, global = true, env = "BDIS_SERVICE_NAME", default_value = "bridge")]
     name: String,
@@ -73,7 +79,8 @@ fn main() -> std::process::ExitCode {
         Ok(topics)
     })();
     let result = topics.and_then(|topics| {
-        let common = node::Common { topics, name: args.name, ipc_prefix: args.ipc_prefix };
+        let common =
+            node::Common { topics, name: args.name, ipc_prefix: args.ipc_prefix, map_snapshots: args.map_snapshots };
         match args.role {
             Role::Send { to, outbox_mib } => send::run(common, &to, outbox_mib << 20),
             Role::Receive { listen } => receive::run(common, &listen),

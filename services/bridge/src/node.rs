@@ -11,6 +11,8 @@ pub struct Common {
     pub topics: Vec<Carried>,
     pub name: String,
     pub ipc_prefix: String,
+    /// Carry the map snapshot's request-response too (`snapshot.rs`).
+    pub map_snapshots: bool,
 }
 
 /// A socket's descriptor, as the WaitSet takes it (not owning it: the stream closes it).

@@ -23,6 +23,7 @@ use iceoryx2::waitset::WaitSetRunResult;
 
 use crate::link::{Arrival, Link, Side};
 use crate::node::Common;
+use crate::snapshot::Relay;
 
 /// After the ends of the streams: how long the sender has to take the last acknowledgement and go.
 const SENDER_LEAVES: Duration = Duration::from_secs(10);
@@ -73,7 +74,10 @@ impl Conversation {
     /// Begins a new conversation: a HELLO with what is already published, under an epoch no earlier one had.
     fn begin(link: &Link, previous: Option<u64>, inbox: &Inbox, topics: &[Carried]) -> Result<Conversation> {
         // The clock makes epochs differ between runs and restarts; the previous one + 1 within a run.
-        let epoch = previous.map_or_else(|| bdis_ipc::clock::monotonic_ns() ^ (u64::from(std::process::id()) << 40), |e| e.wrapping_add(1));
+        let epoch = previous.map_or_else(
+            || bdis_ipc::clock::monotonic_ns() ^ (u64::from(std::process::id()) << 40),
+            |e| e.wrapping_add(1),
+        );
         let mut hello = Vec::with_capacity(64);
         wire::epoch(&mut hello, epoch);
         wire::hello(&mut hello, &inbox.hello(topics));
@@ -251,7 +255,7 @@ fn publish_correction(out: &RecordOut<KeyframePose>, header: &[u8]) -> Result<Ha
 }
 
 pub fn run(common: Common, listen: &str) -> Result<()> {
-    let Common { topics, name, ipc_prefix } = common;
+    let Common { topics, name, ipc_prefix, map_snapshots } = common;
     // The address first: refused before shared memory is touched.
     let mut link = Link::open(Side::Receiver, "--listen", listen)?;
     let ipc = Ipc::open(&name, &ipc_prefix)?;
@@ -293,6 +297,17 @@ pub fn run(common: Common, listen: &str) -> Result<()> {
     };
     let mut telemetry = TelemetryPublisher::new(&ipc, &name, None, Some(output_topic))?;
     let waitset = WaitSetBuilder::new().create::<ipc::Service>().map_err(bdis_node::NodeError::WaitSet)?;
+    let (mut relay, snapshot_responses) = match map_snapshots {
+        true => {
+            link.serve_snapshots()?;
+            Relay::open(&ipc).map(|(r, l)| (Some(r), Some(l)))?
+        }
+        false => (None, None),
+    };
+    let _relay_guard = match &snapshot_responses {
+        Some(listener) => Some(waitset.attach_notification(listener).map_err(bdis_node::NodeError::Attach)?),
+        None => None,
+    };
     let link_fd = link.wake_fd().context("the link's wake-up descriptor")?;
     let _link_guard = waitset.attach_notification(&link_fd).map_err(bdis_node::NodeError::Attach)?;
     let _keepalive = waitset.attach_interval(bdis_node::WAKE_DEADLINE).map_err(bdis_node::NodeError::Attach)?;
@@ -329,6 +344,14 @@ pub fn run(common: Common, listen: &str) -> Result<()> {
                     sender_left = true;
                     continue;
                 }
+                Arrival::SnapshotAsked(query) => {
+                    match relay.as_mut() {
+                        Some(relay) => relay.asked(query),
+                        None => tracing::warn!("the sender asked for the map; not carried (--map-snapshots)"),
+                    }
+                    continue;
+                }
+                Arrival::SnapshotAnswer { .. } => continue,
             };
             let (epoch, what, header, payload) = match wire::message(&bytes) {
                 Ok((_, Frame::WantHello)) => {
@@ -404,15 +427,22 @@ pub fn run(common: Common, listen: &str) -> Result<()> {
         if conversation.handled != before {
             conversation.acknowledge(&link)?;
         }
+        if let (Some(relay), Some(responses)) = (relay.as_mut(), &snapshot_responses) {
+            let _ = bdis_ipc::drain_events(responses);
+            relay.progress()?;
+        }
         if ended_at.is_some_and(|t| sender_left || t.elapsed() > SENDER_LEAVES) {
             break;
         }
     }
+    if let Some(relay) = &relay {
+        tracing::info!("map snapshots relayed to the far host: {}", relay.relayed);
+    }
+    drop(_relay_guard);
+    drop(relay);
     link.close();
     link_time.delays_us.sort_unstable();
-    let at = |q: f64| {
-        link_time.delays_us.get(((link_time.delays_us.len() as f64 - 1.0) * q).round() as usize).copied()
-    };
+    let at = |q: f64| link_time.delays_us.get(((link_time.delays_us.len() as f64 - 1.0) * q).round() as usize).copied();
     tracing::info!(
         "bridge receiver done: {published} published, {again} already had, {refused} refused, {conversations} \
          conversations; the sender's clock {:?} µs from this one's (with the link's shortest delay); keyframes' \

@@ -23,6 +23,7 @@ use iceoryx2::waitset::WaitSetRunResult;
 
 use crate::link::{Arrival, Link, Side};
 use crate::node::Common;
+use crate::snapshot::Serve;
 
 /// While there is no conversation: how often to ask the receiver for one.
 const ASK_PERIOD: Duration = Duration::from_millis(250);
@@ -65,9 +66,21 @@ impl Conversation {
     /// Takes what arrived on the link: a HELLO begins a conversation (what the receiver has goes out of the
     /// outbox), an ACK of the current one drops what it covers, the receiver coming or going ends the
     /// conversation.
-    fn take(&mut self, link: &mut Link, topics: &[Carried], outbox: &mut Outbox) -> Result<()> {
+    fn take(
+        &mut self,
+        link: &mut Link,
+        topics: &[Carried],
+        outbox: &mut Outbox,
+        serve: &mut Option<Serve>,
+    ) -> Result<()> {
         for arrival in link.arrivals() {
             match arrival {
+                Arrival::SnapshotAnswer { request, answer } => {
+                    if let Some(serve) = serve.as_mut() {
+                        serve.answered(request, answer)?;
+                    }
+                }
+                Arrival::SnapshotAsked(_) => tracing::warn!("the receiver asked the sender for a map; ignored"),
                 Arrival::PeerCame | Arrival::PeerLeft => {
                     if self.epoch.take().is_some() {
                         tracing::info!("the receiver came or went; asking it where it stands");
@@ -235,7 +248,7 @@ fn take_inputs(
 }
 
 pub fn run(common: Common, to: &str, budget_bytes: usize) -> Result<()> {
-    let Common { topics, name, ipc_prefix } = common;
+    let Common { topics, name, ipc_prefix, map_snapshots } = common;
     // The link first: a malformed address is refused before shared memory is touched.
     let mut link = Link::open(Side::Sender, "--to", to)?;
     let ipc = Ipc::open(&name, &ipc_prefix)?;
@@ -281,6 +294,14 @@ pub fn run(common: Common, to: &str, budget_bytes: usize) -> Result<()> {
     for listener in inputs.listeners() {
         input_guards.push(waitset.attach_notification(listener).map_err(bdis_node::NodeError::Attach)?);
     }
+    let (mut serve, snapshot_requests) = match map_snapshots {
+        true => Serve::open(&ipc).map(|(s, l)| (Some(s), Some(l)))?,
+        false => (None, None),
+    };
+    let _snapshot_guard = match &snapshot_requests {
+        Some(listener) => Some(waitset.attach_notification(listener).map_err(bdis_node::NodeError::Attach)?),
+        None => None,
+    };
     let link_fd = link.wake_fd().context("the link's wake-up descriptor")?;
     let _link_guard = waitset.attach_notification(&link_fd).map_err(bdis_node::NodeError::Attach)?;
     let _keepalive = waitset.attach_interval(bdis_node::WAKE_DEADLINE).map_err(bdis_node::NodeError::Attach)?;
@@ -291,7 +312,7 @@ pub fn run(common: Common, to: &str, budget_bytes: usize) -> Result<()> {
     // restarted sender resumes.
     let started = Instant::now();
     let first = loop {
-        conversation.take(&mut link, &topics, &mut outbox)?;
+        conversation.take(&mut link, &topics, &mut outbox, &mut serve)?;
         if let Some(first) = conversation.first.take() {
             break first;
         }
@@ -342,8 +363,12 @@ pub fn run(common: Common, to: &str, budget_bytes: usize) -> Result<()> {
         }
         telemetry.keepalive();
         take_inputs(&inputs, &mut outbox, &mut ids, &mut telemetry, &mut scratch, &mut ends)?;
-        conversation.take(&mut link, &topics, &mut outbox)?;
+        conversation.take(&mut link, &topics, &mut outbox, &mut serve)?;
         conversation.send(&link, &mut outbox)?;
+        if let (Some(serve), Some(requests)) = (serve.as_mut(), &snapshot_requests) {
+            let _ = bdis_ipc::drain_events(requests);
+            serve.take_requests(&link)?;
+        }
         if all_ended(ends) && outbox.is_empty() {
             break false;
         }
@@ -354,6 +379,10 @@ pub fn run(common: Common, to: &str, budget_bytes: usize) -> Result<()> {
         outbox.overflowed,
         conversation.hellos.saturating_sub(1)
     );
+    if let Some(serve) = &serve {
+        tracing::info!("map snapshots served from the far host: {}, unanswered {}", serve.served, serve.unanswered);
+    }
+    drop(serve);
     link.close();
     if !stopped && outbox.overflowed > 0 {
         telemetry.failed();

@@ -4,7 +4,8 @@
 //! was lost. A library that knows nothing of processes or of Zenoh: the `bdis-bridge` service drives it.
 //!
 //! * [`wire`]: the messages (want-hello, hello, sample, acknowledgement), checked as hostile input;
-//! * [`records`]: the topics' headers as bytes, field by field (little-endian, no padding, no layout assumed);
+//! * [`records`]: the topics' headers and the map snapshots as bytes, field by field (little-endian, no padding, no
+//!   layout assumed);
 //! * [`ledger`]: what the sender still owes the receiver, and what the receiver has already published;
 //! * [`clock`]: the sender's clock in the receiver's, for the times the samples carry.
 
@@ -72,4 +73,6 @@ pub enum BridgeError {
     Version(u32),
     #[error("a {0} header of the wrong size")]
     HeaderSize(&'static str),
+    #[error("a {0} that is not finite")]
+    NotFinite(&'static str),
 }

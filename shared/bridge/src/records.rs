@@ -2,6 +2,7 @@
 //! padding, the host's byte order) crosses the link. What comes back is checked by the receiver with the same
 //! `bdis_ipc::validate` every consumer runs before it is published.
 
+use bdis_ipc::map::{MapPoint, MapQuery, MapSnapshotHeader};
 use bdis_ipc::track::{KeyframeMeta, KeyframePose, PoseRecord, StereoIntrinsics};
 use bdis_ipc::{DepthHeader, FrameHeader, KeyframeHeader};
 
@@ -19,6 +20,10 @@ impl Put<'_> {
         self
     }
     fn f64(&mut self, v: f64) -> &mut Self {
+        self.0.extend_from_slice(&v.to_le_bytes());
+        self
+    }
+    fn f32(&mut self, v: f32) -> &mut Self {
         self.0.extend_from_slice(&v.to_le_bytes());
         self
     }
@@ -46,6 +51,9 @@ impl Take<'_> {
     }
     fn f64(&mut self) -> f64 {
         f64::from_le_bytes(self.bytes())
+    }
+    fn f32(&mut self) -> f32 {
+        f32::from_le_bytes(self.bytes())
     }
 }
 
@@ -199,6 +207,75 @@ pub fn pose(bytes: &[u8]) -> Result<PoseRecord, BridgeError> {
     })
 }
 
+/// Bytes of a map-snapshot request on the wire.
+pub const QUERY_BYTES: usize = 2 * 8;
+
+pub fn put_query(out: &mut Vec<u8>, q: &MapQuery) {
+    Put(out).u64(q.max_points).u64(q.reserved);
+}
+
+pub fn query(bytes: &[u8]) -> Result<MapQuery, BridgeError> {
+    if bytes.len() != QUERY_BYTES {
+        return Err(BridgeError::HeaderSize("map query"));
+    }
+    let mut t = Take { bytes, at: 0 };
+    Ok(MapQuery { max_points: t.u64(), reserved: t.u64() })
+}
+
+/// Bytes of a map snapshot's header on the wire; its points follow, [`MAP_POINT_BYTES`] each.
+pub const SNAPSHOT_HEADER_BYTES: usize = 6 * 8;
+pub const MAP_POINT_BYTES: usize = 3 * 4 + 3 + 1 + 4;
+
+pub fn put_snapshot(out: &mut Vec<u8>, h: &MapSnapshotHeader, points: &[MapPoint]) {
+    out.reserve(SNAPSHOT_HEADER_BYTES + MAP_POINT_BYTES * points.len());
+    let mut p = Put(out);
+    p.u64(h.points_in_map).u64(h.stride).u64(h.keyframes).u64(h.keyframes_inserted);
+    p.u64(h.corrections_applied).u64(h.t_publish_ns);
+    for point in points {
+        p.f32(point.xyz[0]).f32(point.xyz[1]).f32(point.xyz[2]);
+        p.0.extend_from_slice(&point.rgb);
+        p.0.push(point.confidence);
+        p.u32(point.kf_id);
+    }
+}
+
+/// A snapshot's header and how many points follow it (the bytes must hold exactly that many).
+pub fn snapshot_header(bytes: &[u8]) -> Result<(MapSnapshotHeader, usize), BridgeError> {
+    let points = bytes.len().checked_sub(SNAPSHOT_HEADER_BYTES).ok_or(BridgeError::HeaderSize("map snapshot"))?;
+    if points % MAP_POINT_BYTES != 0 {
+        return Err(BridgeError::HeaderSize("map snapshot"));
+    }
+    let mut t = Take { bytes, at: 0 };
+    let header = MapSnapshotHeader {
+        points_in_map: t.u64(),
+        stride: t.u64(),
+        keyframes: t.u64(),
+        keyframes_inserted: t.u64(),
+        corrections_applied: t.u64(),
+        t_publish_ns: t.u64(),
+    };
+    Ok((header, points / MAP_POINT_BYTES))
+}
+
+/// The snapshot's points into `out` (as many as [`snapshot_header`] counted); a point that is not finite is an
+/// error, as it would be from the mosaic itself.
+pub fn snapshot_points(bytes: &[u8], out: &mut [MapPoint]) -> Result<(), BridgeError> {
+    let points = bytes.get(SNAPSHOT_HEADER_BYTES..).ok_or(BridgeError::HeaderSize("map snapshot"))?;
+    if points.len() != out.len() * MAP_POINT_BYTES {
+        return Err(BridgeError::HeaderSize("map snapshot"));
+    }
+    for (chunk, point) in points.chunks_exact(MAP_POINT_BYTES).zip(out.iter_mut()) {
+        let mut t = Take { bytes: chunk, at: 0 };
+        let xyz = [t.f32(), t.f32(), t.f32()];
+        if !xyz.iter().all(|v| v.is_finite()) {
+            return Err(BridgeError::NotFinite("map point"));
+        }
+        let [r, g, b, confidence] = t.bytes::<4>();
+        *point = MapPoint { xyz, rgb: [r, g, b], confidence, kf_id: t.u32() };
+    }
+    Ok(())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -284,5 +361,38 @@ mod tests {
         put_pose(&mut bytes, &r);
         assert_eq!(bytes.len(), POSE_BYTES);
         assert_eq!(pose(&bytes), Ok(r));
+    }
+
+    #[test]
+    fn a_snapshot_crosses_unchanged_and_a_broken_one_is_refused() {
+        let q = MapQuery { max_points: 5000, reserved: 0 };
+        let mut bytes = Vec::new();
+        put_query(&mut bytes, &q);
+        assert_eq!(query(&bytes), Ok(q));
+        assert!(query(&bytes[1..]).is_err());
+        let h = MapSnapshotHeader {
+            points_in_map: 10,
+            stride: 5,
+            keyframes: 3,
+            keyframes_inserted: 4,
+            corrections_applied: 7,
+            t_publish_ns: 99,
+        };
+        let points = [
+            MapPoint { xyz: [1.0, -2.0, 55.5], rgb: [200, 100, 50], confidence: 255, kf_id: 2 },
+            MapPoint { xyz: [0.0, 0.25, 60.0], rgb: [1, 2, 3], confidence: 7, kf_id: 3 },
+        ];
+        let mut bytes = Vec::new();
+        put_snapshot(&mut bytes, &h, &points);
+        assert_eq!(bytes.len(), SNAPSHOT_HEADER_BYTES + 2 * MAP_POINT_BYTES);
+        assert_eq!(snapshot_header(&bytes), Ok((h, 2)));
+        let mut back = [MapPoint::default(); 2];
+        snapshot_points(&bytes, &mut back).unwrap();
+        assert_eq!(back, points);
+        assert!(snapshot_header(&bytes[..bytes.len() - 1]).is_err());
+        assert!(snapshot_points(&bytes, &mut [MapPoint::default(); 1]).is_err());
+        let at = SNAPSHOT_HEADER_BYTES + MAP_POINT_BYTES;
+        bytes[at..at + 4].copy_from_slice(&f32::NAN.to_le_bytes());
+        assert_eq!(snapshot_points(&bytes, &mut back), Err(BridgeError::NotFinite("map point")));
     }
 }

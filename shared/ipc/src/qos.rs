@@ -41,9 +41,11 @@ pub const TELEMETRY_BUFFER: usize = 512;
 /// The launcher's control service (swap requests): the launcher serves, `bdis-slam swap` and tests ask.
 pub const CONTROL_MAX_SERVERS: usize = 1;
 pub const CONTROL_MAX_CLIENTS: usize = 4;
-/// The map snapshot service: the mosaic serves; `bdis-slam snapshot` and the OpenIGTLink service ask.
+/// The map snapshot service: the mosaic serves (or, on a host without it, the bridge for the far host's);
+/// `bdis-slam snapshot`, the OpenIGTLink service and the bridge (for the far host) ask — with one more for a
+/// second `bdis-slam snapshot` at once.
 pub const MAP_SNAPSHOT_MAX_SERVERS: usize = 1;
-pub const MAP_SNAPSHOT_MAX_CLIENTS: usize = 2;
+pub const MAP_SNAPSHOT_MAX_CLIENTS: usize = 4;
 /// The launcher activates standby instances; standby instances waiting for the launcher's activation (at most one per swappable service at a time).
 pub const ACTIVATION_MAX_PUBLISHERS: usize = 1;
 pub const ACTIVATION_MAX_SUBSCRIBERS: usize = 4;
