@@ -40,6 +40,7 @@ pub const TARGETS: &[Target] = &[
     ("ipc_pose", pose_record),
     ("ipc_telemetry", telemetry),
     ("bridge_message", bridge_message),
+    ("bridge_snapshot", bridge_snapshot),
 ];
 
 fn path() -> &'static Path {
@@ -249,11 +250,34 @@ pub fn bridge_message(data: &[u8]) {
     }
 }
 
+/// What the bridge takes off the link for the map snapshot (`bdis_bridge::records`): a request, or an answer
+/// whose points decode only when the bytes hold exactly the header's count of them, every coordinate finite.
+pub fn bridge_snapshot(data: &[u8]) {
+    use bdis_bridge::records;
+    let _ = records::query(data);
+    if let Ok((_, count)) = records::snapshot_header(data) {
+        assert_eq!(data.len(), records::SNAPSHOT_HEADER_BYTES + count * records::MAP_POINT_BYTES);
+        let mut points = vec![bdis_ipc::map::MapPoint::default(); count];
+        if records::snapshot_points(data, &mut points).is_ok() {
+            assert!(points.iter().all(|p| p.xyz.iter().all(|v| v.is_finite())));
+        }
+    }
+}
+
 /// Seeds that are easier made than committed by hand: a small `map.bin` written by the mosaic itself.
 pub fn generated_seeds(target: &str) -> Vec<Vec<u8>> {
     match target {
         "map_bin" => small_map_bin().into_iter().collect(),
         "bridge_message" => bridge_messages(),
+        "bridge_snapshot" => {
+            let mut bytes = Vec::new();
+            let header =
+                bdis_ipc::map::MapSnapshotHeader { points_in_map: 2, stride: 1, keyframes: 1, ..Default::default() };
+            let point =
+                bdis_ipc::map::MapPoint { xyz: [1.0, 2.0, 50.0], rgb: [200, 90, 80], confidence: 255, kf_id: 0 };
+            bdis_bridge::records::put_snapshot(&mut bytes, &header, &[point, point]);
+            vec![bytes]
+        }
         _ => Vec::new(),
     }
 }
