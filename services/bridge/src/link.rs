@@ -119,6 +119,9 @@ fn config(side: Side, endpoint: &str) -> Result<zenoh::Config> {
         ("scouting/gossip/enabled", "false"),
         // The admin space would let any peer on the link read the session's state.
         ("adminspace/enabled", "false"),
+        // A restarted receiver is found again within a tenth of a second (Zenoh's default waits a second first:
+        // a second of keyframes piled up to be sent again).
+        ("connect/retry", r#"{ period_init_ms: 100, period_max_ms: 1000, period_increase_factor: 2 }"#),
     ] {
         config.insert_json5(key, value).map_err(|e| anyhow!("zenoh configuration {key}: {e}"))?;
     }

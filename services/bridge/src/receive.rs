@@ -5,6 +5,7 @@
 //! published twice. It ends after it has published the end of every carried stream that has one (keyframes,
 //! depth, poses) and the sender, which waits for the last acknowledgement, has gone.
 
+use std::collections::VecDeque;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result};
@@ -61,6 +62,36 @@ struct Outputs {
 struct LinkTime {
     clock: ClockOffset,
     delays_us: Vec<u64>,
+    /// When the sample being published arrived here (it may have waited in the backlog since).
+    arrived_ns: u64,
+}
+
+/// A burst is published this many times as fast as it was produced: fast enough to catch up (an outage of T
+/// seconds is made good in T more), slow enough for any consumer that kept up live using less than half its core.
+const CATCH_UP: u32 = 2;
+/// The longest pause kept when a burst is replayed (a scope held still is not replayed).
+const LONGEST_PAUSE: Duration = Duration::from_millis(250);
+
+/// When the next sample of a burst is due: after the one before it by their gap at the producer, over
+/// [`CATCH_UP`].
+#[derive(Debug, Default)]
+struct Pace {
+    /// When the last sample was published here, and when its producer's side sent it.
+    last: Option<(Instant, u64)>,
+}
+
+impl Pace {
+    /// How long the sample in `message` must still wait (`None`: it is due).
+    fn wait(&self, message: &[u8]) -> Option<Duration> {
+        let Ok((_, Frame::Sample { what, .. })) = wire::message(message) else { return None };
+        let (at, sent) = self.last?;
+        let gap = (Duration::from_nanos(what.t_sent_ns.saturating_sub(sent)) / CATCH_UP).min(LONGEST_PAUSE);
+        (at + gap).checked_duration_since(Instant::now()).filter(|left| !left.is_zero())
+    }
+
+    fn published(&mut self, t_sent_ns: u64) {
+        self.last = Some((Instant::now(), t_sent_ns));
+    }
 }
 
 /// The receiver's side of a conversation.
@@ -79,7 +110,7 @@ impl Conversation {
             |e| e.wrapping_add(1),
         );
         let mut hello = Vec::with_capacity(64);
-        wire::epoch(&mut hello, epoch);
+        wire::envelope(&mut hello, epoch, false);
         wire::hello(&mut hello, &inbox.hello(topics));
         link.send(hello)?;
         Ok(Conversation { epoch, handled: 0 })
@@ -87,7 +118,7 @@ impl Conversation {
 
     fn acknowledge(&self, link: &Link) -> Result<()> {
         let mut ack = Vec::with_capacity(24);
-        wire::epoch(&mut ack, self.epoch);
+        wire::envelope(&mut ack, self.epoch, false);
         wire::ack(&mut ack, self.handled);
         link.send(ack)
     }
@@ -114,7 +145,7 @@ fn publish_depth(
     payload: &[u8],
     telemetry: &mut TelemetryPublisher,
 ) -> Result<Handled> {
-    let t_receive_ns = bdis_ipc::clock::monotonic_ns();
+    let t_receive_ns = link.arrived_ns;
     link.clock.observe(what.t_sent_ns, t_receive_ns);
     // The link's delay beyond its shortest (the part of it the clocks' offset does not hide).
     link.delays_us.push((link.clock.here(what.t_sent_ns).abs_diff(t_receive_ns)) / 1000);
@@ -175,7 +206,7 @@ fn publish_keyframe(
     payload: &[u8],
     telemetry: &mut TelemetryPublisher,
 ) -> Result<Handled> {
-    let t_receive_ns = bdis_ipc::clock::monotonic_ns();
+    let t_receive_ns = link.arrived_ns;
     link.clock.observe(what.t_sent_ns, t_receive_ns);
     link.delays_us.push((link.clock.here(what.t_sent_ns).abs_diff(t_receive_ns)) / 1000);
     let mut h = match records::keyframe_header(header) {
@@ -225,7 +256,7 @@ fn publish_pose(out: &RecordOut<PoseRecord>, header: &[u8], link: &mut LinkTime,
         Ok(r) => r,
         Err(e) => return Ok(Handled::Refused(protocol(e))),
     };
-    link.clock.observe(what.t_sent_ns, bdis_ipc::clock::monotonic_ns());
+    link.clock.observe(what.t_sent_ns, link.arrived_ns);
     if record.state == tracking_state::END_OF_STREAM {
         out.0.send_copy(record).context("publish the end of the poses")?;
         bdis_ipc::notify(&out.1, event_id::END_OF_STREAM)?;
@@ -325,9 +356,19 @@ pub fn run(common: Common, listen: &str) -> Result<()> {
     let mut ends = (false, false, false);
     let mut sender_left = false;
     let mut link_time = LinkTime::default();
+    // Samples received and not yet published, in order; each marked whether it found the backlog empty.
+    let mut backlog: VecDeque<(Vec<u8>, bool, u64)> = VecDeque::new();
+    let mut pace = Pace::default();
+    // From a sample sent again until the backlog is empty: what is published is paced.
+    let mut catching_up = false;
     loop {
+        let timer = match backlog.front().and_then(|(m, _, _)| pace.wait(m)) {
+            Some(wait) => Some(waitset.attach_interval(wait).map_err(bdis_node::NodeError::Attach)?),
+            None => None,
+        };
         let run =
             waitset.wait_and_process_once(|_| CallbackProgression::Continue).map_err(bdis_node::NodeError::Wait)?;
+        drop(timer);
         if matches!(run, WaitSetRunResult::TerminationRequest | WaitSetRunResult::Interrupt) {
             break;
         }
@@ -353,22 +394,40 @@ pub fn run(common: Common, listen: &str) -> Result<()> {
                 }
                 Arrival::SnapshotAnswer { .. } => continue,
             };
-            let (epoch, what, header, payload) = match wire::message(&bytes) {
+            match wire::message(&bytes) {
                 Ok((_, Frame::WantHello)) => {
                     conversation = Conversation::begin(&link, Some(conversation.epoch), &inbox, &topics)?;
                     conversations += 1;
-                    continue;
                 }
-                Ok((epoch, Frame::Sample { what, header, payload })) => (epoch, what, header, payload),
-                Ok((_, other)) => {
-                    tracing::warn!("the link carried a {other:?} to the receiver; ignored");
-                    continue;
+                Ok((envelope, Frame::Sample { .. })) => {
+                    catching_up |= envelope.again;
+                    let alone = backlog.is_empty();
+                    backlog.push_back((bytes, alone, bdis_ipc::clock::monotonic_ns()));
                 }
+                Ok((_, other)) => tracing::warn!("the link carried a {other:?} to the receiver; ignored"),
                 Err(e) => {
                     refused += 1;
                     telemetry.rejected(Topic::Depth, &protocol(e));
-                    continue;
                 }
+            }
+        }
+        // Published in order; what the sender sends again after a restart or a broken link, and what queues behind
+        // it, at twice the pace it was produced: the consumers here have the small buffers of the topics' QoS,
+        // sized for that pace (a burst of 17 depth keyframes at once lost 3 of them to the mosaic's 4).
+        while let Some((front, alone, _)) = backlog.front() {
+            // What is here already goes at once: only what is published is paced.
+            let fresh = match wire::message(front) {
+                Ok((_, Frame::Sample { what, .. })) => inbox.fresh(what.topic, what.id),
+                _ => false,
+            };
+            if fresh && catching_up && !*alone && pace.wait(front).is_some() {
+                break;
+            }
+            let Some((bytes, _, arrived_ns)) = backlog.pop_front() else { break };
+            link_time.arrived_ns = arrived_ns;
+            let Ok((wire::Envelope { epoch, .. }, Frame::Sample { what, header, payload })) = wire::message(&bytes)
+            else {
+                continue;
             };
             // Counted only in its own conversation: one sent before the current HELLO is not what the sender
             // counts now (it comes again in this one if it is still owed).
@@ -379,6 +438,7 @@ pub fn run(common: Common, listen: &str) -> Result<()> {
                 again += 1;
                 continue;
             }
+            pace.published(what.t_sent_ns);
             let handled = match (what.topic, &mut outputs) {
                 (Carried::Depth, Outputs { depth: Some(out), .. }) => {
                     publish_depth(&ipc, out, what, &mut link_time, header, payload, &mut telemetry)?
@@ -424,6 +484,7 @@ pub fn run(common: Common, listen: &str) -> Result<()> {
             }
             inbox.published(what.topic, what.id);
         }
+        catching_up &= !backlog.is_empty();
         if conversation.handled != before {
             conversation.acknowledge(&link)?;
         }

@@ -60,6 +60,8 @@ struct Conversation {
     hellos: u64,
     /// What the first HELLO said the receiver had.
     first: Option<wire::ResumePoints>,
+    /// Samples still to send that were pending when this conversation began: sent marked [`wire::AGAIN`].
+    again: usize,
 }
 
 impl Conversation {
@@ -88,20 +90,21 @@ impl Conversation {
                     self.next_ask = None;
                 }
                 Arrival::Message(bytes) => match wire::message(&bytes) {
-                    Ok((epoch, Frame::Hello { last })) => {
+                    Ok((wire::Envelope { epoch, .. }, Frame::Hello { last })) => {
                         for topic in topics {
                             if !last.iter().any(|(t, _)| t == topic) {
                                 bail!("the receiver does not carry {}", topic.name());
                             }
                         }
                         outbox.connected(&last);
+                        self.again = outbox.len();
                         if self.hellos == 0 {
                             self.first = Some(last);
                         }
                         self.epoch = Some(epoch);
                         self.hellos += 1;
                     }
-                    Ok((epoch, Frame::Ack { published })) => {
+                    Ok((wire::Envelope { epoch, .. }, Frame::Ack { published })) => {
                         if self.epoch == Some(epoch) {
                             outbox.acknowledged(published);
                         }
@@ -122,7 +125,7 @@ impl Conversation {
         let now = Instant::now();
         if self.next_ask.is_none_or(|t| now >= t) {
             let mut message = Vec::with_capacity(16);
-            wire::epoch(&mut message, 0);
+            wire::envelope(&mut message, 0, false);
             wire::want_hello(&mut message);
             link.send(message)?;
             self.next_ask = Some(now + ASK_PERIOD);
@@ -131,12 +134,13 @@ impl Conversation {
     }
 
     /// Sends what the receiver has not been sent in this conversation.
-    fn send(&self, link: &Link, outbox: &mut Outbox) -> Result<()> {
+    fn send(&mut self, link: &Link, outbox: &mut Outbox) -> Result<()> {
         let Some(epoch) = self.epoch else { return Ok(()) };
         let mut sent = 0;
         for entry in outbox.unsent() {
-            let mut message = Vec::with_capacity(wire::EPOCH_BYTES + entry.frame.len());
-            wire::epoch(&mut message, epoch);
+            let mut message = Vec::with_capacity(wire::ENVELOPE_BYTES + entry.frame.len());
+            wire::envelope(&mut message, epoch, self.again > 0);
+            self.again = self.again.saturating_sub(1);
             message.extend_from_slice(&entry.frame);
             link.send(message)?;
             sent += 1;

@@ -1,8 +1,9 @@
-//! The messages between a bridge's two sides. Each is one Zenoh sample: `[u64 epoch][u32 length][u8 kind][body]`
-//! (little-endian; the length counts kind and body and must be the rest of the message). The epoch names a
-//! conversation: the receiver starts a new one with every HELLO, and counts and acknowledges only the samples of
-//! its current one, so a sample still on its way from before (Zenoh delivers what was in flight) never shifts
-//! the count.
+//! The messages between a bridge's two sides. Each is one Zenoh sample: `[u64 epoch][u8 flags][u32 length][u8
+//! kind][body]` (little-endian; the length counts kind and body and must be the rest of the message). The epoch
+//! names a conversation: the receiver starts a new one with every HELLO, and counts and acknowledges only the
+//! samples of its current one, so a sample still on its way from before (Zenoh delivers what was in flight) never
+//! shifts the count. The one flag, [`AGAIN`], marks a sample sent again in a new conversation: the receiver
+//! publishes what is catching up at a pace its consumers can take.
 //!
 //! * `WANT_HELLO` (sender → receiver): the sender has no conversation (it started, or the receiver came or went);
 //! * `HELLO` (receiver → sender): protocol version, then per topic the last id the receiver has published
@@ -25,8 +26,18 @@ const KIND_SAMPLE: u8 = 2;
 const KIND_ACK: u8 = 3;
 const KIND_WANT_HELLO: u8 = 4;
 
-/// Bytes before a frame in a message: its epoch.
-pub const EPOCH_BYTES: usize = 8;
+/// Bytes before a frame in a message: its epoch and flags.
+pub const ENVELOPE_BYTES: usize = 9;
+/// The flag of a sample sent again (it was pending when the conversation began).
+pub const AGAIN: u8 = 1;
+
+/// What comes before a message's frame.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Envelope {
+    pub epoch: u64,
+    /// Sent again in a new conversation ([`AGAIN`]).
+    pub again: bool,
+}
 
 /// What a sample is, before its header and payload.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -60,9 +71,10 @@ fn end(out: &mut [u8], start: usize) {
     out[start..start + 4].copy_from_slice(&len.to_le_bytes());
 }
 
-/// Appends a message's epoch; the frame follows it.
-pub fn epoch(out: &mut Vec<u8>, epoch: u64) {
+/// Appends a message's envelope; the frame follows it.
+pub fn envelope(out: &mut Vec<u8>, epoch: u64, again: bool) {
     out.extend_from_slice(&epoch.to_le_bytes());
+    out.push(if again { AGAIN } else { 0 });
 }
 
 /// Appends a WANT_HELLO.
@@ -111,10 +123,11 @@ fn topic(code: u8) -> Result<Carried, BridgeError> {
     Carried::from_code(code).ok_or(BridgeError::UnknownTopic(code))
 }
 
-/// One whole message: its epoch and its frame.
-pub fn message(bytes: &[u8]) -> Result<(u64, Frame<'_>), BridgeError> {
+/// One whole message: its envelope and its frame.
+pub fn message(bytes: &[u8]) -> Result<(Envelope, Frame<'_>), BridgeError> {
     let epoch = u64::from_le_bytes(le(bytes, 0, "message")?);
-    let rest = &bytes[EPOCH_BYTES..];
+    let flags = le::<1>(bytes, 8, "message")?[0];
+    let rest = &bytes[ENVELOPE_BYTES..];
     let len = u64::from(u32::from_le_bytes(le(rest, 0, "length")?));
     if len > MAX_FRAME_BYTES || len == 0 {
         return Err(BridgeError::FrameTooLong(len));
@@ -123,7 +136,7 @@ pub fn message(bytes: &[u8]) -> Result<(u64, Frame<'_>), BridgeError> {
     if frame.len() as u64 != len {
         return Err(BridgeError::Truncated { what: "message", len: bytes.len() });
     }
-    parse(frame).map(|f| (epoch, f))
+    parse(frame).map(|f| (Envelope { epoch, again: flags & AGAIN != 0 }, f))
 }
 
 fn parse(frame: &[u8]) -> Result<Frame<'_>, BridgeError> {
@@ -168,7 +181,7 @@ mod tests {
 
     fn with_epoch(e: u64, frame: impl FnOnce(&mut Vec<u8>)) -> Vec<u8> {
         let mut out = Vec::new();
-        epoch(&mut out, e);
+        envelope(&mut out, e, e == 8);
         frame(&mut out);
         out
     }
@@ -178,15 +191,21 @@ mod tests {
         let hello_msg = with_epoch(7, |o| hello(o, &[(Carried::Depth, Some(41)), (Carried::Corrections, None)]));
         assert_eq!(
             message(&hello_msg),
-            Ok((7, Frame::Hello { last: vec![(Carried::Depth, Some(41)), (Carried::Corrections, None)] }))
+            Ok((
+                Envelope { epoch: 7, again: false },
+                Frame::Hello { last: vec![(Carried::Depth, Some(41)), (Carried::Corrections, None)] }
+            ))
         );
         let what = SampleId { topic: Carried::Depth, id: 42, t_sent_ns: 7 };
         let sample_msg = with_epoch(8, |o| sample(o, what, &[1, 2, 3], &[9; 1000]));
         let (e, frame) = message(&sample_msg).unwrap();
         let Frame::Sample { what: w, header, payload } = frame else { panic!("{frame:?}") };
-        assert_eq!((e, w, header, payload.len()), (8, what, &[1u8, 2, 3][..], 1000));
-        assert_eq!(message(&with_epoch(9, |o| ack(o, 5))), Ok((9, Frame::Ack { published: 5 })));
-        assert_eq!(message(&with_epoch(0, want_hello)), Ok((0, Frame::WantHello)));
+        assert_eq!((e, w, header, payload.len()), (Envelope { epoch: 8, again: true }, what, &[1u8, 2, 3][..], 1000));
+        assert_eq!(
+            message(&with_epoch(9, |o| ack(o, 5))),
+            Ok((Envelope { epoch: 9, again: false }, Frame::Ack { published: 5 }))
+        );
+        assert_eq!(message(&with_epoch(0, want_hello)), Ok((Envelope { epoch: 0, again: false }, Frame::WantHello)));
     }
 
     #[test]
@@ -210,10 +229,10 @@ mod tests {
         assert!(message(&m).is_err());
         // A header longer than the sample.
         let mut m = with_epoch(1, |o| sample(o, SampleId { topic: Carried::Depth, id: 1, t_sent_ns: 0 }, &[1; 8], &[]));
-        m[EPOCH_BYTES + 4 + 1 + 17] = 200;
+        m[ENVELOPE_BYTES + 4 + 1 + 17] = 200;
         assert!(matches!(message(&m), Err(BridgeError::Truncated { .. })));
         let mut m = with_epoch(1, |o| hello(o, &[]));
-        m[EPOCH_BYTES + 5] = 9;
+        m[ENVELOPE_BYTES + 5] = 9;
         assert_eq!(message(&m), Err(BridgeError::Version(9)));
     }
 }

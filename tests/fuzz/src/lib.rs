@@ -315,7 +315,7 @@ fn bridge_messages() -> Vec<Vec<u8>> {
     use bdis_bridge::{Carried, records};
     let message = |frame: &dyn Fn(&mut Vec<u8>)| {
         let mut out = Vec::new();
-        wire::epoch(&mut out, 0x5eed);
+        wire::envelope(&mut out, 0x5eed, false);
         frame(&mut out);
         out
     };
