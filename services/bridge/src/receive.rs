@@ -11,6 +11,7 @@ use std::time::{Duration, Instant};
 use anyhow::{Context, Result};
 use bdis_bridge::clock::ClockOffset;
 use bdis_bridge::ledger::Inbox;
+use bdis_bridge::pace::Pace;
 use bdis_bridge::wire::{self, Frame, SampleId};
 use bdis_bridge::{BridgeError, Carried, records};
 use bdis_ipc::telemetry::MessageTiming;
@@ -66,31 +67,11 @@ struct LinkTime {
     arrived_ns: u64,
 }
 
-/// A burst is published this many times as fast as it was produced: fast enough to catch up (an outage of T
-/// seconds is made good in T more), slow enough for any consumer that kept up live using less than half its core.
-const CATCH_UP: u32 = 2;
-/// The longest pause kept when a burst is replayed (a scope held still is not replayed).
-const LONGEST_PAUSE: Duration = Duration::from_millis(250);
-
-/// When the next sample of a burst is due: after the one before it by their gap at the producer, over
-/// [`CATCH_UP`].
-#[derive(Debug, Default)]
-struct Pace {
-    /// When the last sample was published here, and when its producer's side sent it.
-    last: Option<(Instant, u64)>,
-}
-
-impl Pace {
-    /// How long the sample in `message` must still wait (`None`: it is due).
-    fn wait(&self, message: &[u8]) -> Option<Duration> {
-        let Ok((_, Frame::Sample { what, .. })) = wire::message(message) else { return None };
-        let (at, sent) = self.last?;
-        let gap = (Duration::from_nanos(what.t_sent_ns.saturating_sub(sent)) / CATCH_UP).min(LONGEST_PAUSE);
-        (at + gap).checked_duration_since(Instant::now()).filter(|left| !left.is_zero())
-    }
-
-    fn published(&mut self, t_sent_ns: u64) {
-        self.last = Some((Instant::now(), t_sent_ns));
+/// When the producer's side sent the sample in `message`.
+fn sent_at(message: &[u8]) -> Option<u64> {
+    match wire::message(message) {
+        Ok((_, Frame::Sample { what, .. })) => Some(what.t_sent_ns),
+        _ => None,
     }
 }
 
@@ -362,7 +343,7 @@ pub fn run(common: Common, listen: &str) -> Result<()> {
     // From a sample sent again until the backlog is empty: what is published is paced.
     let mut catching_up = false;
     loop {
-        let timer = match backlog.front().and_then(|(m, _, _)| pace.wait(m)) {
+        let timer = match backlog.front().and_then(|(m, _, _)| sent_at(m)).and_then(|t| pace.wait(t, Instant::now())) {
             Some(wait) => Some(waitset.attach_interval(wait).map_err(bdis_node::NodeError::Attach)?),
             None => None,
         };
@@ -420,7 +401,7 @@ pub fn run(common: Common, listen: &str) -> Result<()> {
                 Ok((_, Frame::Sample { what, .. })) => inbox.fresh(what.topic, what.id),
                 _ => false,
             };
-            if fresh && catching_up && !*alone && pace.wait(front).is_some() {
+            if fresh && catching_up && !*alone && sent_at(front).and_then(|t| pace.wait(t, Instant::now())).is_some() {
                 break;
             }
             let Some((bytes, _, arrived_ns)) = backlog.pop_front() else { break };
@@ -438,7 +419,7 @@ pub fn run(common: Common, listen: &str) -> Result<()> {
                 again += 1;
                 continue;
             }
-            pace.published(what.t_sent_ns);
+            pace.published(what.t_sent_ns, Instant::now());
             let handled = match (what.topic, &mut outputs) {
                 (Carried::Depth, Outputs { depth: Some(out), .. }) => {
                     publish_depth(&ipc, out, what, &mut link_time, header, payload, &mut telemetry)?

@@ -7,10 +7,12 @@
 //! * [`records`]: the topics' headers and the map snapshots as bytes, field by field (little-endian, no padding, no
 //!   layout assumed);
 //! * [`ledger`]: what the sender still owes the receiver, and what the receiver has already published;
-//! * [`clock`]: the sender's clock in the receiver's, for the times the samples carry.
+//! * [`clock`]: the sender's clock in the receiver's, for the times the samples carry;
+//! * [`pace`]: when a sample that is catching up may be published.
 
 pub mod clock;
 pub mod ledger;
+pub mod pace;
 pub mod records;
 pub mod wire;
 
