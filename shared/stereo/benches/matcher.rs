@@ -1,7 +1,8 @@
 #![allow(clippy::unwrap_used, clippy::expect_used)] // test code: a panic is the failure report
 //! Criterion benchmarks of the matchers at 640×480, single thread: BDIS and plain DIS with the BDIS-SLAM
 //! parameters (patch 10, overlap 0.60 → stride 3) and the synthetic-colon parameters (patch 8, overlap 0.40),
-//! and each with the left–right check.
+//! and each with the left–right check. At 1920×1080 (issue #19): the same pair resized to 1920×1080
+//! (Catmull-Rom), BDIS with the colon parameters, with and without the check — HD's cost, not HD's texture.
 //! Input: `../shared/data/bdis/31` pair 1 when present, else a rendered tissue plane (bdis-synth is not a
 //! dependency here, so a procedural texture stands in).
 //!
@@ -43,6 +44,26 @@ fn bench(c: &mut Criterion) {
         let mut matcher = Matcher::new(params).expect("valid parameters");
         let mut out = DisparityMap::default();
         let (left, right) = (GrayImage { width: w, height: h, data: &l }, GrayImage { width: w, height: h, data: &r });
+        group
+            .bench_function(label, |b| b.iter(|| matcher.compute_into(left, right, &mut out).expect("same-size pair")));
+    }
+    group.finish();
+
+    let (w1, h1) = (1920usize, 1080usize);
+    let resize = |data: &[u8]| {
+        let img = image::GrayImage::from_raw(w as u32, h as u32, data.to_vec()).expect("the pair's size");
+        image::imageops::resize(&img, w1 as u32, h1 as u32, image::imageops::FilterType::CatmullRom).into_raw()
+    };
+    let (l1, r1) = (resize(&l), resize(&r));
+    let mut group = c.benchmark_group(format!("stereo-{w1}x{h1}-{name}-resized"));
+    group.sample_size(10);
+    for (label, params) in
+        [("bdis-colon-params", Params::colon().as_published()), ("bdis-colon-params-lr-checked", Params::colon())]
+    {
+        let mut matcher = Matcher::new(params).expect("valid parameters");
+        let mut out = DisparityMap::default();
+        let (left, right) =
+            (GrayImage { width: w1, height: h1, data: &l1 }, GrayImage { width: w1, height: h1, data: &r1 });
         group
             .bench_function(label, |b| b.iter(|| matcher.compute_into(left, right, &mut out).expect("same-size pair")));
     }

@@ -2,7 +2,8 @@
 //! Criterion benchmark: tracking CPU per frame at 640×480 with 1000 features (ORB on both images, stereo
 //! matching, pose, local map, keyframes with their inline local mapping), single thread. Input: the first 40
 //! frames of the synthetic colon flight (`bdis-slam synth`, default rig), rendered into a temporary folder, or
-//! the folder in `BDIS_BENCH_SEQUENCE`. One iteration tracks all 40 frames with a new tracker; the figure per
+//! the folder in `BDIS_BENCH_SEQUENCE` at its own size (e.g. a 1920×1080 render for issue #19; the group is
+//! named by the size). One iteration tracks all 40 frames with a new tracker; the figure per
 //! frame is the time divided by 40. Both measurement modes: `aligned` (the default, `refine.rs`) and
 //! `whole-pixel` (ORB-SLAM2's).
 //!
@@ -31,7 +32,8 @@ fn bench(c: &mut Criterion) {
         }
     };
     let settings = bdis_core::Settings::load(&dir.join("settings.yaml")).expect("settings");
-    let cam = settings.camera.rectified(640, 480).expect("rectified images");
+    let (width, height) = image::image_dimensions(dir.join("left/1.png")).expect("the first frame");
+    let cam = settings.camera.rectified(width, height).expect("rectified images");
     let ts = TrackerSettings {
         th_depth: settings.th_depth,
         fps: settings.fps,
@@ -40,7 +42,7 @@ fn bench(c: &mut Criterion) {
     let frames: Vec<(Vec<u8>, Vec<u8>)> = (1..=FRAMES)
         .map(|n| (grey(&dir.join(format!("left/{n}.png"))), grey(&dir.join(format!("right/{n}.png")))))
         .collect();
-    let mut group = c.benchmark_group("tracking-640x480");
+    let mut group = c.benchmark_group(format!("tracking-{width}x{height}"));
     group.sample_size(10);
     // The product's measurements (aligned to sub-pixel) and ORB-SLAM2's whole-pixel ones, side by side.
     for (name, aligned) in [("aligned", true), ("whole-pixel", false)] {
