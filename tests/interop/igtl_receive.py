@@ -115,6 +115,8 @@ def main():
             messages = receive(f.read)
     else:
         host, port = args.connect.rsplit(":", 1)
+        # Imports done (pyigtl and numpy take a while to load on a busy machine): the caller may start the server.
+        print("ready", flush=True)
         deadline = time.time() + args.timeout
         while True:
             try:
