@@ -67,6 +67,9 @@ pub struct OrbSettings {
     pub n_levels: u32,
     pub ini_th_fast: u32,
     pub min_th_fast: u32,
+    /// `ORBextractor.firstLevel` (not in ORB-SLAM2): the pyramid level detection starts on; absent = chosen by
+    /// the image size (`bdis_orb::auto_first_level`: HD detects on a level of about VGA's pixels).
+    pub first_level: Option<u32>,
 }
 
 /// BDIS matcher settings (`BDISparam.*`), with the names and shipped defaults of the BDIS-SLAM yaml files.
@@ -141,7 +144,7 @@ pub struct Settings {
 
 const CAMERA_KEYS: &[&str] =
     &["fx", "fy", "cx", "cy", "k1", "k2", "k3", "p1", "p2", "width", "height", "fps", "bf", "RGB", "name", "type"];
-const ORB_KEYS: &[&str] = &["nFeatures", "scaleFactor", "nLevels", "iniThFAST", "minThFAST"];
+const ORB_KEYS: &[&str] = &["nFeatures", "scaleFactor", "nLevels", "iniThFAST", "minThFAST", "firstLevel"];
 const BDIS_KEYS: &[&str] = &[
     "lv_f",
     "lv_l",
@@ -193,8 +196,12 @@ impl Reader<'_> {
     }
 
     fn u32_or(&self, key: &str, default: u32) -> Result<u32, SettingsError> {
+        Ok(self.u32_opt(key)?.unwrap_or(default))
+    }
+
+    fn u32_opt(&self, key: &str) -> Result<Option<u32>, SettingsError> {
         match self.raw.number(key)? {
-            None => Ok(default),
+            None => Ok(None),
             Some((v, line)) => {
                 if v.fract() != 0.0 || v < 0.0 || v > f64::from(u32::MAX) {
                     Err(SettingsError::value(
@@ -204,7 +211,7 @@ impl Reader<'_> {
                         format!("must be a whole number ≥ 0, found {v}"),
                     ))
                 } else {
-                    Ok(v as u32)
+                    Ok(Some(v as u32))
                 }
             }
         }
@@ -302,7 +309,14 @@ impl Settings {
             n_levels: r.u32_or("ORBextractor.nLevels", 8)?,
             ini_th_fast: r.u32_or("ORBextractor.iniThFAST", 20)?,
             min_th_fast: r.u32_or("ORBextractor.minThFAST", 15)?,
+            first_level: r.u32_opt("ORBextractor.firstLevel")?,
         };
+        if let Some(first) = orb.first_level
+            && first > 16
+        {
+            let key = "ORBextractor.firstLevel";
+            return Err(SettingsError::value(&raw.path, r.at(key), key, format!("must be in 0..=16, found {first}")));
+        }
         for (key, v) in [("ORBextractor.nFeatures", orb.n_features), ("ORBextractor.nLevels", orb.n_levels)] {
             if v == 0 {
                 return Err(SettingsError::value(&raw.path, r.at(key), key, "must be ≥ 1"));

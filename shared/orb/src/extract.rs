@@ -24,12 +24,38 @@ pub struct OrbParams {
     pub n_levels: u32,
     pub ini_th_fast: u8,
     pub min_th_fast: u8,
+    /// The pyramid level features are first detected on (`ORBextractor.firstLevel`): the `n_levels` detection
+    /// levels are `first_level ..first_level + n_levels`, and the levels finer than the first are built (as the
+    /// pyramid's source, and for whoever measures on them) but not searched. `None` = [`auto_first_level`]:
+    /// detection on at most [`AUTO_DETECTION_PIXELS`], so that HD costs about what VGA costs.
+    pub first_level: Option<u32>,
 }
 
 impl Default for OrbParams {
     fn default() -> Self {
-        Self { n_features: 1000, scale_factor: 1.2, n_levels: 8, ini_th_fast: 20, min_th_fast: 7 }
+        Self { n_features: 1000, scale_factor: 1.2, n_levels: 8, ini_th_fast: 20, min_th_fast: 7, first_level: None }
     }
+}
+
+/// The most pixels the finest detection level has when `first_level` is left to [`auto_first_level`]. Why a
+/// pixel count: what ORB extraction costs grows with the pixels it searches (FAST, the blur for descriptors, the
+/// quadtree's candidates), while what the tracker needs from the features — ~1000 well spread, repeatable
+/// corners — does not grow with the sensor. 0.5 Mpx is a VGA frame and a half (640×480 = 0.31 Mpx, 960×540 =
+/// 0.52 Mpx), where the tracker's whole frame took ~10 ms on one core of the reference machine: a 1280×720
+/// frame detects from level 2 (889×500), a 1920×1080 one from level 4 (926×521), anything up to 0.5 Mpx from
+/// level 0 as ORB-SLAM2 does. The images are never resized: finer levels stay in the pyramid for measuring.
+pub const AUTO_DETECTION_PIXELS: f64 = 500_000.0;
+
+/// The first detection level for a `width`×`height` image when none is set: the finest pyramid level with at
+/// most [`AUTO_DETECTION_PIXELS`] pixels (levels shrink by `scale_factor` per side).
+pub fn auto_first_level(width: usize, height: usize, scale_factor: f64) -> u32 {
+    let mut level = 0;
+    let mut pixels = width as f64 * height as f64;
+    while pixels > AUTO_DETECTION_PIXELS && level < 16 {
+        pixels /= scale_factor * scale_factor;
+        level += 1;
+    }
+    level
 }
 
 impl OrbParams {
@@ -40,6 +66,7 @@ impl OrbParams {
             n_levels: s.n_levels,
             ini_th_fast: s.ini_th_fast.min(255) as u8,
             min_th_fast: s.min_th_fast.min(255) as u8,
+            first_level: s.first_level,
         }
     }
 }
@@ -141,7 +168,9 @@ struct Corner {
 #[derive(Debug)]
 pub struct OrbExtractor {
     params: OrbParams,
-    /// Features wanted per level.
+    /// The first detection level ([`OrbParams::first_level`], resolved for this image size).
+    first_level: usize,
+    /// Features wanted per level (0 on the levels finer than the first detection level).
     per_level: Vec<usize>,
     scales: Vec<f64>,
     pub levels: Vec<Level>,
@@ -190,25 +219,25 @@ impl OrbExtractor {
                 format!("need 1 ≤ minThFAST ≤ iniThFAST, found {} and {}", params.min_th_fast, params.ini_th_fast),
             );
         }
-        let scales: Vec<f64> = (0..params.n_levels).map(|l| params.scale_factor.powi(l as i32)).collect();
+        let first_level = params.first_level.unwrap_or_else(|| auto_first_level(width, height, params.scale_factor));
+        if first_level > 16 {
+            return bad("firstLevel", format!("must be in 0..=16, found {first_level}"));
+        }
+        let n_pyramid = first_level + params.n_levels;
+        let scales: Vec<f64> = (0..n_pyramid).map(|l| params.scale_factor.powi(l as i32)).collect();
         let sizes: Vec<(usize, usize)> = scales
             .iter()
             .map(|s| ((width as f64 / s).round() as usize, (height as f64 / s).round() as usize))
             .collect();
         if sizes.iter().any(|&(w, h)| w < 62 || h < 62) {
-            return Err(OrbError::TooSmall {
-                w: width,
-                h: height,
-                levels: params.n_levels,
-                scale: params.scale_factor,
-            });
+            return Err(OrbError::TooSmall { w: width, h: height, levels: n_pyramid, scale: params.scale_factor });
         }
         // Features per level: a geometric series (§1.2), the last level takes the remainder.
         let n = f64::from(params.n_features);
         let f = 1.0 / params.scale_factor;
         let n0 = n * (1.0 - f) / (1.0 - f.powi(params.n_levels as i32));
-        let mut per_level: Vec<usize> =
-            (0..params.n_levels as usize - 1).map(|l| (n0 * f.powi(l as i32)).round() as usize).collect();
+        let mut per_level: Vec<usize> = vec![0; first_level as usize];
+        per_level.extend((0..params.n_levels as usize - 1).map(|l| (n0 * f.powi(l as i32)).round() as usize));
         let used: usize = per_level.iter().sum();
         per_level.push((params.n_features as usize).saturating_sub(used));
         let levels: Vec<Level> = sizes.iter().map(|&(w, h)| Level { w, h, data: vec![0; w * h] }).collect();
@@ -236,6 +265,7 @@ impl OrbExtractor {
             .collect();
         Ok(Self {
             params,
+            first_level: first_level as usize,
             per_level,
             scales,
             blurred: levels.clone(),
@@ -266,8 +296,14 @@ impl OrbExtractor {
         &self.params
     }
 
+    /// The scale of every pyramid level, the levels finer than the first detection level included.
     pub fn scales(&self) -> &[f64] {
         &self.scales
+    }
+
+    /// The finest level features are detected on: every keypoint's octave is at least this.
+    pub fn first_level(&self) -> usize {
+        self.first_level
     }
 
     /// Extracts features of a `width`×`height` grey image into `out` (its buffers are reused).
@@ -297,7 +333,7 @@ impl OrbExtractor {
         self.build_pyramid(&image[..w * h]);
         out.keypoints.clear();
         out.descriptors.clear();
-        for l in 0..self.levels.len() {
+        for l in self.first_level..self.levels.len() {
             self.detect_level(l);
             if let Some(mask) = keep_out {
                 let scale = self.scales[l] as f32;

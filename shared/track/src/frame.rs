@@ -10,13 +10,17 @@ pub struct Scales {
     pub factor: f64,
     pub scale: Vec<f64>,
     pub inv_sigma2: Vec<f64>,
+    /// The finest level features are detected on (`bdis_orb::OrbParams::first_level`): no keypoint has a
+    /// smaller octave, so no search predicts one.
+    pub first: usize,
 }
 
 impl Scales {
-    pub fn new(factor: f64, levels: usize) -> Self {
+    /// `levels` pyramid levels of which features come from `first..levels`.
+    pub fn new(factor: f64, levels: usize, first: usize) -> Self {
         let scale: Vec<f64> = (0..levels).map(|l| factor.powi(l as i32)).collect();
         let inv_sigma2 = scale.iter().map(|s| 1.0 / (s * s)).collect();
-        Self { factor, scale, inv_sigma2 }
+        Self { factor, scale, inv_sigma2, first: first.min(levels.saturating_sub(1)) }
     }
 
     pub fn levels(&self) -> usize {
@@ -34,7 +38,9 @@ impl Scales {
     pub fn predict_level(&self, dist: f64, max_dist: f64) -> usize {
         let ratio = max_dist / dist;
         let level = (ratio.ln() / self.factor.ln()).ceil();
-        if level.is_nan() || level < 0.0 { 0 } else { (level as usize).min(self.levels() - 1) }
+        let level = if level.is_nan() || level < 0.0 { 0 } else { (level as usize).min(self.levels() - 1) };
+        // A point seen closer than its finest detection allows still appears, on the finest detection level.
+        level.max(self.first)
     }
 }
 
@@ -169,7 +175,7 @@ impl FrameBuilder {
     pub fn new(cam: RectifiedCamera, params: OrbParams) -> Result<Self, OrbError> {
         let left = OrbExtractor::new(params, cam.width as usize, cam.height as usize)?;
         let right = OrbExtractor::new(params, cam.width as usize, cam.height as usize)?;
-        let scales = Scales::new(params.scale_factor, params.n_levels as usize);
+        let scales = Scales::new(params.scale_factor, left.scales().len(), left.first_level());
         Ok(Self {
             cam,
             left,

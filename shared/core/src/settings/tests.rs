@@ -72,3 +72,17 @@ fn toml_uses_the_same_names_and_checks() {
     let e = RawSettings::parse_toml("[Camera\nfx=1", Path::new("c.toml")).unwrap_err().to_string();
     assert!(e.starts_with("c.toml:1:"), "{e}");
 }
+
+#[test]
+fn reads_the_first_detection_level_and_names_a_bad_one() {
+    assert_eq!(parse(HAMLYN6).unwrap().orb.first_level, None, "absent: chosen by the image size");
+    let with = |v: &str| {
+        HAMLYN6
+            .replace("ORBextractor.nLevels: 8\n", &format!("ORBextractor.nLevels: 8\nORBextractor.firstLevel: {v}\n"))
+    };
+    assert_eq!(parse(&with("3")).unwrap().orb.first_level, Some(3));
+    let e = parse(&with("40")).unwrap_err().to_string();
+    assert!(e.contains("ORBextractor.firstLevel") && e.contains("0..=16"), "{e}");
+    let e = parse(&with("1.5")).unwrap_err().to_string();
+    assert!(e.contains("ORBextractor.firstLevel"), "{e}");
+}

@@ -139,3 +139,50 @@ pub(super) fn a_keep_out_mask_moves_the_features_off_it_and_keeps_the_budget() {
     // A short mask is an error, not a panic.
     assert!(extractor.extract_masked(&image, Some(&mask[..10]), &mut kept).is_err());
 }
+
+#[test]
+fn hd_detects_from_a_level_of_about_vga_pixels_and_vga_from_level_0() {
+    assert_eq!(auto_first_level(640, 480, 1.2), 0);
+    assert_eq!(auto_first_level(320, 240, 1.2), 0);
+    assert_eq!(auto_first_level(1280, 720, 1.2), 2);
+    assert_eq!(auto_first_level(1920, 1080, 1.2), 4);
+    assert_eq!(auto_first_level(3840, 2160, 1.2), 8);
+    // Another scale factor: the same pixel budget.
+    assert_eq!(auto_first_level(1920, 1080, 2.0), 2);
+}
+
+#[test]
+fn a_first_level_gives_the_same_features_as_those_levels_of_a_full_pyramid() {
+    // Detection from level 2 of a 10-level pyramid, against detection from level 0 of the same pyramid:
+    // the levels, their corners and descriptors are those of the full pyramid (only the budget moves), every
+    // octave is ≥ 2, and the keypoints are in level-0 pixels.
+    let (w, h) = (640, 480);
+    let image = test_level(w, h).data;
+    let full = OrbParams { n_features: 1000, n_levels: 10, first_level: Some(0), ..OrbParams::default() };
+    let from2 = OrbParams { n_features: 1000, n_levels: 8, first_level: Some(2), ..OrbParams::default() };
+    let (mut a, mut b) = (OrbExtractor::new(full, w, h).unwrap(), OrbExtractor::new(from2, w, h).unwrap());
+    assert_eq!(a.scales(), b.scales(), "the same pyramid");
+    assert_eq!(b.first_level(), 2);
+    let (mut fa, mut fb) = (Features::default(), Features::default());
+    a.extract(&image, &mut fa).unwrap();
+    b.extract(&image, &mut fb).unwrap();
+    for (l, (la, lb)) in a.levels.iter().zip(&b.levels).enumerate() {
+        assert_eq!(la.data, lb.data, "level {l}");
+    }
+    assert!(fb.keypoints.iter().all(|k| k.octave >= 2));
+    assert!(fb.keypoints.len() >= 900, "the whole budget on the detection levels: {}", fb.keypoints.len());
+    assert!(fb.keypoints.iter().all(|k| k.x >= 0.0 && k.x < w as f32 && k.y >= 0.0 && k.y < h as f32));
+    // A keypoint found at an octave by both has the same position and descriptor.
+    let mut common = 0;
+    for (k, d) in fb.keypoints.iter().zip(&fb.descriptors) {
+        if let Some(j) = fa.keypoints.iter().position(|q| q.octave == k.octave && q.x == k.x && q.y == k.y) {
+            assert_eq!(&fa.descriptors[j], d);
+            assert_eq!(fa.keypoints[j].angle, k.angle);
+            common += 1;
+        }
+    }
+    assert!(common >= 100, "{common} keypoints in common");
+    // Bad values are named.
+    let e = OrbExtractor::new(OrbParams { first_level: Some(17), ..OrbParams::default() }, w, h).unwrap_err();
+    assert!(e.to_string().contains("firstLevel"), "{e}");
+}

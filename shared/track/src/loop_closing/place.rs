@@ -214,7 +214,7 @@ mod tests {
     #[test]
     fn the_same_points_seen_from_elsewhere_give_the_motion_between_the_views() {
         let cam = camera();
-        let scales = Scales::new(1.2, 8);
+        let scales = Scales::new(1.2, 8, 0);
         // 60 points on a wavy wall 60–70 mm in front of the old keyframe.
         let old_points: Vec<Point3<f64>> = (0..60)
             .map(|i| {
@@ -238,7 +238,7 @@ mod tests {
     #[test]
     fn a_keyframe_with_other_descriptors_or_another_shape_is_no_loop() {
         let cam = camera();
-        let scales = Scales::new(1.2, 8);
+        let scales = Scales::new(1.2, 8, 0);
         let points: Vec<Point3<f64>> = (0..60)
             .map(|i| Point3::new(f64::from(i % 10) * 5.0 - 22.0, f64::from(i / 10) * 5.0 - 12.0, 65.0))
             .collect();
