@@ -94,6 +94,9 @@ pub struct BdisSettings {
     pub unit_disturb: f64,
     pub min_prob: f64,
     pub bool_var: bool,
+    /// `BDISparam.level_offset` (not in the original): how many times the pair is halved before the levels
+    /// above count; absent = chosen by the image size (`bdis_stereo::auto_level_offset`).
+    pub level_offset: Option<u32>,
 }
 
 impl Default for BdisSettings {
@@ -117,6 +120,7 @@ impl Default for BdisSettings {
             unit_disturb: 0.5,
             min_prob: 0.05,
             bool_var: false,
+            level_offset: None,
         }
     }
 }
@@ -146,6 +150,7 @@ const CAMERA_KEYS: &[&str] =
     &["fx", "fy", "cx", "cy", "k1", "k2", "k3", "p1", "p2", "width", "height", "fps", "bf", "RGB", "name", "type"];
 const ORB_KEYS: &[&str] = &["nFeatures", "scaleFactor", "nLevels", "iniThFAST", "minThFAST", "firstLevel"];
 const BDIS_KEYS: &[&str] = &[
+    "level_offset",
     "lv_f",
     "lv_l",
     "maxiter",
@@ -343,6 +348,7 @@ impl Settings {
             unit_disturb: r.f64_or("BDISparam.unit_disturb", d.unit_disturb)?,
             min_prob: r.f64_or("BDISparam.min_prob", d.min_prob)?,
             bool_var: r.u32_or("BDISparam.bool_var", u32::from(d.bool_var))? != 0,
+            level_offset: r.u32_opt("BDISparam.level_offset")?,
         };
         let depth_gap_px = r.u32_or("Viewer3D.depth_gap", 5)?;
         if depth_gap_px == 0 {

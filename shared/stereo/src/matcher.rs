@@ -178,6 +178,60 @@ pub struct Matcher {
     mirrored_left: Vec<u8>,
     mirrored_right: Vec<u8>,
     reverse_flow: Vec<f32>,
+    /// The input halved `offset` times ([`Params::level_offset`]), what the levels count from, and its width;
+    /// with the per-column sums of the halving.
+    offset: usize,
+    halved_left: Vec<u8>,
+    halved_right: Vec<u8>,
+    halved_w: usize,
+    halving_sums: Vec<(u32, u32, u32)>,
+}
+
+/// How a halving step combines a block's pixels, 0 being "no data" (as the pyramid's levels, `pyramid.rs`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum HalvingRule {
+    /// The left image: a block with any invalid pixel is invalid (the template must lie on seen tissue).
+    AllValid,
+    /// The right image: the mean of the block's valid pixels.
+    ValidMean,
+}
+
+/// `image` halved `times` times at once (2^times-pixel blocks, the last ones partial where the size is not a
+/// multiple), rounded to the nearest grey level, into `out`; the image it now holds is returned.
+fn halve<'a>(
+    image: GrayImage<'_>,
+    times: usize,
+    rule: HalvingRule,
+    sums: &mut Vec<(u32, u32, u32)>,
+    out: &'a mut Vec<u8>,
+) -> GrayImage<'a> {
+    let n = 1usize << times;
+    let (w, h) = (image.width, image.height);
+    let (hw, hh) = (w.div_ceil(n), h.div_ceil(n));
+    out.resize(hw * hh, 0);
+    for (by, out_row) in out.chunks_exact_mut(hw).enumerate() {
+        // Per block of this row: sum of valid values, valid count, pixel count.
+        sums.clear();
+        sums.resize(hw, (0, 0, 0));
+        for y in by * n..((by + 1) * n).min(h) {
+            for (sum, block) in sums.iter_mut().zip(image.data[y * w..(y + 1) * w].chunks(n)) {
+                for &v in block {
+                    sum.0 += u32::from(v);
+                    sum.1 += u32::from(v != 0);
+                }
+                sum.2 += block.len() as u32;
+            }
+        }
+        for (o, &(total, valid, pixels)) in out_row.iter_mut().zip(sums.iter()) {
+            let divisor = match rule {
+                HalvingRule::AllValid if valid < pixels => 0,
+                _ => valid,
+            };
+            // A mean of values ≥ 1 rounds to ≥ 1: a valid block never becomes "no data".
+            *o = if divisor == 0 { 0 } else { ((total + divisor / 2) / divisor) as u8 };
+        }
+    }
+    GrayImage { width: hw, height: hh, data: out }
 }
 
 /// Spatial fusion weight σ_s, hard-coded in the original (§6.3).
@@ -231,6 +285,11 @@ impl Matcher {
             mirrored_left: Vec::new(),
             mirrored_right: Vec::new(),
             reverse_flow: Vec::new(),
+            offset: 0,
+            halved_left: Vec::new(),
+            halved_right: Vec::new(),
+            halved_w: 0,
+            halving_sums: Vec::new(),
         })
     }
 
@@ -238,18 +297,20 @@ impl Matcher {
         &self.params
     }
 
-    /// Sizes the buffers for `w`×`h` inputs (a no-op when the size is unchanged).
-    fn prepare(&mut self, w: usize, h: usize) -> Result<(), MatchError> {
+    /// Sizes the buffers for a `w`×`h` level 0 (the input halved [`Self::offset`] times) and an `out_w`×`out_h`
+    /// output (a no-op when the sizes are unchanged).
+    fn prepare(&mut self, w: usize, h: usize, out_w: usize, out_h: usize) -> Result<(), MatchError> {
         let lv_f = self.params.lv_f as usize;
         let unit = 1usize << lv_f;
         let padded_w = w.div_ceil(unit) * unit;
         let padded_h = h.div_ceil(unit) * unit;
+        self.halved_w = w;
         if padded_w == self.padded_w && padded_h == self.padded_h && !self.levels.is_empty() {
             let (pad_x, pad_y) = ((padded_w - w) / 2, (padded_h - h) / 2);
-            if (pad_x, pad_y, self.col_taps.len(), self.row_taps.len()) != (self.pad_x, self.pad_y, w, h) {
+            if (pad_x, pad_y, self.col_taps.len(), self.row_taps.len()) != (self.pad_x, self.pad_y, out_w, out_h) {
                 self.pad_x = pad_x;
                 self.pad_y = pad_y;
-                self.compute_taps(w, h);
+                self.compute_taps(out_w, out_h);
                 // Another image size with the same padded size: the old pixels in the new padding must go.
                 self.levels[0].left.fill(0.0);
                 self.levels[0].right.fill(0.0);
@@ -301,7 +362,7 @@ impl Matcher {
         self.next_label = 1;
         self.stack = Vec::with_capacity(finest.w * finest.h);
         self.members = Vec::with_capacity(finest.w * finest.h);
-        self.compute_taps(w, h);
+        self.compute_taps(out_w, out_h);
         Ok(())
     }
 
@@ -327,14 +388,35 @@ impl Matcher {
             }
         }
         let (w, h) = (left.width, left.height);
-        self.prepare(w, h)?;
-        let lr_check = self.params.lr_tolerance_level_px();
-        if lr_check.is_some() {
-            self.match_mirrored(left, right);
+        let offset = self.params.level_offset_for(w, h) as usize;
+        if offset != self.offset {
+            // Another level 0: every size-dependent buffer is sized again.
+            self.offset = offset;
+            self.levels.clear();
         }
-        self.match_pass(left, right, lr_check);
-        self.write_output(w, h, out);
-        Ok(())
+        // Taken out of `self` for the passes (which borrow all of it) and put back: the buffers stay reused.
+        let (mut halved_left, mut halved_right) =
+            (std::mem::take(&mut self.halved_left), std::mem::take(&mut self.halved_right));
+        let (left, right) = if offset == 0 {
+            (left, right)
+        } else {
+            (
+                halve(left, offset, HalvingRule::AllValid, &mut self.halving_sums, &mut halved_left),
+                halve(right, offset, HalvingRule::ValidMean, &mut self.halving_sums, &mut halved_right),
+            )
+        };
+        let prepared = self.prepare(left.width, left.height, w, h);
+        if prepared.is_ok() {
+            let lr_check = self.params.lr_tolerance_level_px();
+            if lr_check.is_some() {
+                self.match_mirrored(left, right);
+            }
+            self.match_pass(left, right, lr_check);
+            self.write_output(w, h, out);
+        }
+        self.halved_left = halved_left;
+        self.halved_right = halved_right;
+        prepared
     }
 
     /// One matching pass over a pair of the prepared size, from the pyramid to the finest level's flow. With
@@ -372,5 +454,80 @@ impl Matcher {
         let mut out = DisparityMap::default();
         self.compute_into(left, right, &mut out)?;
         Ok(out)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A textured pair: the right image is the left shifted by a disparity that varies along the rows, with a
+    /// black border as an endoscope's.
+    fn pair(w: usize, h: usize) -> (Vec<u8>, Vec<u8>) {
+        let texture = |x: f32, y: f32| {
+            let v = 128.0 + 50.0 * (0.21 * x).sin() * (0.17 * y).cos() + 40.0 * (0.05 * x + 0.09 * y).sin();
+            v.clamp(1.0, 255.0) as u8
+        };
+        let mut left = vec![0u8; w * h];
+        let mut right = vec![0u8; w * h];
+        for y in 4..h - 4 {
+            let d = 6.0 + 4.0 * y as f32 / h as f32;
+            for x in 4..w - 4 {
+                left[y * w + x] = texture(x as f32, y as f32);
+                right[y * w + x] = texture(x as f32 + d, y as f32);
+            }
+        }
+        (left, right)
+    }
+
+    #[test]
+    fn halving_keeps_the_pyramids_rules() {
+        // 10 20  0
+        // 40 30 41
+        // 50 60  7      2×2 blocks, the last column and row partial.
+        let data = [10, 20, 0, 40, 30, 41, 50, 60, 7];
+        let image = GrayImage { width: 3, height: 3, data: &data };
+        let (mut sums, mut out) = (Vec::new(), Vec::new());
+        let left = halve(image, 1, HalvingRule::AllValid, &mut sums, &mut out);
+        assert_eq!((left.width, left.height), (2, 2));
+        // (0,0) 10 20 40 30 → 25; (1,0) 0 41 → invalid for the left; (0,1) 50 60 → 55; (1,1) 7.
+        assert_eq!(left.data, &[25, 0, 55, 7]);
+        let right = halve(image, 1, HalvingRule::ValidMean, &mut sums, &mut out);
+        assert_eq!(right.data, &[25, 41, 55, 7], "the right takes the mean of its valid pixels");
+        // Rounded to the nearest: 1 and 2 → 2 (1.5 up).
+        let data = [1, 2, 1, 2];
+        let image = GrayImage { width: 2, height: 2, data: &data };
+        assert_eq!(halve(image, 1, HalvingRule::AllValid, &mut sums, &mut out).data, &[2]);
+    }
+
+    #[test]
+    fn an_offset_matches_the_halved_pair_exactly_and_outputs_input_pixels() {
+        // Level 0 at offset 1 is the halved pair: the finest level's flow is the same number for number as
+        // matching the halved pair at offset 0, and the output is that flow upsampled to the input, ×2 more.
+        let (w, h) = (256, 192);
+        let (left, right) = pair(w, h);
+        let params = Params { level_offset: Some(1), ..Params::colon() };
+        let mut at_offset = Matcher::new(params).unwrap();
+        let full = at_offset
+            .compute(GrayImage { width: w, height: h, data: &left }, GrayImage { width: w, height: h, data: &right })
+            .unwrap();
+        let (mut sums, mut hl, mut hr) = (Vec::new(), Vec::new(), Vec::new());
+        let l = halve(GrayImage { width: w, height: h, data: &left }, 1, HalvingRule::AllValid, &mut sums, &mut hl);
+        let r = halve(GrayImage { width: w, height: h, data: &right }, 1, HalvingRule::ValidMean, &mut sums, &mut hr);
+        let mut halved = Matcher::new(Params { level_offset: Some(0), ..Params::colon() }).unwrap();
+        let small = halved.compute(l, r).unwrap();
+        let finest = Params::colon().lv_l as usize;
+        let (a, b) = (&at_offset.levels[finest].flow, &halved.levels[finest].flow);
+        assert_eq!(a.len(), b.len());
+        assert!(a.iter().zip(b).all(|(x, y)| x.to_bits() == y.to_bits()), "the same flow");
+        assert_eq!((full.width, full.height), (w, h));
+        assert!(full.density() > 0.5, "density {}", full.density());
+        // The true disparity is 6–10 input px; the halved pair's output is in its own pixels.
+        let valid: Vec<f32> = full.disparity.iter().copied().filter(|d| d.is_finite()).collect();
+        let mean = valid.iter().sum::<f32>() / valid.len() as f32;
+        assert!((6.5..9.5).contains(&mean), "mean disparity {mean} input px");
+        let small_valid: Vec<f32> = small.disparity.iter().copied().filter(|d| d.is_finite()).collect();
+        let small_mean = small_valid.iter().sum::<f32>() / small_valid.len() as f32;
+        assert!((mean / small_mean - 2.0).abs() < 0.05, "{mean} against 2 × {small_mean}");
     }
 }

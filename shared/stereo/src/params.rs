@@ -47,6 +47,26 @@ pub struct Params {
     /// algorithm (plain DIS has no confidence at all; BDIS's still lets ~1 % of far-off depths through, which
     /// stay in the map as "occluded" points). Measured in BENCHMARKS.md, "Left–right check".
     pub lr_check: f64,
+    /// How many times the pair is halved (2×2 means, the pyramid's own rule) before level 0 of the levels
+    /// above (not in the original): `lv_f`, `lv_l`, the patch size, σ_s and every other length here are in the
+    /// pixels of that halved pair, and the output is upsampled to the input by 2^(lv_l + offset). `None` =
+    /// [`auto_level_offset`] for the input's size. Why: the parameters were published for images of about
+    /// 640×480; on HD the same patch size and levels search 2–3× finer detail than those images have (and
+    /// cost the pixels' square), while the coarsest level no longer covers HD's larger disparities.
+    pub level_offset: Option<u32>,
+}
+
+/// The image size the published BDIS parameters are in the pixels of (BDIS-SLAM's settings files are for
+/// 640×480-class footage, as the Hamlyn sets here): [`auto_level_offset`] halves a larger pair until it is
+/// closest to it.
+pub const PARAMS_REFERENCE_PIXELS: f64 = 640.0 * 480.0;
+
+/// The level offset for a `width`×`height` pair when none is set: the number of halvings that brings its
+/// side to the nearest power of two of [`PARAMS_REFERENCE_PIXELS`]'s side (640×480 and smaller: 0; 1280×720
+/// and 1920×1080: 1; 3840×2160: 2).
+pub fn auto_level_offset(width: usize, height: usize) -> u32 {
+    let ratio = (width as f64 * height as f64 / PARAMS_REFERENCE_PIXELS).sqrt();
+    if ratio.is_finite() && ratio > 1.0 { ratio.log2().round().min(8.0) as u32 } else { 0 }
 }
 
 impl Default for Params {
@@ -87,6 +107,7 @@ impl Params {
             min_prob: s.min_prob,
             variance: s.bool_var,
             lr_check: 1.0,
+            level_offset: s.level_offset,
         }
     }
 
@@ -95,9 +116,15 @@ impl Params {
         (self.lr_check > 0.0).then_some(self.lr_check as f32)
     }
 
-    /// The same in image pixels (one finest-level pixel is 2^lv_l image pixels).
+    /// The same in the pixels of the (halved, see `level_offset`) pair the levels count from: one
+    /// finest-level pixel is 2^lv_l of them.
     pub fn lr_tolerance_px(&self) -> Option<f32> {
         self.lr_tolerance_level_px().map(|t| t * (1u32 << self.lv_l) as f32)
+    }
+
+    /// The level offset used for a `width`×`height` pair: the one set, or [`auto_level_offset`].
+    pub fn level_offset_for(&self, width: usize, height: usize) -> u32 {
+        self.level_offset.unwrap_or_else(|| auto_level_offset(width, height))
     }
 
     /// The same parameters without the left–right check: the matcher as the original has it, for comparisons
@@ -126,6 +153,11 @@ impl Params {
         }
         if self.lv_f < self.lv_l {
             return Err(bad("lv_f", format!("must be ≥ lv_l ({}), found {}", self.lv_l, self.lv_f)));
+        }
+        if let Some(offset) = self.level_offset
+            && offset > 8
+        {
+            return Err(bad("level_offset", format!("must be in 0..=8, found {offset}")));
         }
         if self.lv_f > 10 {
             return Err(bad("lv_f", format!("must be ≤ 10, found {}", self.lv_f)));
@@ -214,11 +246,12 @@ impl Params {
             "min_prob" => "min_prob",
             "bool_var" => "bool_var",
             "lr_check" => "lr_check",
+            "level_offset" => "level_offset",
             other => {
                 return Err(ParamError {
                     name: "?",
                     message: format!(
-                        "unknown parameter `{other}` (known: lv_f lv_l maxiter miniter mindprate mindrrate minimgerr patchsz poverl ratio_patch_valid num_window unit_disturb min_prob bool_var lr_check)"
+                        "unknown parameter `{other}` (known: lv_f lv_l maxiter miniter mindprate mindrrate minimgerr patchsz poverl ratio_patch_valid num_window unit_disturb min_prob bool_var lr_check level_offset)"
                     ),
                 });
             }
@@ -246,6 +279,7 @@ impl Params {
             "ratio_patch_valid" => self.ratio_patch_valid = number,
             "unit_disturb" => self.unit_disturb = number,
             "lr_check" => self.lr_check = number,
+            "level_offset" => self.level_offset = Some(whole()?),
             _ => self.min_prob = number,
         }
         Ok(())

@@ -119,3 +119,45 @@ fn hamlyn_6_and_20_density_within_3_points_of_the_original() {
     assert!((d6 - 0.872).abs() <= 0.03, "set 6 density {d6:.3} vs reference 0.872");
     assert!((d20 - 0.885).abs() <= 0.03, "set 20 density {d20:.3} vs reference 0.885");
 }
+
+/// Set 31 with every pair resized to twice its size (Catmull-Rom; 1280×960, bf doubled): what the matcher does
+/// with an HD pair's pixels at a given level offset. Scored at the doubled size against the ground truth's
+/// depth (nearest).
+fn score_set31_doubled(params: Params) -> bdis_eval::stereo::ScoreSummary {
+    let set = data_set("31").unwrap();
+    let mut matcher = Matcher::new(params).unwrap();
+    let mut score = StereoScore::new();
+    let mut out = bdis_stereo::DisparityMap::default();
+    let double = |img: &image::GrayImage| {
+        image::imageops::resize(img, img.width() * 2, img.height() * 2, image::imageops::FilterType::CatmullRom)
+    };
+    for n in 1..=16 {
+        let (left, left_rgb) = load(&set.join(format!("left/{n}.png")));
+        let (right, _) = load(&set.join(format!("right/{n}.png")));
+        let (left, right) = (double(&left), double(&right));
+        matcher.compute_into(view(&left), view(&right), &mut out).unwrap();
+        let gt = bdis_core::formats::pfm::read_disparity(&set.join(format!("depth/{n}.pfm"))).unwrap();
+        let (w, h) = (out.width, out.height);
+        let gt_depth: Vec<f32> = (0..w * h).map(|i| gt.data[(i / w / 2) * gt.width + (i % w) / 2]).collect();
+        let region: Vec<bool> =
+            (0..w * h).map(|i| left_rgb.get_pixel(((i % w) / 2) as u32, ((i / w) / 2) as u32)[0] != 0).collect();
+        score.add(&out.disparity, &gt_depth, &region, 520.0);
+    }
+    score.summary()
+}
+
+#[test]
+fn an_hd_pair_is_matched_halved_once_as_accurately_as_at_the_size_the_parameters_are_for() {
+    if data_set("31").is_none() {
+        return;
+    }
+    let vga = score_set31(Params::colon());
+    // 1280×960: the automatic offset halves it once, so the published levels and patch size see the scene as
+    // they do at 640×480.
+    assert_eq!(bdis_stereo::params::auto_level_offset(1280, 960), 1);
+    let halved = score_set31_doubled(Params::colon());
+    let unhalved = score_set31_doubled(Params { level_offset: Some(0), ..Params::colon() });
+    eprintln!("set 31 at 640×480: {vga:?}\n  doubled, halved once: {halved:?}\n  doubled, as is: {unhalved:?}");
+    assert!(halved.depth_mae <= 1.05 * vga.depth_mae, "MAE {:.4} against {:.4}", halved.depth_mae, vga.depth_mae);
+    assert!(halved.density >= 0.95 * vga.density, "density {:.4} against {:.4}", halved.density, vga.density);
+}

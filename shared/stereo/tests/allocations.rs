@@ -19,6 +19,9 @@ fn a_warmed_up_pair_allocates_nothing() {
         Params { variance: true, ..Params::colon() },
         // Without the left–right check (the defaults above run it, with its second pass and mirrored images).
         Params::colon().as_published(),
+        // The pair halved first (what an HD pair gets by default), with the check and without.
+        Params { level_offset: Some(1), ..Params::colon() },
+        Params { level_offset: Some(2), ..Params::colon().as_published() },
     ] {
         let mut matcher = Matcher::new(params).unwrap();
         let mut out = DisparityMap::default();

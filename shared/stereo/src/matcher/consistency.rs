@@ -74,7 +74,7 @@ impl Matcher {
         let mirror = Mirror {
             scale: (1usize << s) as f32,
             pad_x: self.pad_x as f32,
-            width: self.col_taps.len(),
+            width: self.halved_w,
             level_width: level.w,
         };
         for (y, (flow, prob)) in

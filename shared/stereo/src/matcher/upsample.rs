@@ -3,11 +3,13 @@
 use super::*;
 
 impl Matcher {
-    /// OpenCV INTER_LINEAR taps for upsampling the finest searched level by 2^lv_l: source coordinate
-    /// (x + 0.5)/f − 0.5, clamped at the borders; padding offsets included.
+    /// OpenCV INTER_LINEAR taps for upsampling the finest searched level by 2^(lv_l + offset) to the input:
+    /// source coordinate (x + 0.5)/f − 0.5, clamped at the borders; padding offsets (level-0 pixels, each
+    /// 2^offset input pixels) included.
     pub(super) fn compute_taps(&mut self, w: usize, h: usize) {
         let lv_l = self.params.lv_l as usize;
-        let factor = (1usize << lv_l) as f32;
+        let factor = (1usize << (lv_l + self.offset)) as f32;
+        let (pad_x, pad_y) = (self.pad_x << self.offset, self.pad_y << self.offset);
         let (lw, lh) = (self.levels[lv_l].w, self.levels[lv_l].h);
         let tap = |x: usize, n: usize| -> (u32, u32, f32) {
             let sx = (x as f32 + 0.5) / factor - 0.5;
@@ -21,16 +23,17 @@ impl Matcher {
             (x0 as u32, (x0 + 1) as u32, sx - x0 as f32)
         };
         self.col_taps.clear();
-        self.col_taps.extend((0..w).map(|x| tap(x + self.pad_x, lw)));
+        self.col_taps.extend((0..w).map(|x| tap(x + pad_x, lw)));
         self.row_taps.clear();
-        self.row_taps.extend((0..h).map(|y| tap(y + self.pad_y, lh)));
+        self.row_taps.extend((0..h).map(|y| tap(y + pad_y, lh)));
     }
 
-    /// §5 end: the finest level's flow ×2^lv_l, bilinear upsampling (NaN spreads), crop, sign → disparity.
+    /// §5 end: the finest level's flow ×2^(lv_l + offset), bilinear upsampling (NaN spreads), crop, sign →
+    /// disparity in input pixels.
     pub(super) fn write_output(&self, w: usize, h: usize, out: &mut DisparityMap) {
         let lv_l = self.params.lv_l as usize;
         let level = &self.levels[lv_l];
-        let factor = (1usize << lv_l) as f32;
+        let factor = (1usize << (lv_l + self.offset)) as f32;
         out.width = w;
         out.height = h;
         out.disparity.resize(w * h, 0.0);
