@@ -57,9 +57,14 @@ fn bench(c: &mut Criterion) {
     let (l1, r1) = (resize(&l), resize(&r));
     let mut group = c.benchmark_group(format!("stereo-{w1}x{h1}-{name}-resized"));
     group.sample_size(10);
-    for (label, params) in
-        [("bdis-colon-params", Params::colon().as_published()), ("bdis-colon-params-lr-checked", Params::colon())]
-    {
+    // The default halves an HD pair once before the published levels count (`Params::level_offset`); the
+    // unhalved matcher beside it for the ratio.
+    let unhalved = Params { level_offset: Some(0), ..Params::colon() };
+    for (label, params) in [
+        ("bdis-colon-params", Params::colon().as_published()),
+        ("bdis-colon-params-lr-checked", Params::colon()),
+        ("bdis-colon-params-lr-checked-unhalved", unhalved),
+    ] {
         let mut matcher = Matcher::new(params).expect("valid parameters");
         let mut out = DisparityMap::default();
         let (left, right) =

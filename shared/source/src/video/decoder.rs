@@ -11,6 +11,7 @@ use std::sync::mpsc::{Receiver, SyncSender, sync_channel};
 use bdis_ipc::FrameLayout;
 
 use super::native::{self, NativeReader};
+use super::y4m::PlaneLayout;
 use super::{Arrangement, VideoError, VideoSource};
 use crate::decode::gray_of;
 
@@ -178,9 +179,10 @@ impl Drop for FfmpegDecoding {
 /// A decoded frame kept for a replay, with its frame number.
 struct Kept {
     frame: u64,
-    /// The left file's frame, and (two files) the right file's.
+    /// The left file's frame, and (two files) the right file's: RGB, or a Y4M's planes as stored (`planes`).
     left: Vec<u8>,
     right: Vec<u8>,
+    planes: Option<PlaneLayout>,
 }
 
 /// Frames kept for replays: a consumer that replaces a crashed one is sent again the frames its predecessor
@@ -245,7 +247,11 @@ impl VideoDecoder {
             KEPT_FRAMES => self.kept.pop_front(),
             _ => None,
         }
-        .unwrap_or(Kept { frame: 0, left: Vec::new(), right: Vec::new() });
+        .unwrap_or(Kept { frame: 0, left: Vec::new(), right: Vec::new(), planes: None });
+        if let Some(planes) = self.planar() {
+            return self.decode_planes(slot, planes);
+        }
+        slot.planes = None;
         let bytes = self.file_frame_bytes();
         slot.left.resize(bytes, 0);
         let expected = self.source.timestamps_s.len();
@@ -274,6 +280,71 @@ impl VideoDecoder {
         Ok(frame)
     }
 
+    /// Where each view starts in its file's frame: (left, right).
+    fn view_origins(&self) -> ((u32, u32), (u32, u32)) {
+        let (w, h) = (self.source.width, self.source.height);
+        match self.source.spec.arrangement {
+            Arrangement::TopBottom => ((0, 0), (0, h)),
+            Arrangement::SideBySide => ((0, 0), (w, 0)),
+            Arrangement::TwoFiles => ((0, 0), (0, 0)),
+        }
+    }
+
+    /// The planes every file is read as, when all are Y4M files read here whose views have their own chroma
+    /// samples: their frames are then kept as stored and converted straight into the packed layout (grey of
+    /// both views, colour of the left only). `None`: frames are kept as RGB.
+    fn planar(&self) -> Option<PlaneLayout> {
+        let mut planes = None;
+        for d in &self.decoding {
+            let Decoding::Native(reader) = d else { return None };
+            let p = reader.planes()?;
+            if planes.is_some_and(|q| q != p) {
+                return None;
+            }
+            planes = Some(p);
+        }
+        let p = planes?;
+        let ((lx, ly), (rx, ry)) = self.view_origins();
+        (p.view_aligned(lx, ly) && p.view_aligned(rx, ry)).then_some(p)
+    }
+
+    /// [`VideoDecoder::decode_next`] for Y4M files read as planes.
+    fn decode_planes(&mut self, mut slot: Kept, planes: PlaneLayout) -> Result<u64, VideoError> {
+        let expected = self.source.timestamps_s.len();
+        let times = &self.source.timestamps_s;
+        let next = self.next_frame;
+        let mut readers = self.decoding.iter_mut().filter_map(|d| match d {
+            Decoding::Native(reader) => Some(reader),
+            Decoding::Ffmpeg(_) => None,
+        });
+        let ended = |r: &NativeReader| VideoError::EndedEarly {
+            path: r.path().to_path_buf(),
+            decoded: next,
+            expected,
+            stderr: String::new(),
+        };
+        let first = readers.next().ok_or_else(|| VideoError::Pipe {
+            path: self.source.spec.left_file().to_path_buf(),
+            detail: "no decoder running".into(),
+        })?;
+        let mut frame = first.read_planes(&mut slot.left, times)?.ok_or_else(|| ended(first))?;
+        if let Some(second) = readers.next() {
+            let mut right = second.read_planes(&mut slot.right, times)?.ok_or_else(|| ended(second))?;
+            while right != frame {
+                if right < frame {
+                    right = second.read_planes(&mut slot.right, times)?.ok_or_else(|| ended(second))?;
+                } else {
+                    frame = first.read_planes(&mut slot.left, times)?.ok_or_else(|| ended(first))?;
+                }
+            }
+        }
+        slot.frame = frame;
+        slot.planes = Some(planes);
+        self.next_frame = frame + 1;
+        self.kept.push_back(slot);
+        Ok(frame)
+    }
+
     /// Writes frame `frame` (numbered from the file's first) into `payload`, every byte of `layout`. A frame
     /// the decoder could not decode (a corrupt stretch of the file) is [`VideoError::FrameLost`]; the frames
     /// after it are read as usual.
@@ -293,7 +364,22 @@ impl VideoDecoder {
             let t = self.source.timestamps_s.get(frame as usize).copied().unwrap_or(f64::NAN);
             return Err(VideoError::FrameLost { path: self.source.spec.left_file().to_path_buf(), frame, t });
         };
-        split_into(self.source.spec.arrangement, &kept.left, &kept.right, layout, payload);
+        match kept.planes {
+            Some(planes) => {
+                let (w, h) = (layout.width as usize, layout.height as usize);
+                let n = w * h;
+                let (left_gray, rest) = payload.split_at_mut(n);
+                let (right_gray, rgb) = rest.split_at_mut(n);
+                let ((lx, ly), (rx, ry)) = self.view_origins();
+                let right_planes = match self.source.spec.arrangement {
+                    Arrangement::TwoFiles => &kept.right,
+                    _ => &kept.left,
+                };
+                planes.view_into(&kept.left, (lx as usize, ly as usize, w, h), left_gray, Some(&mut rgb[..3 * n]));
+                planes.view_into(right_planes, (rx as usize, ry as usize, w, h), right_gray, None);
+            }
+            None => split_into(self.source.spec.arrangement, &kept.left, &kept.right, layout, payload),
+        }
         Ok(())
     }
 }

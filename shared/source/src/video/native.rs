@@ -107,6 +107,28 @@ impl NativeReader {
         self.next = self.index.timestamps_s.partition_point(|&x| x < t - 1e-9);
     }
 
+    /// A Y4M file's planes (what [`NativeReader::read_planes`] gives), `None` for other containers.
+    pub fn planes(&self) -> Option<PlaneLayout> {
+        match self.index.container {
+            Container::Y4m(planes) => Some(planes),
+            Container::MjpegAvi => None,
+        }
+    }
+
+    /// A Y4M file's next frame as it is stored (its planes, [`NativeReader::planes`]) into `planes`, and its
+    /// number as [`NativeReader::read_frame`] gives it; converted later, only as far as it is needed (the
+    /// right view's colour never is). `Ok(None)` at the end of the file.
+    pub fn read_planes(&mut self, planes: &mut Vec<u8>, timestamps_s: &[f64]) -> Result<Option<u64>, VideoError> {
+        let Some(&span) = self.index.frames.get(self.next) else { return Ok(None) };
+        let frame = self.next;
+        self.next += 1;
+        planes.resize(span.bytes as usize, 0);
+        self.file.seek(SeekFrom::Start(span.offset)).map_err(|e| self.pipe(e.to_string()))?;
+        self.file.read_exact(planes).map_err(|e| self.pipe(e.to_string()))?;
+        let t = self.index.timestamps_s[frame];
+        Ok(Some(timestamps_s.partition_point(|&x| x < t - 1e-9) as u64))
+    }
+
     /// Decodes the next frame into `rgb` (the file's `width × height × 3` bytes) and returns its number in
     /// `timestamps_s` (the source's times). A frame that does not decode is passed over, as ffmpeg's decoder
     /// passes over a corrupt one, and the reader reports it lost; `Ok(None)` at the end of the file.
