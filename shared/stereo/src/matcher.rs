@@ -2,8 +2,9 @@
 //! the Bayesian patch confidence, level likelihoods, Gaussian-weighted fusion, speckle removal, the `min_prob`
 //! threshold and the upsampled output. Written from `BDIS-ALGORITHM.md`; section numbers below refer to it.
 //! This file holds the types, the buffers and the driver ([`Matcher::compute_into`]); each stage is a module
-//! beside it: `pyramid` (§2), `search` (§3–§6.1), `fusion` (§6.2–§6.3), `speckle` (§6.4), `upsample` (§7), and
-//! `consistency`, the left–right check that is not in the original (see [`Params::lr_check`]).
+//! beside it: `pyramid` (§2), `search` (§3–§6.1), `fusion` (§6.2–§6.3), `speckle` (§6.4), `upsample` (§7),
+//! `consistency`, the left–right check that is not in the original (see [`Params::lr_check`]), and `halve`, the
+//! pair halved before the levels count on HD (see [`Params::level_offset`]).
 //!
 //! Every buffer belongs to the [`Matcher`] and is reused: after the first pair of a given size, a call allocates
 //! nothing.
@@ -36,6 +37,7 @@
 
 mod consistency;
 mod fusion;
+mod halve;
 mod pyramid;
 mod search;
 mod speckle;
@@ -45,6 +47,7 @@ use wide::f32x4;
 
 use crate::kernels;
 use crate::params::{Algorithm, ParamError, Params};
+use halve::{HalvingRule, halve};
 
 /// An 8-bit grey image, rows of `width` bytes.
 #[derive(Debug, Clone, Copy)]
@@ -185,53 +188,6 @@ pub struct Matcher {
     halved_right: Vec<u8>,
     halved_w: usize,
     halving_sums: Vec<(u32, u32, u32)>,
-}
-
-/// How a halving step combines a block's pixels, 0 being "no data" (as the pyramid's levels, `pyramid.rs`).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum HalvingRule {
-    /// The left image: a block with any invalid pixel is invalid (the template must lie on seen tissue).
-    AllValid,
-    /// The right image: the mean of the block's valid pixels.
-    ValidMean,
-}
-
-/// `image` halved `times` times at once (2^times-pixel blocks, the last ones partial where the size is not a
-/// multiple), rounded to the nearest grey level, into `out`; the image it now holds is returned.
-fn halve<'a>(
-    image: GrayImage<'_>,
-    times: usize,
-    rule: HalvingRule,
-    sums: &mut Vec<(u32, u32, u32)>,
-    out: &'a mut Vec<u8>,
-) -> GrayImage<'a> {
-    let n = 1usize << times;
-    let (w, h) = (image.width, image.height);
-    let (hw, hh) = (w.div_ceil(n), h.div_ceil(n));
-    out.resize(hw * hh, 0);
-    for (by, out_row) in out.chunks_exact_mut(hw).enumerate() {
-        // Per block of this row: sum of valid values, valid count, pixel count.
-        sums.clear();
-        sums.resize(hw, (0, 0, 0));
-        for y in by * n..((by + 1) * n).min(h) {
-            for (sum, block) in sums.iter_mut().zip(image.data[y * w..(y + 1) * w].chunks(n)) {
-                for &v in block {
-                    sum.0 += u32::from(v);
-                    sum.1 += u32::from(v != 0);
-                }
-                sum.2 += block.len() as u32;
-            }
-        }
-        for (o, &(total, valid, pixels)) in out_row.iter_mut().zip(sums.iter()) {
-            let divisor = match rule {
-                HalvingRule::AllValid if valid < pixels => 0,
-                _ => valid,
-            };
-            // A mean of values ≥ 1 rounds to ≥ 1: a valid block never becomes "no data".
-            *o = if divisor == 0 { 0 } else { ((total + divisor / 2) / divisor) as u8 };
-        }
-    }
-    GrayImage { width: hw, height: hh, data: out }
 }
 
 /// Spatial fusion weight σ_s, hard-coded in the original (§6.3).
@@ -458,76 +414,4 @@ impl Matcher {
 }
 
 #[cfg(test)]
-mod tests {
-    use super::*;
-
-    /// A textured pair: the right image is the left shifted by a disparity that varies along the rows, with a
-    /// black border as an endoscope's.
-    fn pair(w: usize, h: usize) -> (Vec<u8>, Vec<u8>) {
-        let texture = |x: f32, y: f32| {
-            let v = 128.0 + 50.0 * (0.21 * x).sin() * (0.17 * y).cos() + 40.0 * (0.05 * x + 0.09 * y).sin();
-            v.clamp(1.0, 255.0) as u8
-        };
-        let mut left = vec![0u8; w * h];
-        let mut right = vec![0u8; w * h];
-        for y in 4..h - 4 {
-            let d = 6.0 + 4.0 * y as f32 / h as f32;
-            for x in 4..w - 4 {
-                left[y * w + x] = texture(x as f32, y as f32);
-                right[y * w + x] = texture(x as f32 + d, y as f32);
-            }
-        }
-        (left, right)
-    }
-
-    #[test]
-    fn halving_keeps_the_pyramids_rules() {
-        // 10 20  0
-        // 40 30 41
-        // 50 60  7      2×2 blocks, the last column and row partial.
-        let data = [10, 20, 0, 40, 30, 41, 50, 60, 7];
-        let image = GrayImage { width: 3, height: 3, data: &data };
-        let (mut sums, mut out) = (Vec::new(), Vec::new());
-        let left = halve(image, 1, HalvingRule::AllValid, &mut sums, &mut out);
-        assert_eq!((left.width, left.height), (2, 2));
-        // (0,0) 10 20 40 30 → 25; (1,0) 0 41 → invalid for the left; (0,1) 50 60 → 55; (1,1) 7.
-        assert_eq!(left.data, &[25, 0, 55, 7]);
-        let right = halve(image, 1, HalvingRule::ValidMean, &mut sums, &mut out);
-        assert_eq!(right.data, &[25, 41, 55, 7], "the right takes the mean of its valid pixels");
-        // Rounded to the nearest: 1 and 2 → 2 (1.5 up).
-        let data = [1, 2, 1, 2];
-        let image = GrayImage { width: 2, height: 2, data: &data };
-        assert_eq!(halve(image, 1, HalvingRule::AllValid, &mut sums, &mut out).data, &[2]);
-    }
-
-    #[test]
-    fn an_offset_matches_the_halved_pair_exactly_and_outputs_input_pixels() {
-        // Level 0 at offset 1 is the halved pair: the finest level's flow is the same number for number as
-        // matching the halved pair at offset 0, and the output is that flow upsampled to the input, ×2 more.
-        let (w, h) = (256, 192);
-        let (left, right) = pair(w, h);
-        let params = Params { level_offset: Some(1), ..Params::colon() };
-        let mut at_offset = Matcher::new(params).unwrap();
-        let full = at_offset
-            .compute(GrayImage { width: w, height: h, data: &left }, GrayImage { width: w, height: h, data: &right })
-            .unwrap();
-        let (mut sums, mut hl, mut hr) = (Vec::new(), Vec::new(), Vec::new());
-        let l = halve(GrayImage { width: w, height: h, data: &left }, 1, HalvingRule::AllValid, &mut sums, &mut hl);
-        let r = halve(GrayImage { width: w, height: h, data: &right }, 1, HalvingRule::ValidMean, &mut sums, &mut hr);
-        let mut halved = Matcher::new(Params { level_offset: Some(0), ..Params::colon() }).unwrap();
-        let small = halved.compute(l, r).unwrap();
-        let finest = Params::colon().lv_l as usize;
-        let (a, b) = (&at_offset.levels[finest].flow, &halved.levels[finest].flow);
-        assert_eq!(a.len(), b.len());
-        assert!(a.iter().zip(b).all(|(x, y)| x.to_bits() == y.to_bits()), "the same flow");
-        assert_eq!((full.width, full.height), (w, h));
-        assert!(full.density() > 0.5, "density {}", full.density());
-        // The true disparity is 6–10 input px; the halved pair's output is in its own pixels.
-        let valid: Vec<f32> = full.disparity.iter().copied().filter(|d| d.is_finite()).collect();
-        let mean = valid.iter().sum::<f32>() / valid.len() as f32;
-        assert!((6.5..9.5).contains(&mean), "mean disparity {mean} input px");
-        let small_valid: Vec<f32> = small.disparity.iter().copied().filter(|d| d.is_finite()).collect();
-        let small_mean = small_valid.iter().sum::<f32>() / small_valid.len() as f32;
-        assert!((mean / small_mean - 2.0).abs() < 0.05, "{mean} against 2 × {small_mean}");
-    }
-}
+mod tests;

@@ -75,7 +75,7 @@ impl PlaneLayout {
     /// multiple of the subsampling), so that [`PlaneLayout::view_into`] can read it.
     pub fn view_aligned(&self, x0: u32, y0: u32) -> bool {
         match self.chroma {
-            Chroma::Sub { x, y } => x0 % x == 0 && y0 % y == 0,
+            Chroma::Sub { x, y } => x0.is_multiple_of(x) && y0.is_multiple_of(y),
             Chroma::Mono => true,
         }
     }
