@@ -391,6 +391,36 @@ mod tests {
     const GOOD: &str = "[run]\nname = \"t\"\n[[service]]\nname = \"acquisition\"\nbinary = \"bdis-acquisition\"\nargs = [\"--x\"]\ncore = 0\n[[service]]\nname = \"probe\"\nbinary = \"bdis-slam\"\nargs = [\"probe\", \"frames\"]\n";
 
     #[test]
+    fn every_shipped_launch_file_parses_or_names_the_core_this_machine_lacks() {
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("launch");
+        let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+        let mut checked = 0;
+        for entry in std::fs::read_dir(&dir).unwrap() {
+            let path = entry.unwrap().path();
+            if path.extension().is_none_or(|e| e != "toml") {
+                continue;
+            }
+            let text = std::fs::read_to_string(&path).unwrap();
+            // The most cores the file asks for, read from its text (the parse refuses a core this machine lacks).
+            let needed = text
+                .lines()
+                .filter_map(|l| l.trim().strip_prefix("core = ").or_else(|| l.trim().strip_prefix("launcher_core = ")))
+                .filter_map(|v| v.trim().parse::<usize>().ok())
+                .max()
+                .map_or(1, |c| c + 1);
+            match LaunchFile::parse(&text, &path) {
+                Ok(f) => assert!(!f.services.is_empty(), "{}", path.display()),
+                Err(e) => {
+                    assert!(needed > cores, "{}: {e}", path.display());
+                    assert!(e.to_string().contains("but this machine has cores"), "{}: {e}", path.display());
+                }
+            }
+            checked += 1;
+        }
+        assert!(checked >= 8, "{checked} launch files");
+    }
+
+    #[test]
     fn parses_and_rejects_with_the_key() {
         let f = LaunchFile::parse(GOOD, Path::new("l.toml")).unwrap();
         assert_eq!(f.services.len(), 2);
