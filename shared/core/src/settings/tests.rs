@@ -86,3 +86,13 @@ fn reads_the_first_detection_level_and_names_a_bad_one() {
     let e = parse(&with("1.5")).unwrap_err().to_string();
     assert!(e.contains("ORBextractor.firstLevel"), "{e}");
 }
+
+#[test]
+fn reads_the_bdis_level_offset_absent_as_automatic() {
+    assert_eq!(parse(HAMLYN6).unwrap().bdis.level_offset, None);
+    let text = HAMLYN6.replace("BDISparam.patchsz: 10\n", "BDISparam.patchsz: 10\nBDISparam.level_offset: 1\n");
+    assert_eq!(parse(&text).unwrap().bdis.level_offset, Some(1));
+    let text = HAMLYN6.replace("BDISparam.patchsz: 10\n", "BDISparam.patchsz: 10\nBDISparam.level_offset: -1\n");
+    let e = parse(&text).unwrap_err().to_string();
+    assert!(e.contains("BDISparam.level_offset"), "{e}");
+}
