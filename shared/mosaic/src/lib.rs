@@ -244,7 +244,8 @@ impl Mosaic {
         // A correction that arrived before the depth is newer than the pose the keyframe was published with.
         let world_from_camera = self.corrections.get(&kf.kf_id).copied().unwrap_or(kf.world_from_camera);
         check_pose(kf.kf_id, &world_from_camera)?;
-        let p = self.params;
+        // Pixel parameters at this keyframe's size (an HD keyframe's grid and margins are wider).
+        let p = self.params.for_size(w, h);
         let gap = p.depth_gap_px.max(1);
 
         // The new view's usable depth, per pixel.

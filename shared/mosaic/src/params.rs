@@ -70,6 +70,28 @@ impl Default for MosaicParams {
 }
 
 impl MosaicParams {
+    /// These parameters for keyframes of `width`×`height`: the ones in pixels (`depth_gap_px`,
+    /// `min_disparity_px`, `disparity_tolerance_px`, `carve_disparity_px`) are in pixels of a 640×480-class image
+    /// and scale by 2^[`bdis_core::scale::reference_halvings`] — as BDIS matches an HD pair halved, a 1080p
+    /// keyframe's depth has the detail of a 960×540 one, and a grid every 5 px of 1920 would lift 4× the points
+    /// that detail supports (9× a VGA keyframe's, for the same tissue).
+    pub fn for_size(&self, width: usize, height: usize) -> Self {
+        let k = bdis_core::scale::reference_halvings(width, height);
+        let factor = (1u32 << k) as f32;
+        Self {
+            depth_gap_px: self.depth_gap_px << k,
+            min_disparity_px: self.min_disparity_px * factor,
+            disparity_tolerance_px: self.disparity_tolerance_px * f64::from(factor),
+            carve_disparity_px: self.carve_disparity_px * factor,
+            ..*self
+        }
+    }
+
+    /// The grid step a keyframe of `width`×`height` is lifted with ([`MosaicParams::for_size`]).
+    pub fn grid_gap(&self, width: u32, height: u32) -> usize {
+        self.for_size(width as usize, height as usize).depth_gap_px.max(1)
+    }
+
     /// The names `--map-param NAME=VALUE` accepts.
     pub const NAMES: [&str; 10] = [
         "depth_gap_px",

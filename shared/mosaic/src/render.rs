@@ -135,7 +135,6 @@ pub fn render_preview(mosaic: &Mosaic, width: u32) -> Option<(RgbImage, PreviewV
     };
 
     // Splat size: the lifted grid's spacing on the surface where each point was seen (gap · z / f).
-    let gap = mosaic.params.depth_gap_px.max(1);
     let (w, h) = (view.width, view.height);
     let mut colour = vec![[0f32; 3]; w * h];
     let mut depth = vec![f32::INFINITY; w * h];
@@ -143,6 +142,7 @@ pub fn render_preview(mosaic: &Mosaic, width: u32) -> Option<(RgbImage, PreviewV
     let (mut grid, mut normals) = (Vec::new(), Vec::new());
     let mut drawn = 0;
     for k in &seen_from {
+        let gap = mosaic.params.grid_gap(k.intrinsics.width, k.intrinsics.height);
         keyframe_normals(k, gap, &mut grid, &mut normals);
         for (pt, n_cam) in k.points.iter().zip(&normals) {
             let p = k.world_from_camera * Point3::from(pt.xyz.map(f64::from));

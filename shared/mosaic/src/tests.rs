@@ -355,3 +355,44 @@ fn a_closer_earlier_view_is_not_overwritten_by_a_distant_one() {
     let r = m.insert(&keyframe(1, Isometry3::translation(0.0, 0.0, -20.0), &far)).unwrap();
     assert_eq!((r.removed, r.kept_closer), (n0, 0));
 }
+
+#[test]
+fn an_hd_keyframe_is_lifted_on_a_grid_as_wide_as_its_depth_is_fine() {
+    // The same wall seen by a 1920×1080 camera of the same field of view as a 640×360 one: BDIS matched the HD
+    // pair halved, so its grid is every 10th pixel and its pixel margins double — the map gets the points a
+    // 960×540 depth supports (2.25× the 640×360 keyframe's, not 9×).
+    let p = MosaicParams::default();
+    let hd = p.for_size(1920, 1080);
+    assert_eq!((hd.depth_gap_px, hd.min_disparity_px, hd.carve_disparity_px), (10, 16.0, 6.0));
+    assert_eq!(hd.disparity_tolerance_px, 2.0);
+    assert_eq!(p.for_size(640, 480), p, "VGA as the parameters say");
+    assert_eq!(p.grid_gap(3840, 2160), 20);
+    let mut m = Mosaic::new(p);
+    let cam = |w: u32, h: u32, f: f64| RectifiedCamera {
+        fx: f,
+        fy: f,
+        cx: f64::from(w) / 2.0 - 0.5,
+        cy: f64::from(h) / 2.0 - 0.5,
+        bf: f * 5.0,
+        width: w,
+        height: h,
+    };
+    let mut added = Vec::new();
+    for (id, (w, h, f)) in [(640u32, 360u32, 520.0), (1920, 1080, 1560.0)].into_iter().enumerate() {
+        let n = (w * h) as usize;
+        let (disparity, confidence, rgb) =
+            (vec![(f * 5.0 / 50.0) as f32; n], vec![0.8f32; n], [200u8, 100, 50].repeat(n));
+        let pose = Isometry3::translation(1000.0 * id as f64, 0.0, 0.0);
+        let kf = DepthKeyframe {
+            kf_id: id as u64,
+            t_capture_ns: 0,
+            world_from_camera: pose,
+            intrinsics: cam(w, h, f),
+            disparity: &disparity,
+            confidence: &confidence,
+            rgb: &rgb,
+        };
+        added.push(m.insert(&kf).unwrap().added);
+    }
+    assert_eq!(added, vec![128 * 72, 192 * 108]);
+}

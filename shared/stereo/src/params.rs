@@ -56,17 +56,14 @@ pub struct Params {
     pub level_offset: Option<u32>,
 }
 
-/// The image size the published BDIS parameters are in the pixels of (BDIS-SLAM's settings files are for
-/// 640×480-class footage, as the Hamlyn sets here): [`auto_level_offset`] halves a larger pair until it is
-/// closest to it.
-pub const PARAMS_REFERENCE_PIXELS: f64 = 640.0 * 480.0;
+/// The image size the published BDIS parameters are in the pixels of (`bdis_core::scale`).
+pub const PARAMS_REFERENCE_PIXELS: f64 = bdis_core::scale::REFERENCE_PIXELS;
 
 /// The level offset for a `width`×`height` pair when none is set: the number of halvings that brings its
-/// side to the nearest power of two of [`PARAMS_REFERENCE_PIXELS`]'s side (640×480 and smaller: 0; 1280×720
-/// and 1920×1080: 1; 3840×2160: 2).
+/// side closest to [`PARAMS_REFERENCE_PIXELS`]'s (640×480 and smaller: 0; 1280×720 and 1920×1080: 1;
+/// 3840×2160: 2), as every pixel parameter of the pipeline scales (`bdis_core::scale::reference_halvings`).
 pub fn auto_level_offset(width: usize, height: usize) -> u32 {
-    let ratio = (width as f64 * height as f64 / PARAMS_REFERENCE_PIXELS).sqrt();
-    if ratio.is_finite() && ratio > 1.0 { ratio.log2().round().min(8.0) as u32 } else { 0 }
+    bdis_core::scale::reference_halvings(width, height)
 }
 
 impl Default for Params {

@@ -35,10 +35,9 @@ pub fn encode_map(mosaic: &Mosaic, out: &mut Vec<u8>) {
     let shown: Vec<&KeyframeCloud> = mosaic.keyframes().filter(|k| !k.points.is_empty()).collect();
     put_u32(out, shown.len() as u32);
     put_u32(out, 0);
-    let gap = mosaic.params.depth_gap_px.max(1);
     let mut scratch = BlockScratch::default();
     for k in shown {
-        encode_block(k, gap, &mut scratch, out);
+        encode_block(k, mosaic.params.grid_gap(k.intrinsics.width, k.intrinsics.height), &mut scratch, out);
     }
 }
 

@@ -41,8 +41,8 @@ pub struct LiveMap {
     shown: BTreeMap<u64, KeyframeCloud>,
     path: Vec<PathPose>,
     scratch: BlockScratch,
-    /// The map's grid step (`MosaicParams::depth_gap_px`).
-    gap: usize,
+    /// The map's parameters (each keyframe's grid step: `MosaicParams::grid_gap`).
+    params: bdis_mosaic::MosaicParams,
     /// Bumped by every message that changes the map on the page.
     pub map_messages: u64,
 }
@@ -78,15 +78,16 @@ impl LiveMap {
 
     /// The messages that bring the page from what it holds to `map`.
     pub fn sync(&mut self, map: &Mosaic, out: &mut Vec<Update>) {
-        let gap = map.params.depth_gap_px;
-        self.gap = gap;
+        self.params = map.params;
+        let params = map.params;
+        let gap = |k: &bdis_mosaic::KeyframeCloud| params.grid_gap(k.intrinsics.width, k.intrinsics.height);
         let before = out.len();
         for k in map.keyframes() {
             match self.shown.get_mut(&k.kf_id) {
                 None if k.points.is_empty() => {}
                 None => {
                     let mut message = TAG_BLOCK.to_vec();
-                    encode_block(k, gap, &mut self.scratch, &mut message);
+                    encode_block(k, gap(k), &mut self.scratch, &mut message);
                     out.push(Update::Binary(message));
                     self.shown.insert(k.kf_id, k.clone());
                 }
@@ -111,7 +112,7 @@ impl LiveMap {
                         if j != k.points.len() {
                             // Not a subset (cannot happen with the mosaic's rule): the block is sent again whole.
                             let mut message = TAG_BLOCK.to_vec();
-                            encode_block(k, gap, &mut self.scratch, &mut message);
+                            encode_block(k, gap(k), &mut self.scratch, &mut message);
                             out.push(Update::Binary(message));
                             *shown = k.clone();
                             continue;
@@ -145,7 +146,12 @@ impl LiveMap {
         let mut out = Vec::with_capacity(self.shown.len() + 1);
         for cloud in self.shown.values() {
             let mut message = TAG_BLOCK.to_vec();
-            encode_block(cloud, self.gap, &mut self.scratch, &mut message);
+            encode_block(
+                cloud,
+                self.params.grid_gap(cloud.intrinsics.width, cloud.intrinsics.height),
+                &mut self.scratch,
+                &mut message,
+            );
             out.push(Update::Binary(message));
         }
         let path = std::mem::take(&mut self.path);
