@@ -27,7 +27,7 @@ pub struct OrbParams {
     /// The pyramid level features are first detected on (`ORBextractor.firstLevel`): the `n_levels` detection
     /// levels are `first_level ..first_level + n_levels`, and the levels finer than the first are built (as the
     /// pyramid's source, and for whoever measures on them) but not searched. `None` = [`auto_first_level`]:
-    /// detection on at most [`AUTO_DETECTION_PIXELS`], so that HD costs about what VGA costs.
+    /// detection on the level nearest VGA's pixels, so that HD costs about what VGA costs.
     pub first_level: Option<u32>,
 }
 
@@ -37,25 +37,23 @@ impl Default for OrbParams {
     }
 }
 
-/// The most pixels the finest detection level has when `first_level` is left to [`auto_first_level`]. Why a
-/// pixel count: what ORB extraction costs grows with the pixels it searches (FAST, the blur for descriptors, the
-/// quadtree's candidates), while what the tracker needs from the features — ~1000 well spread, repeatable
-/// corners — does not grow with the sensor. 0.5 Mpx is a VGA frame and a half (640×480 = 0.31 Mpx, 960×540 =
-/// 0.52 Mpx), where the tracker's whole frame took ~10 ms on one core of the reference machine: a 1280×720
-/// frame detects from level 2 (889×500), a 1920×1080 one from level 4 (926×521), anything up to 0.5 Mpx from
-/// level 0 as ORB-SLAM2 does. The images are never resized: finer levels stay in the pyramid for measuring.
-pub const AUTO_DETECTION_PIXELS: f64 = 500_000.0;
-
-/// The first detection level for a `width`×`height` image when none is set: the finest pyramid level with at
-/// most [`AUTO_DETECTION_PIXELS`] pixels (levels shrink by `scale_factor` per side).
+/// The first detection level for a `width`×`height` image when none is set: the pyramid level whose pixel count
+/// is nearest (in ratio) the 640×480 that ORB-SLAM2's extractor settings were made for
+/// (`bdis_core::scale::REFERENCE_PIXELS`; the same reference BDIS and the map scale their pixels by). Why: what
+/// extraction costs grows with the pixels it searches (FAST, the blur for descriptors, the quadtree's
+/// candidates), while what the tracker needs from it — ~1000 well-spread, repeatable corners, found with
+/// thresholds and a budget set for VGA — does not grow with the sensor. So 1280×720 detects from level 3
+/// (741×417), 1920×1080 from level 5 (772×434), 640×480 and smaller from level 0 as ORB-SLAM2 does. The images
+/// are not resized: the finer levels stay in the pyramid, and the octaves keep their meaning.
 pub fn auto_first_level(width: usize, height: usize, scale_factor: f64) -> u32 {
-    let mut level = 0;
-    let mut pixels = width as f64 * height as f64;
-    while pixels > AUTO_DETECTION_PIXELS && level < 16 {
-        pixels /= scale_factor * scale_factor;
-        level += 1;
+    let reference = bdis_core::scale::REFERENCE_PIXELS;
+    let step = (scale_factor * scale_factor).ln();
+    let ratio = width as f64 * height as f64 / reference;
+    if !(ratio.is_finite() && ratio > 1.0 && step.is_finite() && step > 0.0) {
+        return 0;
     }
-    level
+    // Level l has ratio / s^2l of the reference's pixels: nearest in log ratio.
+    (ratio.ln() / step).round().min(16.0) as u32
 }
 
 impl OrbParams {

@@ -141,14 +141,16 @@ pub(super) fn a_keep_out_mask_moves_the_features_off_it_and_keeps_the_budget() {
 }
 
 #[test]
-fn hd_detects_from_a_level_of_about_vga_pixels_and_vga_from_level_0() {
+fn hd_detects_from_the_level_nearest_vga_and_vga_from_level_0() {
     assert_eq!(auto_first_level(640, 480, 1.2), 0);
     assert_eq!(auto_first_level(320, 240, 1.2), 0);
-    assert_eq!(auto_first_level(1280, 720, 1.2), 2);
-    assert_eq!(auto_first_level(1920, 1080, 1.2), 4);
-    assert_eq!(auto_first_level(3840, 2160, 1.2), 8);
-    // Another scale factor: the same pixel budget.
-    assert_eq!(auto_first_level(1920, 1080, 2.0), 2);
+    assert_eq!(auto_first_level(720, 288, 1.2), 0);
+    assert_eq!(auto_first_level(1280, 720, 1.2), 3);
+    assert_eq!(auto_first_level(1280, 1024, 1.2), 4);
+    assert_eq!(auto_first_level(1920, 1080, 1.2), 5);
+    assert_eq!(auto_first_level(3840, 2160, 1.2), 9);
+    // Another scale factor: the level nearest the same pixel count (1920×1080 / 4 = 1.69× VGA, / 16 = 0.42×).
+    assert_eq!(auto_first_level(1920, 1080, 2.0), 1);
 }
 
 #[test]
