@@ -59,11 +59,14 @@ fn bench(c: &mut Criterion) {
     group.sample_size(10);
     // The default halves an HD pair once before the published levels count (`Params::level_offset`); the
     // unhalved matcher beside it for the ratio.
-    let unhalved = Params { level_offset: Some(0), ..Params::colon() };
+    let unhalved = |p: Params| Params { level_offset: Some(0), ..p };
     for (label, params) in [
         ("bdis-colon-params", Params::colon().as_published()),
         ("bdis-colon-params-lr-checked", Params::colon()),
-        ("bdis-colon-params-lr-checked-unhalved", unhalved),
+        ("bdis-colon-params-lr-checked-unhalved", unhalved(Params::colon())),
+        // What the stereo service runs with a settings file's defaults (BDIS-SLAM's: patch 10, stride 3).
+        ("bdis-slam-params-lr-checked", Params::default()),
+        ("bdis-slam-params-lr-checked-unhalved", unhalved(Params::default())),
     ] {
         let mut matcher = Matcher::new(params).expect("valid parameters");
         let mut out = DisparityMap::default();
