@@ -1,6 +1,7 @@
 #![allow(clippy::unwrap_used, clippy::expect_used)] // test code: a panic is the failure report
 //! Matches one pair `repeats` times: the target of the callgrind instruction counts in BENCHMARKS.md.
-//! Usage: one_pair <slam|colon|slam-dis|colon-dis|colon-lr|colon-dis-lr> LEFT RIGHT [repeats]
+//! Usage: one_pair <slam|colon|slam-dis|colon-dis|colon-lr|colon-dis-lr|slam-lr>[-unhalved] LEFT RIGHT [repeats]
+//! (`-unhalved`: an HD pair matched without halving it first, `Params::level_offset` 0.)
 use bdis_stereo::{Algorithm, DisparityMap, GrayImage, Matcher, Params};
 
 fn main() {
@@ -9,7 +10,11 @@ fn main() {
         eprintln!("usage: one_pair <slam|colon|slam-dis|colon-dis|colon-lr|colon-dis-lr> LEFT RIGHT [repeats]");
         std::process::exit(2);
     }
-    let params = match args[1].as_str() {
+    let (preset, unhalved) = match args[1].strip_suffix("-unhalved") {
+        Some(p) => (p, true),
+        None => (args[1].as_str(), false),
+    };
+    let params = match preset {
         // As published (no left–right check: the C++ comparison); `-lr`: with the check, as the service runs.
         "slam" => Params::default().as_published(),
         "colon" => Params::colon().as_published(),
@@ -17,8 +22,10 @@ fn main() {
         "colon-dis" => Params { algorithm: Algorithm::Dis, ..Params::colon() }.as_published(),
         "colon-lr" => Params::colon(),
         "colon-dis-lr" => Params { algorithm: Algorithm::Dis, ..Params::colon() },
+        "slam-lr" => Params::default(),
         other => panic!("unknown preset {other}"),
     };
+    let params = if unhalved { Params { level_offset: Some(0), ..params } } else { params };
     let l = image::open(&args[2]).unwrap().to_luma8();
     let r = image::open(&args[3]).unwrap().to_luma8();
     let repeats: usize = args.get(4).map_or(1, |s| s.parse().unwrap());
