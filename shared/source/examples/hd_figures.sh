@@ -3,7 +3,8 @@
 # 1920×1080 with one field of view (f = 520 · width / 640), each made a top-bottom Y4M (raw frames, as a console
 # feeds them) and run through the processes with launch/hd-2cores.toml at `on-demand:30hz`; prints each size's
 # latency rows, tracking CPU, ATE relative to the path and map error. Renders and Y4Ms already in OUT are reused
-# (a 300-frame 1080p colon takes ~50 min on 2 cores). Usage: hd_figures.sh OUT [FRAMES] [SCENE] [SIZES…]
+# (a 300-frame 1080p colon takes ~50 min on 2 cores). Usage: hd_figures.sh OUT [FRAMES] [SCENE] [SIZES…];
+# SYNTH_ARGS adds to the render's arguments (the abdomen figures: SYNTH_ARGS='--trajectory sweep').
 set -euo pipefail
 out=${1:?usage: hd_figures.sh OUT [FRAMES] [SCENE] [SIZES…]}
 frames=${2:-300}; scene=${3:-colon}
@@ -18,7 +19,7 @@ for size in "${sizes[@]}"; do
   focal=$(python3 -c "print(520 * $width / 640)")
   seq="$out/$scene-$size"
   [ -f "$seq/gt/poses.tum" ] || "$bin" synth --scene "$scene" --frames "$frames" --width "$width" --height "$height" \
-    --focal "$focal" --out "$seq"
+    --focal "$focal" ${SYNTH_ARGS:-} --out "$seq"
   [ -f "$seq.y4m" ] || ffmpeg -loglevel error -y -framerate 30 -i "$seq/left/%d.png" -framerate 30 -i "$seq/right/%d.png" \
     -filter_complex vstack -pix_fmt yuv420p "$seq.y4m"
   run="$out/run-$scene-$size"
