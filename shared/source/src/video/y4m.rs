@@ -355,4 +355,52 @@ mod tests {
         layout.convert_into_rgb(&[81, 81, 81, 81, 90, 240], &mut rgb);
         assert!(rgb[0] >= 253 && rgb[1] <= 2 && rgb[2] <= 2, "{rgb:?}");
     }
+
+    #[test]
+    fn a_view_read_from_the_planes_is_that_part_of_the_whole_frame_converted() {
+        // Side by side and top-bottom, 4:2:0, 4:2:2 and mono, both ranges: a view's colour straight from the
+        // planes equals the same pixels of the whole frame converted to RGB, and its grey is the luma expanded.
+        let (w, h) = (12usize, 6usize);
+        let mut seed = 7u32;
+        let mut next = || {
+            seed = seed.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+            (seed >> 24) as u8
+        };
+        for chroma in [Chroma::Sub { x: 2, y: 2 }, Chroma::Sub { x: 2, y: 1 }, Chroma::Mono] {
+            for full_range in [false, true] {
+                for (fw, fh, right_at) in [(2 * w, h, (w, 0)), (w, 2 * h, (0, h))] {
+                    let layout = PlaneLayout { width: fw as u32, height: fh as u32, chroma, full_range };
+                    let planes: Vec<u8> = (0..layout.frame_bytes()).map(|_| next()).collect();
+                    let mut whole = vec![0u8; 3 * fw * fh];
+                    layout.convert_into_rgb(&planes, &mut whole);
+                    for (x0, y0) in [(0, 0), right_at] {
+                        assert!(layout.view_aligned(x0 as u32, y0 as u32));
+                        let mut gray = vec![std::mem::MaybeUninit::new(0u8); w * h];
+                        let mut rgb = vec![std::mem::MaybeUninit::new(0u8); 3 * w * h];
+                        layout.view_into(&planes, (x0, y0, w, h), &mut gray, Some(&mut rgb));
+                        for y in 0..h {
+                            for x in 0..w {
+                                let (i, j) = (y * w + x, (y0 + y) * fw + x0 + x);
+                                // SAFETY: every byte was initialised above.
+                                let got: Vec<u8> =
+                                    rgb[3 * i..3 * i + 3].iter().map(|b| unsafe { b.assume_init() }).collect();
+                                assert_eq!(
+                                    got,
+                                    whole[3 * j..3 * j + 3],
+                                    "{chroma:?} {full_range} view ({x0}, {y0}) px ({x}, {y})"
+                                );
+                                let luma = i32::from(planes[j]);
+                                let want =
+                                    if full_range { luma } else { ((298 * (luma - 16) + 128) >> 8).clamp(0, 255) };
+                                assert_eq!(i32::from(unsafe { gray[i].assume_init() }), want);
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        // A view starting between chroma samples cannot be read from the planes.
+        let layout = PlaneLayout { width: 8, height: 8, chroma: Chroma::Sub { x: 2, y: 2 }, full_range: false };
+        assert!(!layout.view_aligned(3, 0) && !layout.view_aligned(0, 5));
+    }
 }
