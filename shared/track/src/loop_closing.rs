@@ -207,12 +207,15 @@ struct LoopWorker {
 }
 
 impl LoopWorker {
-    fn spawn(mut detector: LoopDetector) -> Option<Self> {
+    fn spawn(mut detector: LoopDetector, on_start: Option<crate::mapper::WorkerStart>) -> Option<Self> {
         let (job_tx, job_rx) = std::sync::mpsc::channel::<LoopJob>();
         let (result_tx, result_rx) = std::sync::mpsc::channel::<LoopOutcome>();
         let thread = std::thread::Builder::new()
             .name("loop-closing".into())
             .spawn(move || {
+                if let Some(start) = on_start {
+                    start();
+                }
                 for job in job_rx {
                     if result_tx.send(detector.run(job)).is_err() {
                         break;
@@ -255,6 +258,7 @@ pub struct LoopCloser {
     graph_pending: bool,
     /// Loops closed so far: (query keyframe, candidate).
     pub loops: Vec<(KfId, KfId)>,
+    worker_start: Option<crate::mapper::WorkerStart>,
 }
 
 impl LoopCloser {
@@ -268,7 +272,13 @@ impl LoopCloser {
             last_loop_kf: None,
             graph_pending: false,
             loops: Vec::new(),
+            worker_start: None,
         }
+    }
+
+    /// What the worker thread runs first (`mapper::WorkerStart`); set before the first keyframe.
+    pub fn set_worker_start(&mut self, start: Option<crate::mapper::WorkerStart>) {
+        self.worker_start = start;
     }
 
     fn submit(&mut self, job: LoopJob, cam: &RectifiedCamera, scales: &Scales) {
@@ -277,7 +287,7 @@ impl LoopCloser {
             self.runner = if self.inline {
                 Some(Runner::Inline(Box::new(detector)))
             } else {
-                LoopWorker::spawn(detector).map(Runner::Worker)
+                LoopWorker::spawn(detector, self.worker_start).map(Runner::Worker)
             };
         }
         match &mut self.runner {

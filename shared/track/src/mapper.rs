@@ -65,13 +65,21 @@ struct BaWorker {
     in_flight: bool,
 }
 
+/// Called first on every worker thread the tracker starts (local bundle adjustment, loop closing): where the
+/// process that owns the tracker sets how its background work is scheduled (the tracking service lowers its
+/// priority below the frame-rate work). The library itself leaves threads as they are.
+pub type WorkerStart = fn();
+
 impl BaWorker {
-    fn spawn() -> Option<Self> {
+    fn spawn(on_start: Option<WorkerStart>) -> Option<Self> {
         let (job_tx, job_rx) = std::sync::mpsc::channel::<BaJob>();
         let (result_tx, result_rx) = std::sync::mpsc::channel::<BaJob>();
         let thread = std::thread::Builder::new()
             .name("local-ba".into())
             .spawn(move || {
+                if let Some(start) = on_start {
+                    start();
+                }
                 // Ends when the sender side is dropped.
                 for job in job_rx {
                     if result_tx.send(solve_local_ba(job)).is_err() {
@@ -100,6 +108,7 @@ pub struct LocalMapper {
     recent: Vec<PointId>,
     /// Loop closing (§8), in the same mode as bundle adjustment; `None` when switched off.
     loops: Option<LoopCloser>,
+    worker_start: Option<WorkerStart>,
 }
 
 impl Default for LocalMapper {
@@ -110,12 +119,33 @@ impl Default for LocalMapper {
 
 impl LocalMapper {
     pub fn new(mode: BaMode) -> Self {
-        Self { mode, worker: None, recent: Vec::new(), loops: Some(LoopCloser::new(mode == BaMode::Inline)) }
+        Self {
+            mode,
+            worker: None,
+            recent: Vec::new(),
+            loops: Some(LoopCloser::new(mode == BaMode::Inline)),
+            worker_start: None,
+        }
     }
 
     /// Switches loop closing on (the default) or off; set before the first keyframe.
     pub fn set_loop_closing(&mut self, on: bool) {
         self.loops = on.then(|| LoopCloser::new(self.mode == BaMode::Inline));
+        if let Some(l) = self.loops.as_mut() {
+            l.set_worker_start(self.worker_start);
+        }
+    }
+
+    /// What every worker thread runs first ([`WorkerStart`]); set before the first keyframe.
+    pub fn set_worker_start(&mut self, start: Option<WorkerStart>) {
+        self.worker_start = start;
+        if let Some(l) = self.loops.as_mut() {
+            l.set_worker_start(start);
+        }
+    }
+
+    pub fn worker_start(&self) -> Option<WorkerStart> {
+        self.worker_start
     }
 
     /// Whether loop closing is on (the one place this is kept).
@@ -176,7 +206,7 @@ impl LocalMapper {
     fn submit_ba(&mut self, job: BaJob, map: &mut Map, scales: &Scales, report: &mut MapperReport) {
         if self.mode == BaMode::Worker {
             if self.worker.is_none() {
-                self.worker = BaWorker::spawn();
+                self.worker = BaWorker::spawn(self.worker_start);
             }
             if let Some(w) = self.worker.as_mut()
                 && let Some(tx) = &w.jobs

@@ -145,9 +145,17 @@ impl Tracker {
     /// or inline in the caller's thread (applied at once: a single-core target, or measuring its cost per
     /// keyframe). Set before the first frame.
     pub fn set_ba_mode(&mut self, mode: crate::mapper::BaMode) {
-        let loop_closing = self.mapper.loop_closing();
+        let (loop_closing, start) = (self.mapper.loop_closing(), self.mapper.worker_start());
         self.mapper = LocalMapper::new(mode);
+        self.mapper.set_worker_start(start);
         self.mapper.set_loop_closing(loop_closing);
+    }
+
+    /// What every background thread of the tracker (local bundle adjustment, loop closing) runs first: the
+    /// owning process's say in how they are scheduled ([`crate::mapper::WorkerStart`]). Set before the first
+    /// keyframe.
+    pub fn set_worker_start(&mut self, start: crate::mapper::WorkerStart) {
+        self.mapper.set_worker_start(Some(start));
     }
 
     /// Whether matched keypoints are moved to sub-pixel positions by patch alignment before local-map pose
