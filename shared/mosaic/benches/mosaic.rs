@@ -1,6 +1,6 @@
 //! The mosaic update per keyframe at 640×480 (depth_gap 5: ~12 k points per keyframe), into maps of 10 and 100
-//! keyframes' worth of points; and at 1920×1080 (issue #19; the same field of view across, so ~9× the points
-//! at the same depth_gap in pixels) into a map of 10. The camera slides along a textured wall 50 mm away, 5 mm per keyframe, so each new
+//! keyframes' worth of points; and at 1920×1080 (issue #19; the same field of view across: the grid step and
+//! margins double there, `MosaicParams::for_size`, so ~2.25× the points — 9× before they did) into a map of 10. The camera slides along a textured wall 50 mm away, 5 mm per keyframe, so each new
 //! view overlaps the last dozen keyframes, as in a colonoscopy sweep. The update should not grow with the map
 //! (only overlapping keyframes are visited); beside it, the original's rule (every point of the map transformed
 //! and projected for every keyframe) for contrast.
