@@ -13,6 +13,7 @@ pub mod optim;
 pub mod refine;
 pub mod search;
 pub mod tracker;
+pub mod workers;
 
 pub use geometry::{CameraFromWorld, RectifiedCamera};
 pub use tracker::{

@@ -207,7 +207,7 @@ struct LoopWorker {
 }
 
 impl LoopWorker {
-    fn spawn(mut detector: LoopDetector, on_start: Option<crate::mapper::WorkerStart>) -> Option<Self> {
+    fn spawn(mut detector: LoopDetector, on_start: Option<crate::workers::WorkerStart>) -> Option<Self> {
         let (job_tx, job_rx) = std::sync::mpsc::channel::<LoopJob>();
         let (result_tx, result_rx) = std::sync::mpsc::channel::<LoopOutcome>();
         let thread = std::thread::Builder::new()
@@ -258,7 +258,7 @@ pub struct LoopCloser {
     graph_pending: bool,
     /// Loops closed so far: (query keyframe, candidate).
     pub loops: Vec<(KfId, KfId)>,
-    worker_start: Option<crate::mapper::WorkerStart>,
+    worker_start: Option<crate::workers::WorkerStart>,
 }
 
 impl LoopCloser {
@@ -276,8 +276,8 @@ impl LoopCloser {
         }
     }
 
-    /// What the worker thread runs first (`mapper::WorkerStart`); set before the first keyframe.
-    pub fn set_worker_start(&mut self, start: Option<crate::mapper::WorkerStart>) {
+    /// What the worker thread runs first (`workers::WorkerStart`); set before the first keyframe.
+    pub fn set_worker_start(&mut self, start: Option<crate::workers::WorkerStart>) {
         self.worker_start = start;
     }
 

@@ -13,6 +13,7 @@ use crate::map::{KfId, Map, PointId};
 use crate::optim::{BaEdge, BaProblem, CHI2_MONO, CHI2_STEREO, Observation};
 use crate::search::TH_LOW;
 use crate::search::fuse_point;
+use crate::workers::WorkerStart;
 use bdis_orb::hamming;
 use nalgebra::{Matrix3, Matrix4, Point3, Vector3};
 use std::collections::{BTreeMap, BTreeSet};
@@ -64,11 +65,6 @@ struct BaWorker {
     thread: Option<std::thread::JoinHandle<()>>,
     in_flight: bool,
 }
-
-/// Called first on every worker thread the tracker starts (local bundle adjustment, loop closing): where the
-/// process that owns the tracker sets how its background work is scheduled (the tracking service lowers its
-/// priority below the frame-rate work). The library itself leaves threads as they are.
-pub type WorkerStart = fn();
 
 impl BaWorker {
     fn spawn(on_start: Option<WorkerStart>) -> Option<Self> {

@@ -152,9 +152,9 @@ impl Tracker {
     }
 
     /// What every background thread of the tracker (local bundle adjustment, loop closing) runs first: the
-    /// owning process's say in how they are scheduled ([`crate::mapper::WorkerStart`]). Set before the first
+    /// owning process's say in how they are scheduled ([`crate::workers::WorkerStart`]). Set before the first
     /// keyframe.
-    pub fn set_worker_start(&mut self, start: crate::mapper::WorkerStart) {
+    pub fn set_worker_start(&mut self, start: crate::workers::WorkerStart) {
         self.mapper.set_worker_start(Some(start));
     }
 
