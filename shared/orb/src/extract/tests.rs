@@ -65,6 +65,33 @@ pub(super) fn the_avx2_copies_give_the_portable_results_bit_for_bit() {
 }
 
 #[test]
+fn every_pyramid_step_of_the_avx2_gather_equals_the_portable_one() {
+    // Sizes whose rows end at every place in the 5-output period and in the 8-output vector step, scattered
+    // black (a tap on black gives black, else never 0), and every level's step down to the coarsest.
+    for (w, h, n_levels) in [(640, 480, 8), (1280, 720, 8), (1921, 1081, 8), (333, 201, 4), (203, 97, 3)] {
+        let mut src = test_level(w, h);
+        for (i, v) in src.data.iter_mut().enumerate() {
+            if (i as u32).wrapping_mul(2_246_822_519) >> 27 == 0 {
+                *v = 0;
+            }
+        }
+        let params = OrbParams { first_level: Some(0), n_levels, ..OrbParams::default() };
+        let ex = OrbExtractor::new(params, w, h).unwrap();
+        let mut row = vec![0u16; w + 1];
+        let mut level = src;
+        for taps in &ex.taps[1..] {
+            let (dw, dh) = (taps.x.len(), taps.y.len());
+            let (mut a, mut b) =
+                (Level { w: dw, h: dh, data: vec![0; dw * dh] }, Level { w: dw, h: dh, data: vec![1; dw * dh] });
+            resize_level(&level, &mut a, taps, &mut row);
+            resize_level_portable(&level, &mut b, taps, &mut row);
+            assert_eq!(a.data, b.data, "{w}×{h} → {dw}×{dh}");
+            level = a;
+        }
+    }
+}
+
+#[test]
 pub(super) fn the_candidate_masks_keep_every_corner() {
     let src = test_level(640, 480);
     let ring: [isize; 16] = CIRCLE.map(|(dx, dy)| dy as isize * 640 + dx as isize);
