@@ -42,35 +42,13 @@ impl PlaneLayout {
     /// Converts one frame's planes to packed RGB (`width × height × 3` bytes in `rgb`). BT.601, as ffmpeg
     /// assumes for an untagged Y4M; each chroma sample is used for the pixels it covers.
     pub fn convert_into_rgb(&self, planes: &[u8], rgb: &mut [u8]) {
-        let tables = if self.full_range { YuvTables::full() } else { YuvTables::studio() };
+        let tables = self.tables();
         let (w, h) = (self.width as usize, self.height as usize);
-        let (cw, ch) = self.chroma_size();
-        let (luma, chroma) = planes.split_at(w * h);
-        let (u_plane, v_plane) = chroma.split_at(cw * ch);
-        for (y, (luma_row, out)) in luma.chunks_exact(w).zip(rgb.chunks_exact_mut(3 * w)).take(h).enumerate() {
-            match self.chroma {
-                Chroma::Mono => {
-                    for (o, &l) in out.chunks_exact_mut(3).zip(luma_row) {
-                        o.copy_from_slice(&tables.rgb(l, 128, 128));
-                    }
-                }
-                Chroma::Sub { x: sx, y: sy } => {
-                    let (sx, c0) = (sx as usize, (y / sy as usize) * cw);
-                    let chroma_row = u_plane[c0..c0 + cw].iter().zip(&v_plane[c0..c0 + cw]);
-                    // Each chroma sample's three terms once, then the (up to) `sx` pixels it covers.
-                    for ((pixels, out), (&u, &v)) in luma_row.chunks(sx).zip(out.chunks_mut(3 * sx)).zip(chroma_row) {
-                        let terms = tables.chroma_terms(u, v);
-                        for (o, &l) in out.chunks_exact_mut(3).zip(pixels) {
-                            o.copy_from_slice(&tables.rgb_with(l, terms));
-                        }
-                    }
-                }
-            }
+        for (y, out) in rgb.chunks_exact_mut(3 * w).take(h).enumerate() {
+            self.rgb_row(&tables, planes, (0, y, w), |i, c| out[3 * i..3 * i + 3].copy_from_slice(&c));
         }
     }
-}
 
-impl PlaneLayout {
     /// Whether a view starting at (`x0`, `y0`) of the frame has its own chroma samples (the offset is a
     /// multiple of the subsampling), so that [`PlaneLayout::view_into`] can read it.
     pub fn view_aligned(&self, x0: u32, y0: u32) -> bool {
@@ -91,40 +69,59 @@ impl PlaneLayout {
         gray: &mut [std::mem::MaybeUninit<u8>],
         mut rgb: Option<&mut [std::mem::MaybeUninit<u8>]>,
     ) {
-        let tables = if self.full_range { YuvTables::full() } else { YuvTables::studio() };
+        let tables = self.tables();
         let grey_of_luma: [u8; 256] = std::array::from_fn(|y| tables.rgb(y as u8, 128, 128)[1]);
         let frame_w = self.width as usize;
-        let (cw, ch) = self.chroma_size();
-        let (luma, chroma) = planes.split_at(frame_w * self.height as usize);
-        let (u_plane, v_plane) = chroma.split_at(cw * ch);
         for row in 0..h {
             let y = y0 + row;
-            let luma_row = &luma[y * frame_w + x0..y * frame_w + x0 + w];
+            let luma_row = &planes[y * frame_w + x0..y * frame_w + x0 + w];
             for (g, &l) in gray[row * w..(row + 1) * w].iter_mut().zip(luma_row) {
                 g.write(grey_of_luma[usize::from(l)]);
             }
             let Some(rgb) = rgb.as_deref_mut() else { continue };
             let out = &mut rgb[3 * row * w..3 * (row + 1) * w];
-            match self.chroma {
-                Chroma::Mono => {
-                    for (o, &l) in out.chunks_exact_mut(3).zip(luma_row) {
-                        for (o, c) in o.iter_mut().zip(tables.rgb(l, 128, 128)) {
-                            o.write(c);
-                        }
-                    }
+            self.rgb_row(&tables, planes, (x0, y, w), |i, c| {
+                for (o, c) in out[3 * i..3 * i + 3].iter_mut().zip(c) {
+                    o.write(c);
                 }
-                Chroma::Sub { x: sx, y: sy } => {
-                    let sx = sx as usize;
-                    let c0 = (y / sy as usize) * cw + x0 / sx;
-                    let n = w.div_ceil(sx);
-                    let chroma_row = u_plane[c0..c0 + n].iter().zip(&v_plane[c0..c0 + n]);
-                    for ((pixels, out), (&u, &v)) in luma_row.chunks(sx).zip(out.chunks_mut(3 * sx)).zip(chroma_row) {
-                        let terms = tables.chroma_terms(u, v);
-                        for (o, &l) in out.chunks_exact_mut(3).zip(pixels) {
-                            for (o, c) in o.iter_mut().zip(tables.rgb_with(l, terms)) {
-                                o.write(c);
-                            }
-                        }
+            });
+        }
+    }
+
+    fn tables(&self) -> YuvTables {
+        if self.full_range { YuvTables::full() } else { YuvTables::studio() }
+    }
+
+    /// The RGB of the `w` pixels from (`x0`, `y`) of one frame's `planes`, pixel by pixel into `put(i, rgb)`:
+    /// each chroma sample's terms once, then the (up to) subsampling's pixels it covers. `x0` is a multiple of
+    /// the horizontal subsampling.
+    #[inline(always)]
+    fn rgb_row(
+        &self,
+        tables: &YuvTables,
+        planes: &[u8],
+        (x0, y, w): (usize, usize, usize),
+        mut put: impl FnMut(usize, [u8; 3]),
+    ) {
+        let frame_w = self.width as usize;
+        let (luma, chroma) = planes.split_at(frame_w * self.height as usize);
+        let luma_row = &luma[y * frame_w + x0..y * frame_w + x0 + w];
+        match self.chroma {
+            Chroma::Mono => {
+                for (i, &l) in luma_row.iter().enumerate() {
+                    put(i, tables.rgb(l, 128, 128));
+                }
+            }
+            Chroma::Sub { x: sx, y: sy } => {
+                let (cw, ch) = self.chroma_size();
+                let (u_plane, v_plane) = chroma.split_at(cw * ch);
+                let sx = sx as usize;
+                let (c0, n) = ((y / sy as usize) * cw + x0 / sx, w.div_ceil(sx));
+                let chroma_row = u_plane[c0..c0 + n].iter().zip(&v_plane[c0..c0 + n]);
+                for (k, (pixels, (&u, &v))) in luma_row.chunks(sx).zip(chroma_row).enumerate() {
+                    let terms = tables.chroma_terms(u, v);
+                    for (j, &l) in pixels.iter().enumerate() {
+                        put(k * sx + j, tables.rgb_with(l, terms));
                     }
                 }
             }
