@@ -188,6 +188,8 @@ pub struct Matcher {
     halved_right: Vec<u8>,
     halved_w: usize,
     halving_sums: Vec<(u32, u32, u32)>,
+    /// The finest level's rows interpolated along x to the output's width, two at a time (§7).
+    upsample_rows: upsample::RowCache,
 }
 
 /// Spatial fusion weight σ_s, hard-coded in the original (§6.3).
@@ -246,6 +248,7 @@ impl Matcher {
             halved_right: Vec::new(),
             halved_w: 0,
             halving_sums: Vec::new(),
+            upsample_rows: upsample::RowCache::default(),
         })
     }
 

@@ -42,6 +42,44 @@ fn halving_keeps_the_pyramids_rules() {
 }
 
 #[test]
+fn halving_equals_its_definition_block_by_block() {
+    // Odd sizes (partial last blocks), black scattered so that blocks of every valid count occur inside the
+    // image (the 2×2 path) as well as at its edges (the general one), once and twice halved.
+    let (w, h) = (37, 23);
+    let data: Vec<u8> = (0..w * h)
+        .map(|i: usize| {
+            let mut hash = (i as u32).wrapping_mul(2_654_435_761);
+            hash ^= hash >> 15;
+            hash = hash.wrapping_mul(2_246_822_519);
+            hash ^= hash >> 13;
+            if hash >> 30 == 0 { 0 } else { (hash >> 8) as u8 | 1 }
+        })
+        .collect();
+    let data = &data[..];
+    let image = GrayImage { width: w, height: h, data };
+    for times in [1, 2] {
+        let n = 1 << times;
+        for rule in [HalvingRule::AllValid, HalvingRule::ValidMean] {
+            let (mut sums, mut out) = (Vec::new(), Vec::new());
+            let halved = halve(image, times, rule, &mut sums, &mut out);
+            for (i, &got) in halved.data.iter().enumerate() {
+                let (bx, by) = (i % halved.width, i / halved.width);
+                let block: Vec<u32> = (by * n..(by * n + n).min(h))
+                    .flat_map(|y| (bx * n..(bx * n + n).min(w)).map(move |x| u32::from(data[y * w + x])))
+                    .collect();
+                let valid: Vec<u32> = block.iter().copied().filter(|&v| v != 0).collect();
+                let want = if valid.is_empty() || (rule == HalvingRule::AllValid && valid.len() < block.len()) {
+                    0
+                } else {
+                    ((f64::from(valid.iter().sum::<u32>()) / valid.len() as f64) + 0.5).floor() as u8
+                };
+                assert_eq!(got, want, "block ({bx}, {by}) of {times} halvings, {rule:?}");
+            }
+        }
+    }
+}
+
+#[test]
 fn an_offset_matches_the_halved_pair_exactly_and_outputs_input_pixels() {
     // Level 0 at offset 1 is the halved pair: the finest level's flow is the same number for number as
     // matching the halved pair at offset 0, and the output is that flow upsampled to the input, ×2 more.
@@ -70,4 +108,31 @@ fn an_offset_matches_the_halved_pair_exactly_and_outputs_input_pixels() {
     let small_valid: Vec<f32> = small.disparity.iter().copied().filter(|d| d.is_finite()).collect();
     let small_mean = small_valid.iter().sum::<f32>() / small_valid.len() as f32;
     assert!((mean / small_mean - 2.0).abs() < 0.05, "{mean} against 2 × {small_mean}");
+}
+
+#[test]
+fn a_reused_matcher_gives_what_a_new_one_gives() {
+    // Every buffer the matcher keeps between pairs (levels, halving, the upsampling's rows) must hold nothing
+    // of the pair before: the second pair's output equals a new matcher's, bit for bit.
+    let (w, h) = (160, 96);
+    let (l1, r1) = pair(w, h);
+    // Another pair: dimmer, and the right view 3 pixels further.
+    let l2: Vec<u8> = l1.iter().map(|&v| v / 2 + u8::from(v > 0)).collect();
+    let mut r2: Vec<u8> = r1.iter().map(|&v| v / 2 + u8::from(v > 0)).collect();
+    r2.rotate_left(3);
+    fn image(data: &[u8]) -> GrayImage<'_> {
+        GrayImage { width: 160, height: 96, data }
+    }
+    for params in [Params::default(), Params { level_offset: Some(1), ..Params::colon() }] {
+        let mut reused = Matcher::new(params).unwrap();
+        let (mut first, mut second, mut fresh) =
+            (DisparityMap::default(), DisparityMap::default(), DisparityMap::default());
+        reused.compute_into(image(&l1), image(&r1), &mut first).unwrap();
+        reused.compute_into(image(&l2), image(&r2), &mut second).unwrap();
+        Matcher::new(params).unwrap().compute_into(image(&l2), image(&r2), &mut fresh).unwrap();
+        let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        assert_eq!(bits(&second.disparity), bits(&fresh.disparity));
+        assert_eq!(bits(&second.confidence), bits(&fresh.confidence));
+        assert_ne!(bits(&first.disparity), bits(&second.disparity), "the two pairs should differ");
+    }
 }
