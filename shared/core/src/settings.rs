@@ -95,7 +95,7 @@ pub struct BdisSettings {
     pub min_prob: f64,
     pub bool_var: bool,
     /// `BDISparam.level_offset` (not in the original): how many times the pair is halved before the levels
-    /// above count; absent = chosen by the image size (`bdis_stereo::auto_level_offset`).
+    /// above count; absent = chosen by the image size (`crate::scale::reference_halvings`).
     pub level_offset: Option<u32>,
 }
 

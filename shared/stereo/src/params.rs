@@ -50,20 +50,11 @@ pub struct Params {
     /// How many times the pair is halved (2×2 means, the pyramid's own rule) before level 0 of the levels
     /// above (not in the original): `lv_f`, `lv_l`, the patch size, σ_s and every other length here are in the
     /// pixels of that halved pair, and the output is upsampled to the input by 2^(lv_l + offset). `None` =
-    /// [`auto_level_offset`] for the input's size. Why: the parameters were published for images of about
+    /// `bdis_core::scale::reference_halvings` for the input's size (640×480 and smaller: 0; 1280×720 and
+    /// 1920×1080: 1; 3840×2160: 2 — as every pixel parameter of the pipeline scales). Why: the parameters were published for images of about
     /// 640×480; on HD the same patch size and levels search 2–3× finer detail than those images have (and
     /// cost the pixels' square), while the coarsest level no longer covers HD's larger disparities.
     pub level_offset: Option<u32>,
-}
-
-/// The image size the published BDIS parameters are in the pixels of (`bdis_core::scale`).
-pub const PARAMS_REFERENCE_PIXELS: f64 = bdis_core::scale::REFERENCE_PIXELS;
-
-/// The level offset for a `width`×`height` pair when none is set: the number of halvings that brings its
-/// side closest to [`PARAMS_REFERENCE_PIXELS`]'s (640×480 and smaller: 0; 1280×720 and 1920×1080: 1;
-/// 3840×2160: 2), as every pixel parameter of the pipeline scales (`bdis_core::scale::reference_halvings`).
-pub fn auto_level_offset(width: usize, height: usize) -> u32 {
-    bdis_core::scale::reference_halvings(width, height)
 }
 
 impl Default for Params {
@@ -119,9 +110,9 @@ impl Params {
         self.lr_tolerance_level_px().map(|t| t * (1u32 << self.lv_l) as f32)
     }
 
-    /// The level offset used for a `width`×`height` pair: the one set, or [`auto_level_offset`].
+    /// The level offset used for a `width`×`height` pair: the one set, or the one the size calls for.
     pub fn level_offset_for(&self, width: usize, height: usize) -> u32 {
-        self.level_offset.unwrap_or_else(|| auto_level_offset(width, height))
+        self.level_offset.unwrap_or_else(|| bdis_core::scale::reference_halvings(width, height))
     }
 
     /// The same parameters without the left–right check: the matcher as the original has it, for comparisons

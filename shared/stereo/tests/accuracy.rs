@@ -154,7 +154,7 @@ fn an_hd_pair_is_matched_halved_once_as_accurately_as_at_the_size_the_parameters
     let vga = score_set31(Params::colon());
     // 1280×960: the automatic offset halves it once, so the published levels and patch size see the scene as
     // they do at 640×480.
-    assert_eq!(bdis_stereo::params::auto_level_offset(1280, 960), 1);
+    assert_eq!(Params::default().level_offset_for(1280, 960), 1);
     let halved = score_set31_doubled(Params::colon());
     let unhalved = score_set31_doubled(Params { level_offset: Some(0), ..Params::colon() });
     eprintln!("set 31 at 640×480: {vga:?}\n  doubled, halved once: {halved:?}\n  doubled, as is: {unhalved:?}");
