@@ -23,7 +23,7 @@
 //! * an output pixel with `u ≥ 0` (zero disparity) is invalid, as in BDIS-SLAM's use of the map (`F < 0`);
 //! * the variance fit runs only when asked for, and never for a degenerate candidate set;
 //! * the unused parts are not written: the right and vertical gradients, `usefbcon`, the other cost functions;
-//! * a fully valid patch is evaluated in one pass (see [`Matcher::eval`]), which cannot see a sample that is
+//! * a fully valid patch is evaluated in one pass (see `Matcher::eval`), which cannot see a sample that is
 //!   exactly equal to its patch mean (the original counts it invalid); patches touching invalid pixels, where
 //!   that rule rejects flat dark areas, keep the exact two-pass evaluation;
 //! * images smaller than one coarsest-level patch give an empty map rather than an error (there is nothing to
