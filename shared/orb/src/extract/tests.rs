@@ -92,6 +92,24 @@ fn every_pyramid_step_of_the_avx2_gather_equals_the_portable_one() {
 }
 
 #[test]
+fn the_avx2_candidate_masks_equal_the_portable_ones() {
+    // Rows of 634, 324, 64 and 29 pixels (a last step overlapping the one before twice, none, and a row too
+    // short for a step); black;
+    // both thresholds, and extremes that saturate the centre ± t.
+    for (w, h) in [(640, 480), (333, 101), (71, 40), (37, 20)] {
+        let src = test_level(w, h);
+        for t in [(20u8, 7u8), (1, 0), (255, 254)] {
+            let (x_lo, x_hi) = (3 + w % 5, w - 3);
+            let mut masks: [Vec<u8>; 4] = std::array::from_fn(|_| vec![7u8; w * h]);
+            let [a_ini, a_min, b_ini, b_min] = &mut masks;
+            candidate_masks(&src, 3, h - 3, x_lo, x_hi, t, a_ini, a_min);
+            candidate_masks_portable(&src, 3, h - 3, x_lo, x_hi, t, b_ini, b_min);
+            assert!(a_ini == b_ini && a_min == b_min, "{w}×{h}, thresholds {t:?}");
+        }
+    }
+}
+
+#[test]
 pub(super) fn the_candidate_masks_keep_every_corner() {
     let src = test_level(640, 480);
     let ring: [isize; 16] = CIRCLE.map(|(dx, dy)| dy as isize * 640 + dx as isize);
