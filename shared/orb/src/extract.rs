@@ -189,6 +189,9 @@ pub struct OrbExtractor {
     hits: Vec<Corner>,
     /// A cell's candidates (indices into the level), scored together.
     batch: Vec<u32>,
+    /// A densely scored cell's scores, in rows of the level's width (`fast::DENSE_ROWS` rows; x86-64 only).
+    #[cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
+    cell_scores: Vec<u8>,
     corners: Vec<Corner>,
     nodes: Vec<Node>,
     next_nodes: Vec<Node>,
@@ -279,6 +282,7 @@ impl OrbExtractor {
             cand_min: vec![0; width * height],
             hits: Vec::with_capacity(4096),
             batch: Vec::with_capacity(4096),
+            cell_scores: if cfg!(target_arch = "x86_64") { vec![0; fast::DENSE_ROWS * width] } else { Vec::new() },
             corners: Vec::with_capacity(8192),
             nodes: Vec::with_capacity(4096),
             next_nodes: Vec::with_capacity(4096),

@@ -109,6 +109,52 @@ fn the_avx2_candidate_masks_equal_the_portable_ones() {
     }
 }
 
+#[cfg(target_arch = "x86_64")]
+#[test]
+fn dense_scores_equal_the_gathered_ones() {
+    if !std::arch::is_x86_feature_detected!("avx2") {
+        return;
+    }
+    // The test level (smooth gradients, noise, black corners) and a harsher one (noise over the full range):
+    // every pixel of a band, at thresholds from 0 to beyond most scores.
+    let harsh = {
+        let mut level = test_level(640, 480);
+        for (i, v) in level.data.iter_mut().enumerate() {
+            let hash = (i as u32).wrapping_mul(2_246_822_519).rotate_left(13).wrapping_mul(3_266_489_917);
+            if *v != 0 {
+                *v = (hash >> 24) as u8;
+            }
+        }
+        level
+    };
+    for src in [test_level(640, 480), harsh] {
+        let ring: [isize; 16] = CIRCLE.map(|(dx, dy)| dy as isize * 640 + dx as isize);
+        for y in [3usize, 50, 100, 476] {
+            for x in (3..640 - 35).step_by(32).chain([640 - 35]) {
+                let mut dense = [0u8; 32];
+                // SAFETY: the CPU has AVX2 (checked above).
+                unsafe { dense_scores_avx2(&src.data, 640, y * 640 + x, &mut dense) };
+                let at: Vec<u32> = (0..32).map(|i| (y * 640 + x + i) as u32).collect();
+                for t in [0u8, 1, 7, 20, 60] {
+                    for (batch, dense) in at.chunks(SCORE_LANES).zip(dense.chunks(SCORE_LANES)) {
+                        let mut gathered = [0u8; SCORE_LANES];
+                        fast_scores_portable(&src.data, &ring, batch, t, &mut gathered);
+                        // A black centre is never a candidate (the masks), so never gathered: dense gives it 0.
+                        for ((&p, &g), &d) in batch.iter().zip(&gathered).zip(dense) {
+                            let want = if d >= t.max(1) { d } else { 0 };
+                            if src.data[p as usize] != 0 {
+                                assert_eq!(g, want, "pixel {p}, threshold {t}");
+                            } else {
+                                assert_eq!(d, 0, "pixel {p}: a black centre");
+                            }
+                        }
+                    }
+                }
+            }
+        }
+    }
+}
+
 #[test]
 pub(super) fn the_candidate_masks_keep_every_corner() {
     let src = test_level(640, 480);
