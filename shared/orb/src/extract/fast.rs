@@ -129,14 +129,11 @@ pub(super) fn candidate_masks(
 ) {
     #[cfg(target_arch = "x86_64")]
     if std::arch::is_x86_feature_detected!("avx2") {
-        let w = level.w;
-        for y in y_lo..y_hi {
-            let span = y * w + x_lo..y * w + x_hi;
-            // SAFETY: the CPU has AVX2 (checked above), the function's only requirement.
-            unsafe {
-                candidates_row_avx2(&level.data, w, y, (x_lo, x_hi), t, (&mut ini[span.clone()], &mut min[span]))
-            };
-        }
+        // SAFETY: the CPU has AVX2 (checked above), the function's only requirement.
+        let row = |data: &[u8], w, y, xs, t, out: (&mut [u8], &mut [u8])| unsafe {
+            candidates_row_avx2(data, w, y, xs, t, out)
+        };
+        masks_with(level, (y_lo, y_hi), (x_lo, x_hi), t, (ini, min), row);
         return;
     }
     candidate_masks_portable(level, y_lo, y_hi, x_lo, x_hi, t, ini, min);
@@ -154,10 +151,23 @@ pub(super) fn candidate_masks_portable(
     ini: &mut [u8],
     min: &mut [u8],
 ) {
+    masks_with(level, (y_lo, y_hi), (x_lo, x_hi), t, (ini, min), candidates_row);
+}
+
+/// `row` (a [`candidates_row`]) on rows `y_lo..y_hi` of a level, into masks the size of the level.
+#[inline(always)]
+fn masks_with(
+    level: &Level,
+    (y_lo, y_hi): (usize, usize),
+    (x_lo, x_hi): (usize, usize),
+    t: (u8, u8),
+    (ini, min): (&mut [u8], &mut [u8]),
+    row: impl Fn(&[u8], usize, usize, (usize, usize), (u8, u8), (&mut [u8], &mut [u8])),
+) {
     let w = level.w;
     for y in y_lo..y_hi {
         let span = y * w + x_lo..y * w + x_hi;
-        candidates_row(&level.data, w, y, (x_lo, x_hi), t, (&mut ini[span.clone()], &mut min[span]));
+        row(&level.data, w, y, (x_lo, x_hi), t, (&mut ini[span.clone()], &mut min[span]));
     }
 }
 
@@ -174,13 +184,14 @@ pub(super) fn candidate_masks_portable(
 /// The CPU must have AVX2.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
-pub(super) unsafe fn dense_scores_avx2(data: &[u8], w: usize, p: usize, out: &mut [u8]) {
+pub(super) unsafe fn dense_scores_avx2(data: &[u8], w: usize, ring: &[isize; 16], p: usize, out: &mut [u8]) {
     use std::arch::x86_64::*;
-    // The ring reaches 3 rows and 3 columns round each pixel; the loads below rely on this.
+    // The ring (`CIRCLE` as offsets in a level `w` wide) reaches 3 rows and 3 columns round each pixel; the
+    // loads below rely on this.
     let reach = 3 * w + 3;
+    assert!(ring.iter().all(|o| o.unsigned_abs() <= reach), "the ring of a level {w} wide");
     assert!(p >= reach && p + 32 + reach <= data.len(), "the FAST ring must fit the level");
     assert!(out.len() >= 32, "room for 32 scores");
-    let ring: [isize; 16] = CIRCLE.map(|(dx, dy)| dy as isize * w as isize + dx as isize);
     let zero = _mm256_setzero_si256();
     // SAFETY: every load reads 32 bytes from p plus a ring offset (or none), inside `data` (asserted above);
     // the store writes the first 32 bytes of `out` (asserted long enough).
@@ -193,7 +204,7 @@ pub(super) unsafe fn dense_scores_avx2(data: &[u8], w: usize, p: usize, out: &mu
             };
         }
         let mut black = _mm256_cmpeq_epi8(c, zero);
-        for &offset in &ring {
+        for &offset in ring {
             black = _mm256_or_si256(black, _mm256_cmpeq_epi8(_mm256_loadu_si256(at.offset(offset).cast()), zero));
         }
         // The best arc of 9 by doubling windows (2, 4, 8, then 8 + 1), as in `fast_scores`, for the ring's
@@ -369,6 +380,9 @@ impl OrbExtractor {
                 if ya >= yb || xa >= xb {
                     continue;
                 }
+                // The cell's dense scores do not depend on the threshold: made at most once per cell.
+                #[cfg(target_arch = "x86_64")]
+                let mut cell_scored = false;
                 for threshold in [ini, min] {
                     self.hits.clear();
                     self.batch.clear();
@@ -398,17 +412,20 @@ impl OrbExtractor {
                     #[cfg(target_arch = "x86_64")]
                     if dense {
                         let start = xa.min(w - 35);
-                        for y in ya..yb {
-                            let mut x = start;
-                            loop {
-                                let out = &mut self.cell_scores[(y - ya) * w + x..][..32];
-                                // SAFETY: `dense_ok` holds only where the CPU has AVX2.
-                                unsafe { dense_scores_avx2(&level.data, w, y * w + x, out) };
-                                if x + 32 >= xb {
-                                    break;
+                        if !cell_scored {
+                            for y in ya..yb {
+                                let mut x = start;
+                                loop {
+                                    let out = &mut self.cell_scores[(y - ya) * w + x..][..32];
+                                    // SAFETY: `dense_ok` holds only where the CPU has AVX2.
+                                    unsafe { dense_scores_avx2(&level.data, w, &ring, y * w + x, out) };
+                                    if x + 32 >= xb {
+                                        break;
+                                    }
+                                    x = (x + 32).min(w - 35);
                                 }
-                                x = (x + 32).min(w - 35);
                             }
+                            cell_scored = true;
                         }
                         let at_least = threshold.max(1);
                         for &p in &self.batch {

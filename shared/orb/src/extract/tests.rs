@@ -133,7 +133,7 @@ fn dense_scores_equal_the_gathered_ones() {
             for x in (3..640 - 35).step_by(32).chain([640 - 35]) {
                 let mut dense = [0u8; 32];
                 // SAFETY: the CPU has AVX2 (checked above).
-                unsafe { dense_scores_avx2(&src.data, 640, y * 640 + x, &mut dense) };
+                unsafe { dense_scores_avx2(&src.data, 640, &ring, y * 640 + x, &mut dense) };
                 let at: Vec<u32> = (0..32).map(|i| (y * 640 + x + i) as u32).collect();
                 for t in [0u8, 1, 7, 20, 60] {
                     for (batch, dense) in at.chunks(SCORE_LANES).zip(dense.chunks(SCORE_LANES)) {
