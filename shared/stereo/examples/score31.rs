@@ -37,8 +37,9 @@ fn score_rendered(seq: &std::path::Path, bf: f32, step: usize) {
         }
         let (l, region, w, h) = gray(&left);
         let (r, _, _, _) = gray(&seq.join(format!("right/{n}.png")));
-        let out =
-            m.compute(GrayImage { width: w, height: h, data: &l }, GrayImage { width: w, height: h, data: &r }).unwrap();
+        let out = m
+            .compute(GrayImage { width: w, height: h, data: &l }, GrayImage { width: w, height: h, data: &r })
+            .unwrap();
         let gt = bdis_core::formats::pfm::read(&seq.join(format!("gt/depth/{n}.pfm"))).unwrap();
         score.add(&out.disparity, &gt.data, &region, bf);
         pairs += 1;

@@ -60,13 +60,7 @@ impl Matcher {
             let above = top.flow.iter().zip(&top.prob);
             let below = bottom.flow.iter().zip(&bottom.prob);
             for ((d_out, c_out), ((&f0, &p0), (&f1, &p1))) in pixels.zip(above.zip(below)) {
-                let flow = (1.0 - fy) * f0 + fy * f1;
-                let prob = (1.0 - fy) * p0 + fy * p1;
-                let d = -flow * factor;
-                // NaN fails the comparison: invalid.
-                let valid = d > 0.0;
-                *d_out = if valid { d } else { f32::NAN };
-                *c_out = if valid { prob.clamp(0.0, 1.0) } else { 0.0 };
+                (*d_out, *c_out) = output_pixel((1.0 - fy) * f0 + fy * f1, (1.0 - fy) * p0 + fy * p1, factor);
             }
         }
         self.upsample_rows = rows;
@@ -94,14 +88,20 @@ impl Matcher {
                     flow += wgt * level.flow[k];
                     prob += wgt * level.prob[k];
                 }
-                let d = -flow * factor;
-                let valid = d > 0.0;
-                out.disparity[y * w + x] = if valid { d } else { f32::NAN };
-                out.confidence[y * w + x] = if valid { prob.clamp(0.0, 1.0) } else { 0.0 };
-                var[y * w + x] = if valid { self.pixel_variance(lv_l, &idx) * factor * factor } else { f32::NAN };
+                let (d, c) = output_pixel(flow, prob, factor);
+                (out.disparity[y * w + x], out.confidence[y * w + x]) = (d, c);
+                var[y * w + x] = if d.is_nan() { f32::NAN } else { self.pixel_variance(lv_l, &idx) * factor * factor };
             }
         }
     }
+}
+
+/// An output pixel's disparity and confidence from its interpolated flow and probability: the flow ×factor,
+/// sign turned; NaN and confidence 0 unless the disparity is positive (NaN fails the comparison).
+#[inline(always)]
+fn output_pixel(flow: f32, prob: f32, factor: f32) -> (f32, f32) {
+    let d = -flow * factor;
+    if d > 0.0 { (d, prob.clamp(0.0, 1.0)) } else { (f32::NAN, 0.0) }
 }
 
 /// One level row's flow and probability interpolated along x to the output's columns.
