@@ -14,7 +14,9 @@ pub struct SynthArgs {
     /// Camera path. Colon: `forward` (through the tube, wobble and roll) or `revisit` (in, then back out over the
     /// same wall). Abdomen: `hover`, `sweep` (sideways), `revisit` (out and back), `pan` (swinging ±17° at up to
     /// 120°/s while drifting sideways), `oblique` (looking across the wall: a far background), `circle` (round a
-    /// 40 mm circle, back to the start after a lap: 377 frames at 20 mm/s and 30 fps). Default: forward / sweep.
+    /// 40 mm circle, back to the start after a lap: 377 frames at 20 mm/s and 30 fps), `twins` (the sweep over a
+    /// wall that repeats, pattern and shape, every 80 mm: two places no view can tell apart, a loop that must not
+    /// be closed). Default: forward / sweep.
     #[arg(long)]
     trajectory: Option<String>,
     /// How the speed varies: `steady`, `jerk` (a third of the way in, three frames at 10× the speed) or `stop` (a

@@ -13,6 +13,11 @@ pub const STANDOFF_MM: f64 = 55.0;
 /// Radius of the `circle` trajectory's path over the wall.
 pub const CIRCLE_RADIUS_MM: f64 = 40.0;
 
+/// How far apart the `twins` path's two look-alike places are (along x): farther than the view is wide at the
+/// stand-off (about 68 mm for a 4:3 camera whose focal length is the width's 0.81, as the renders use), so the
+/// two share no tissue, only its look.
+pub const TWIN_SPACING_MM: f64 = 80.0;
+
 #[derive(Debug, Clone)]
 pub struct Abdomen {
     pub distance_mm: f64,
@@ -23,6 +28,9 @@ pub struct Abdomen {
     pub seed: u64,
     /// Breathing's displacement in this frame ([`crate::breathing::Breathing::swell_at`]); 0: the mean wall.
     pub swell: crate::breathing::Swell,
+    /// When set, the wall repeats every this many mm along x, pattern and shape: places that no view of them can
+    /// tell apart, a period apart — the adversary of loop detection. `None`: no repeat.
+    pub repeat_mm: Option<f64>,
 }
 
 impl Default for Abdomen {
@@ -40,6 +48,7 @@ impl Default for Abdomen {
             texture: TissueTexture { seed: 4242 },
             seed: 4242,
             swell: crate::breathing::Swell::default(),
+            repeat_mm: None,
         }
     }
 }
@@ -48,13 +57,28 @@ impl Abdomen {
     /// Depth of the wall below the point (x, y).
     pub fn height(&self, x: f64, y: f64) -> f64 {
         // A shallow bowl, organ blobs (smooth bumps towards the scope) and small irregularities.
-        let bowl = 0.004 * (x * x + y * y);
+        // Repeated: x² made periodic and smooth ((P/π)² sin²(πx/P), x² near the centre), each blob seen at its
+        // nearest copy (a blob is ~0.1 % of its height half a period away: no visible seam), the fine relief tiled.
+        let bowl_x2 = self.repeat_mm.map_or(x * x, |period| {
+            (period / std::f64::consts::PI * (std::f64::consts::PI * x / period).sin()).powi(2)
+        });
+        let dx_to = |bx: f64| self.repeat_mm.map_or(x - bx, |period| centred(x - bx, period));
+        let bowl = 0.004 * (bowl_x2 + y * y);
         let blobs: f64 = self
             .blobs
             .iter()
-            .map(|&(bx, by, r, h)| h * (-((x - bx).powi(2) + (y - by).powi(2)) / (2.0 * r * r / 4.0)).exp())
+            .map(|&(bx, by, r, h)| h * (-(dx_to(bx).powi(2) + (y - by).powi(2)) / (2.0 * r * r / 4.0)).exp())
             .sum();
-        let bumps = self.bump_mm * (value_noise(self.seed ^ 3, x / 7.0, y / 7.0) - 0.5) * 2.0;
+        let relief = |x: f64| value_noise(self.seed ^ 3, x / 7.0, y / 7.0);
+        let relief = match self.repeat_mm {
+            None => relief(x),
+            // Tiled without a step: across each period the relief fades into its copy one period back.
+            Some(period) => {
+                let along = x.rem_euclid(period);
+                ((period - along) * relief(along) + along * relief(along - period)) / period
+            }
+        };
+        let bumps = self.bump_mm * (relief - 0.5) * 2.0;
         // Breathing lifts the wall towards the scope (−z) where its share is positive.
         let swell = self.swell.mm * crate::breathing::wall_share(x, y, self.swell.wavelength_mm);
         self.distance_mm + bowl - blobs + bumps - swell
@@ -176,6 +200,11 @@ impl Abdomen {
     }
 }
 
+/// `x` moved by whole periods into [−period/2, period/2).
+fn centred(x: f64, period: f64) -> f64 {
+    (x + 0.5 * period).rem_euclid(period) - 0.5 * period
+}
+
 impl Surface for Abdomen {
     fn hit(&self, origin: &Point3<f64>, dir: &Vector3<f64>, max_t: f64) -> Option<Hit> {
         if self.front(origin) <= 0.0 {
@@ -201,9 +230,37 @@ impl Surface for Abdomen {
         None
     }
     fn albedo(&self, uv: (f64, f64), footprint_mm: f64) -> [u8; 3] {
-        self.texture.rgb_filtered(uv.0, uv.1, footprint_mm)
+        // A repeated pattern has a seam half a period from the centre (a straight edge across the view there), as
+        // a texture tiled by hand would; what matters is that a place and its twin carry the same pattern.
+        let u = self.repeat_mm.map_or(uv.0, |period| centred(uv.0, period));
+        self.texture.rgb_filtered(u, uv.1, footprint_mm)
     }
     fn seed(&self) -> u64 {
         self.seed
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_repeated_wall_is_the_same_a_period_on_and_continuous_across_its_seams() {
+        let wall = Abdomen { repeat_mm: Some(TWIN_SPACING_MM), ..Abdomen::default() };
+        for &(x, y) in &[(-30.0, 2.0), (-12.5, -17.0), (0.0, 0.0), (33.3, 21.0)] {
+            let twin_x = x + TWIN_SPACING_MM;
+            assert!((wall.height(x, y) - wall.height(twin_x, y)).abs() < 1e-9, "shape at ({x}, {y})");
+            assert_eq!(wall.albedo((x, y), 0.1), wall.albedo((twin_x, y), 0.1), "pattern at ({x}, {y})");
+        }
+        // Across its seams the wall has no step (a crease at most): a step would be an edge no real wall has.
+        for seam in [0.0, 0.5 * TWIN_SPACING_MM] {
+            for y in [-20.0, 0.0, 15.0] {
+                let step = (wall.height(seam - 1e-7, y) - wall.height(seam + 1e-7, y)).abs();
+                assert!(step < 1e-4, "a {step} mm step at the seam x = {seam}, y = {y}");
+            }
+        }
+        // Without the repeat, the two places differ.
+        let plain = Abdomen::default();
+        assert!((plain.height(-30.0, 2.0) - plain.height(50.0, 2.0)).abs() > 1.0);
     }
 }

@@ -321,8 +321,9 @@ impl Motion {
 pub struct SceneRequest {
     /// `colon` or `abdomen`.
     pub scene: String,
-    /// Colon: `forward`, `revisit`; abdomen: `hover`, `sweep`, `revisit`, `pan`, `oblique`, `circle`. `None`:
-    /// forward / sweep.
+    /// Colon: `forward`, `revisit`; abdomen: `hover`, `sweep`, `revisit`, `pan`, `oblique`, `circle`, `twins` (the
+    /// sweep over a wall that repeats, pattern and shape, every [`abdomen::TWIN_SPACING_MM`]: a place that looks
+    /// and is shaped exactly like one seen before but is not it, a loop that must not be closed). `None`: forward / sweep.
     pub trajectory: Option<String>,
     pub frames: usize,
     pub fps: f64,
@@ -379,7 +380,7 @@ impl SceneRequest {
         }
         let paths: &[&str] = match self.scene.as_str() {
             "colon" => &["forward", "revisit"],
-            "abdomen" => &["hover", "sweep", "revisit", "pan", "oblique", "circle"],
+            "abdomen" => &["hover", "sweep", "revisit", "pan", "oblique", "circle", "twins"],
             other => return invalid(format!("`{other}` is not a scene (colon, abdomen)")),
         };
         if !(0.0..=10.0).contains(&self.breathing_mm) {
@@ -453,9 +454,16 @@ pub fn write_scene(
             }
             (
                 "abdomen",
-                None | Some("hover") | Some("sweep") | Some("revisit") | Some("pan") | Some("oblique") | Some("circle"),
+                None | Some("hover") | Some("sweep") | Some("revisit") | Some("pan") | Some("oblique") | Some("circle")
+                | Some("twins"),
             ) => {
-                let abdomen = abdomen::Abdomen { seed, texture: TissueTexture { seed }, ..abdomen::Abdomen::default() };
+                let repeat_mm = (trajectory.as_deref() == Some("twins")).then_some(abdomen::TWIN_SPACING_MM);
+                let abdomen = abdomen::Abdomen {
+                    seed,
+                    texture: TissueTexture { seed },
+                    repeat_mm,
+                    ..abdomen::Abdomen::default()
+                };
                 let a = abdomen.clone();
                 let name = trajectory.clone();
                 let path = move |t: f64| {

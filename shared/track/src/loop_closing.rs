@@ -19,7 +19,7 @@ mod correct;
 pub mod place;
 pub mod pose_graph;
 
-pub use correct::{ClosedLoop, GraphJob, apply_graph, close_loop};
+pub use correct::{ClosedLoop, GraphJob, LOOP_SEARCH_RADIUS_PX, apply_graph, close_loop};
 pub use place::{PlaceEntry, PlaceMatch, PlaceStore};
 pub use pose_graph::{GraphEdge, GraphReport, PoseGraph, log_se3};
 
@@ -333,18 +333,7 @@ impl LoopCloser {
         if k.bad {
             return;
         }
-        let entry = PlaceEntry {
-            descriptors: k.descriptors.clone(),
-            keypoints: k.keypoints.iter().map(|p| (p.x, p.y, p.octave)).collect(),
-            camera_points: (0..k.keypoints.len())
-                .map(|i| {
-                    (k.depth[i] > 0.0).then(|| {
-                        let p = &k.keypoints[i];
-                        cam.unproject(f64::from(p.x), f64::from(p.y), f64::from(k.depth[i]))
-                    })
-                })
-                .collect(),
-        };
+        let entry = PlaceEntry::of_keyframe(k, cam);
         let culled: Vec<KfId> =
             map.keyframes.iter().filter(|x| x.bad && !self.culled_sent.contains(&x.id)).map(|x| x.id).collect();
         self.culled_sent.extend(culled.iter().copied());

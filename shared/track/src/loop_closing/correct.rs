@@ -17,7 +17,7 @@ use std::collections::{BTreeMap, BTreeSet};
 /// loop to be accepted (ORB-SLAM2's 40, §8.2).
 pub const MIN_LOOP_MATCHES_AFTER_PROJECTION: usize = 40;
 /// Search radius of the guided matching, pixels at the octave's scale (ORB-SLAM2's 10 for the loop, §8.2).
-const LOOP_SEARCH_RADIUS_PX: f64 = 10.0;
+pub const LOOP_SEARCH_RADIUS_PX: f64 = 10.0;
 /// χ² of 6 degrees of freedom at 95 %: a loop correction below it is within the pose's noise.
 pub const CHI2_6DOF_95: f64 = 12.592;
 /// Covisibility weight of the essential graph's extra edges (ORB-SLAM2's 100, §8.4).

@@ -15,6 +15,7 @@
 use crate::frame::Scales;
 use crate::geometry::{RectifiedCamera, draw_three, rigid_fit};
 use crate::ids::KfId;
+use crate::map::KeyFrame;
 use crate::optim::CHI2_MONO;
 use crate::search::TH_LOW;
 use bdis_orb::hamming;
@@ -37,6 +38,24 @@ pub struct PlaceEntry {
     pub keypoints: Vec<(f32, f32, u8)>,
     /// Per keypoint: its stereo point in the keyframe's camera, when it has a depth.
     pub camera_points: Vec<Option<Point3<f64>>>,
+}
+
+impl PlaceEntry {
+    /// What the index keeps of keyframe `k`: its descriptors, keypoints and stereo points.
+    pub fn of_keyframe(k: &KeyFrame, cam: &RectifiedCamera) -> Self {
+        Self {
+            descriptors: k.descriptors.clone(),
+            keypoints: k.keypoints.iter().map(|p| (p.x, p.y, p.octave)).collect(),
+            camera_points: (0..k.keypoints.len())
+                .map(|i| {
+                    (k.depth[i] > 0.0).then(|| {
+                        let p = &k.keypoints[i];
+                        cam.unproject(f64::from(p.x), f64::from(p.y), f64::from(k.depth[i]))
+                    })
+                })
+                .collect(),
+        }
+    }
 }
 
 /// A verified appearance match between two keyframes.
