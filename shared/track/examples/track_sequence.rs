@@ -82,8 +82,9 @@ fn main() {
             && (m.loop_closed.is_some() || m.pose_graph.is_some())
         {
             eprintln!(
-                "frame {i}: loop {:?} (fused {}, moved {}), pose graph {:?} ({:.1} ms on the worker), detection {:.1} ms, applied in {:.1} ms",
+                "frame {i}: loop {:?} (drift χ² {:.1}, fused {}, moved {}), pose graph {:?} ({:.1} ms on the worker), detection {:.1} ms, applied in {:.1} ms",
                 m.loop_closed,
+                m.loop_drift_chi2,
                 m.fused,
                 m.moved.len(),
                 m.pose_graph,
