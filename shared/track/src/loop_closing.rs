@@ -154,7 +154,7 @@ impl LoopDetector {
     /// in a row (§8.1), because its candidates come from an appearance search, where an unrelated keyframe can
     /// score high once. Ours come from the tracked pose, which names a candidate only where the scope is; waiting
     /// only lets the tracker build a second map over the old one for a few more keyframes (640×480 circle: the
-    /// loop 20–30 frames later, median ATE over 8 starts 0.097 mm against 0.087 mm checking at once). The 3-D
+    /// loop 21–33 frames later, median ATE over 8 starts 0.097 mm against 0.087 mm checking at once). The 3-D
     /// check and the pose check still decide, and a place that only looks the same is never a candidate
     /// (`tests/false_loop.rs`).
     fn detect(&mut self, query: &LoopQuery) -> Option<PlaceMatch> {
