@@ -323,7 +323,8 @@ pub struct SceneRequest {
     pub scene: String,
     /// Colon: `forward`, `revisit`; abdomen: `hover`, `sweep`, `revisit`, `pan`, `oblique`, `circle`, `twins` (the
     /// sweep over a wall that repeats, pattern and shape, every [`abdomen::TWIN_SPACING_MM`]: a place that looks
-    /// and is shaped exactly like one seen before but is not it, a loop that must not be closed). `None`: forward / sweep.
+    /// and is shaped exactly like one seen before but is not it, a loop that must not be closed). `None`:
+    /// forward / sweep.
     pub trajectory: Option<String>,
     pub frames: usize,
     pub fps: f64,

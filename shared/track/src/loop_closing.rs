@@ -1,6 +1,7 @@
 //! Loop closing (ORB-SLAM2-STEREO.md §8): when the scope comes back to tissue mapped long ago, the old keyframe
-//! is found by the tracked pose and recognised by appearance, the match is checked in 3-D, the current neighbourhood is moved onto the old map
-//! and its duplicated points fused, and a pose graph spreads the correction over the keyframes in between.
+//! is found by the tracked pose and recognised by appearance, the match is checked in 3-D, the current
+//! neighbourhood is moved onto the old map and its duplicated points fused, and a pose graph spreads the
+//! correction over the keyframes in between.
 //!
 //! Threads: recognition, verification and the pose-graph solve run on a worker thread (`loop-closing`) from
 //! copies; the map's owner sends one job per keyframe and takes its result at the next keyframe (waiting if

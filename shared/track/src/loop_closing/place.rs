@@ -86,10 +86,6 @@ impl PlaceStore {
         Self { entries: Vec::new(), ransac_state: 0x0001_00bc_105e_5eed }
     }
 
-    pub fn entry(&self, kf: KfId) -> Option<&PlaceEntry> {
-        self.entries.get(kf).and_then(Option::as_ref)
-    }
-
     pub fn insert(&mut self, kf: KfId, entry: PlaceEntry) {
         if self.entries.len() <= kf {
             self.entries.resize(kf + 1, None);
