@@ -66,9 +66,10 @@ pub struct RunArgs {
     /// see `bdis-mosaic --help`).
     #[arg(long = "map-param", value_name = "NAME=VALUE", requires = "track")]
     map_params: Vec<String>,
-    /// With --track: no loop closing (by default the tracker recognises tissue mapped long ago, corrects its map
-    /// by a pose graph, and the dense map follows every moved keyframe; off, revisits are tied in by map reuse
-    /// alone). For comparing the two: see BENCHMARKS.md.
+    /// With --track: no loop closing (by default the tracker recognises tissue mapped long ago, fuses the two
+    /// passes, corrects its map by a pose graph where the drift is beyond noise and then by a global bundle
+    /// adjustment, and the dense map follows every moved keyframe; off, revisits are tied in by map reuse alone).
+    /// For comparing the two: see BENCHMARKS.md.
     #[arg(long, requires = "track")]
     no_loop_closing: bool,
     /// Run folder to write (default: runs/<UTC time>-<name>).

@@ -21,6 +21,8 @@ pub struct Counts {
     /// Worker time of place recognition per keyframe, and of each pose-graph solve, ms.
     pub loop_detection_ms: Vec<f64>,
     pub pose_graph_ms: Vec<f64>,
+    /// Wall time of each global bundle adjustment on its thread, ms.
+    pub global_ba_ms: Vec<f64>,
 }
 
 impl Counts {
@@ -30,6 +32,16 @@ impl Counts {
         }
         if report.pose_graph.is_some() {
             self.pose_graph_ms.push(report.pose_graph_ms);
+        }
+        if report.global_ba_keyframes > 0 {
+            self.global_ba_ms.push(report.global_ba_ms);
+            tracing::info!(
+                "global bundle adjustment applied: {} keyframes, {} points, {} iterations, {:.0} ms on its thread",
+                report.global_ba_keyframes,
+                report.global_ba_points,
+                report.global_ba_iterations,
+                report.global_ba_ms
+            );
         }
         if let Some((kf, old)) = report.loop_closed {
             tracing::info!(

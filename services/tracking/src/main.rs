@@ -38,9 +38,10 @@ struct Args {
     /// (ORB-SLAM2's FAST positions as they are).
     #[arg(long, default_value = "aligned", value_parser = ["aligned", "whole-pixel"])]
     measurements: String,
-    /// Loop closing (`on`): a keyframe that recognises tissue mapped long ago (outside its covisibility
-    /// neighbourhood) is checked in 3-D, the map is corrected by a pose graph on a worker thread, and every
-    /// keyframe moved goes out as a correction. `off`: revisits are tied in by map reuse alone.
+    /// Loop closing (`on`): a keyframe that comes back to tissue mapped long ago (outside the neighbourhood it
+    /// was tracked in) is recognised as a loop, the two passes' points are fused, a drift beyond noise is
+    /// corrected by a pose graph, then the whole map by a global bundle adjustment on worker threads, and
+    /// every keyframe moved goes out as a correction. `off`: revisits are tied in by map reuse alone.
     #[arg(long, default_value = "on", value_parser = ["on", "off"])]
     loop_closing: String,
     /// Instruments in frames that come without a mask: `estimate` finds them (grey regions from the image

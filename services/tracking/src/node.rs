@@ -464,6 +464,7 @@ fn write_summary(
         loops_closed: tracker.loops_closed().iter().map(|&(a, b)| (world.kf_id(a), world.kf_id(b))).collect(),
         loop_detection_ms_p50: percentile(&mut counts.loop_detection_ms, 0.5),
         pose_graph_ms: counts.pose_graph_ms.clone(),
+        global_ba_ms: counts.global_ba_ms.clone(),
     };
     summary.write(&dir.join("tracking.json"))?;
     Ok(())

@@ -79,16 +79,20 @@ fn main() {
             wait_ms.push(m.loop_apply_ms);
         }
         if let Some(m) = &res.mapper
-            && (m.loop_closed.is_some() || m.pose_graph.is_some())
+            && (m.loop_closed.is_some() || m.pose_graph.is_some() || m.global_ba_keyframes > 0)
         {
             eprintln!(
-                "frame {i}: loop {:?} (drift χ² {:.1}, fused {}, moved {}), pose graph {:?} ({:.1} ms on the worker), detection {:.1} ms, applied in {:.1} ms",
+                "frame {i}: loop {:?} (drift χ² {:.1}, fused {}, moved {}), pose graph {:?} ({:.1} ms on the worker), global BA {} keyframes {} points {} iterations ({:.1} ms on its thread), detection {:.1} ms, applied in {:.1} ms",
                 m.loop_closed,
                 m.loop_drift_chi2,
                 m.fused,
                 m.moved.len(),
                 m.pose_graph,
                 m.pose_graph_ms,
+                m.global_ba_keyframes,
+                m.global_ba_points,
+                m.global_ba_iterations,
+                m.global_ba_ms,
                 m.loop_detect_ms,
                 m.loop_apply_ms
             );

@@ -10,17 +10,31 @@
 //! graph, applying the solve) run on the owner's thread at that keyframe boundary; they are cheap next to the
 //! search and the solve.
 //!
-//! What counts as a loop: a keyframe outside the current keyframe's covisibility neighbourhood of
-//! [`LOOP_HORIZON_HOPS`] hops. Inside it, local tracking and bundle adjustment already tie the two together
-//! (map reuse finds their points); outside, only a long chain of keyframes does, and its drift is what the
-//! pose graph removes. The candidates are the keyframes the new one looks at again by its tracked pose
-//! ([`revisited`]; why not an appearance search over the map: see `place`).
+//! What counts as a loop: an old keyframe the new one looks at again ([`revisited`], by its tracked pose; why
+//! not an appearance search over the map: see `place`) that was outside the covisibility neighbourhood of
+//! [`LOOP_HORIZON_HOPS`] hops of the keyframe made before it. Inside that, local tracking and bundle adjustment
+//! already tied the two together; outside, only a long chain of keyframes did, and its drift is what the loop
+//! removes.
+//!
+//! Map reuse (tracking) ties a revisit in as soon as the view overlaps the old keyframes, loop closing on or
+//! off: holding it back until the loop is verified starved the tracker of the points in view, and it drifted
+//! fastest exactly there (640×480 circle, start 11: from 0.2 to 0.7 mm off between the first overlap and the loop,
+//! 65 frames later; BENCHMARKS.md).
+//! So the loop is usually recognised by what tracking already matched: when the new keyframe observes enough
+//! of a candidate's points ([`tied_in`]), that is the geometric check; otherwise the candidate goes through
+//! the 3-D check of `place`. The candidates of a revisit stay candidates for the keyframes after it while
+//! they are still looked at, though map reuse has linked them in by then ([`LoopCloser`]'s revisit side).
+//!
+//! After a loop, a global bundle adjustment (§8.5) re-solves every keyframe and point from both passes'
+//! observations on a thread of its own, applied a fixed number of keyframes later (`mapper`).
 
 mod correct;
 pub mod place;
 pub mod pose_graph;
 
-pub use correct::{ClosedLoop, GraphJob, LOOP_SEARCH_RADIUS_PX, apply_graph, close_loop};
+pub use correct::{
+    ClosedLoop, GraphJob, LOOP_SEARCH_RADIUS_PX, apply_graph, close_loop, corrections_by_ancestry, renormalised,
+};
 pub use place::{PlaceEntry, PlaceMatch, PlaceStore};
 pub use pose_graph::{GraphEdge, GraphReport, PoseGraph, log_se3};
 
@@ -57,6 +71,35 @@ pub fn neighbourhood(map: &Map, kf: KfId, hops: usize) -> BTreeSet<KfId> {
     near
 }
 
+/// Old keyframe `candidate` as a verified place when keyframe `kf` already observes at least
+/// [`place::MIN_LOOP_INLIERS`] of its points: map reuse matched them while tracking and the pose optimisation
+/// kept them as inliers, the check the 3-D RANSAC would make. `side` is the neighbourhood `kf` was tracked in.
+pub fn tied_in(map: &Map, kf: KfId, candidate: KfId, side: &BTreeSet<KfId>) -> Option<PlaceMatch> {
+    let k = &map.keyframes[kf];
+    let c = &map.keyframes[candidate];
+    if k.bad || c.bad {
+        return None;
+    }
+    let pairs: Vec<(usize, usize)> = k
+        .points
+        .iter()
+        .enumerate()
+        .filter_map(|(i, p)| {
+            let point = &map.points[(*p)?];
+            if point.bad {
+                return None;
+            }
+            point.observations.get(&candidate).map(|&j| (i, j))
+        })
+        .collect();
+    (pairs.len() >= place::MIN_LOOP_INLIERS).then(|| PlaceMatch {
+        candidate,
+        query_from_candidate: k.camera_from_world * c.camera_from_world.inverse(),
+        pairs,
+        tied_side: side.iter().copied().collect(),
+    })
+}
+
 /// The old keyframes keyframe `kf` looks at again, beyond its neighbourhood `near`, nearest first (at most
 /// [`MAX_CANDIDATES`]): the map-reuse test (the point an old keyframe looks at projects into this one, and its
 /// centre is within its median depth of this one's: ratios of the scene's depth, no unit).
@@ -91,6 +134,8 @@ pub struct LoopQuery {
     pub culled: Vec<KfId>,
     /// Look for a loop (off while a correction is in progress and just after one).
     pub detect: bool,
+    /// A candidate map reuse already tied the keyframe to ([`tied_in`]): the loop, without the 3-D check.
+    pub tied: Option<PlaceMatch>,
 }
 
 /// One job: a keyframe to recognise and index, and perhaps a pose graph to solve.
@@ -162,6 +207,9 @@ impl LoopDetector {
         if !query.detect {
             return None;
         }
+        if let Some(tied) = &query.tied {
+            return Some(tied.clone());
+        }
         // A candidate culled since (no longer in the index) is passed over by `verify`.
         query.candidates.iter().find_map(|&c| self.index.verify(&self.cam, &self.scales, &query.entry, c))
     }
@@ -225,9 +273,17 @@ pub struct LoopCloser {
     /// The keyframe of the last loop closed, and whether its pose graph is being solved.
     last_loop_kf: Option<KfId>,
     graph_pending: bool,
+    /// A global bundle adjustment after a loop is running (no new loop until it is in).
+    global_pending: bool,
     /// Loops closed so far: (query keyframe, candidate).
     pub loops: Vec<(KfId, KfId)>,
     worker_start: Option<crate::workers::WorkerStart>,
+    /// The neighbourhood of the last keyframe sent, as it was then (before the next one's map reuse linked it
+    /// to old keyframes): what the next keyframe was tracked among.
+    previous_near: BTreeSet<KfId>,
+    /// The old side of a revisit in progress: the first candidates' neighbourhoods, beyond the horizon when
+    /// the revisit began. Its keyframes stay candidates while they are looked at.
+    revisit_side: BTreeSet<KfId>,
 }
 
 impl LoopCloser {
@@ -240,8 +296,11 @@ impl LoopCloser {
             culled_sent: BTreeSet::new(),
             last_loop_kf: None,
             graph_pending: false,
+            global_pending: false,
             loops: Vec::new(),
             worker_start: None,
+            previous_near: BTreeSet::new(),
+            revisit_side: BTreeSet::new(),
         }
     }
 
@@ -308,22 +367,54 @@ impl LoopCloser {
         self.culled_sent.extend(culled.iter().copied());
         self.graph_pending |= graph.is_some();
         let quiet = self.last_loop_kf.is_some_and(|l| kf < l + MIN_KEYFRAMES_BETWEEN_LOOPS);
-        let detect = !self.graph_pending && !quiet && map.n_good_keyframes() > MIN_KEYFRAMES_BETWEEN_LOOPS;
-        let near = neighbourhood(map, kf, LOOP_HORIZON_HOPS);
-        let query = LoopQuery {
-            kf,
-            entry,
-            candidates: if detect { revisited(map, cam, kf, &near) } else { Vec::new() },
-            culled,
-            detect,
-        };
+        let detect = !self.graph_pending
+            && !self.global_pending
+            && !quiet
+            && map.n_good_keyframes() > MIN_KEYFRAMES_BETWEEN_LOOPS;
+        let mut near = std::mem::replace(&mut self.previous_near, neighbourhood(map, kf, LOOP_HORIZON_HOPS));
+        near.insert(kf);
+        let candidates = if detect { self.candidates(map, cam, kf, &near) } else { Vec::new() };
+        let tied = candidates.iter().find_map(|&c| tied_in(map, kf, c, &near));
+        let query = LoopQuery { kf, entry, candidates, culled, detect, tied };
         self.submit(LoopJob { query: Some(query), graph }, cam, scales);
+    }
+
+    /// The loop candidates of keyframe `kf`, tracked among `near`: the old keyframes it looks at beyond `near`,
+    /// and those of the revisit in progress it still looks at. Updates the revisit side.
+    fn candidates(&mut self, map: &Map, cam: &RectifiedCamera, kf: KfId, near: &BTreeSet<KfId>) -> Vec<KfId> {
+        let mut candidates = revisited(map, cam, kf, near);
+        if !self.revisit_side.is_empty() {
+            let elsewhere: BTreeSet<KfId> =
+                map.good_keyframes().map(|k| k.id).filter(|k| !self.revisit_side.contains(k)).collect();
+            for c in revisited(map, cam, kf, &elsewhere) {
+                if !candidates.contains(&c) {
+                    candidates.push(c);
+                }
+            }
+        }
+        if candidates.is_empty() {
+            // The scope has left the old tissue: the revisit is over.
+            self.revisit_side.clear();
+        }
+        for &c in &candidates {
+            if !self.revisit_side.contains(&c) {
+                let side = neighbourhood(map, c, LOOP_HORIZON_HOPS);
+                self.revisit_side.extend(side.into_iter().filter(|k| !near.contains(k)));
+            }
+        }
+        candidates
     }
 
     /// A loop was closed at keyframe `kf` against `candidate`.
     pub fn closed(&mut self, kf: KfId, candidate: KfId) {
+        self.revisit_side.clear();
         self.last_loop_kf = Some(kf);
         self.loops.push((kf, candidate));
+    }
+
+    /// A global bundle adjustment started (`true`) or was applied.
+    pub fn set_global_pending(&mut self, on: bool) {
+        self.global_pending = on;
     }
 
     /// A pose graph came back (applied by the caller).

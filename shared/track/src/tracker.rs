@@ -133,11 +133,6 @@ pub struct Tracker {
     new_point_anchors: Vec<Option<(Anchor, bool)>>,
     residual_scratch: Vec<f64>,
     appearance: appearance::AppearanceScratch,
-    /// Keyframes within the loop horizon of the reference keyframe, by stamp, and for which reference and map
-    /// size the stamps were made.
-    near_stamp: Vec<u64>,
-    near_for: Option<(KfId, usize)>,
-    near_frontier: Vec<KfId>,
 }
 
 impl Tracker {
@@ -206,9 +201,6 @@ impl Tracker {
             new_point_anchors: Vec::with_capacity(1 << 12),
             residual_scratch: Vec::with_capacity(1 << 12),
             appearance: appearance::AppearanceScratch::with_capacity(settings.orb.n_features as usize),
-            near_stamp: Vec::with_capacity(1 << 12),
-            near_for: None,
-            near_frontier: Vec::with_capacity(1 << 10),
         })
     }
 
@@ -425,9 +417,10 @@ impl Tracker {
         report
     }
 
-    /// Loop closing on (the default) or off (ORB-SLAM2-STEREO.md §8). Set before the first frame. Off, a revisit
-    /// is tied in by map reuse alone; on, map reuse stops at the loop horizon and farther revisits are closed as
-    /// loops (see BENCHMARKS.md for what each gives).
+    /// Loop closing on (the default) or off (ORB-SLAM2-STEREO.md §8). Set before the first frame. Either way map
+    /// reuse ties a revisit in as soon as the view overlaps old keyframes; on, the mapper also recognises the
+    /// revisit as a loop, fuses the two passes' duplicated points, corrects a drift beyond noise with the pose
+    /// graph and re-solves the whole map by a global bundle adjustment (see BENCHMARKS.md for what each gives).
     pub fn set_loop_closing(&mut self, on: bool) {
         self.mapper.set_loop_closing(on);
     }

@@ -52,6 +52,9 @@ pub struct TrackingSummary {
     pub loop_detection_ms_p50: Option<f64>,
     #[serde(default)]
     pub pose_graph_ms: Vec<f64>,
+    /// Each global bundle adjustment after a loop, its own thread's wall time, ms (it runs beside tracking).
+    #[serde(default)]
+    pub global_ba_ms: Vec<f64>,
 }
 
 impl TrackingSummary {

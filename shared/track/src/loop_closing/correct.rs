@@ -63,7 +63,8 @@ pub fn close_loop(
     // The loop's side: the candidate and every keyframe connected to it, with their points.
     let mut loop_kfs: BTreeSet<KfId> = map.keyframes[candidate].connections.keys().copied().collect();
     loop_kfs.insert(candidate);
-    loop_kfs.retain(|&k| !map.keyframes[k].bad);
+    // A tied-in query is already linked to the candidate's neighbours, and they to it: its own side stays its.
+    loop_kfs.retain(|&k| !map.keyframes[k].bad && k < kf && !found.tied_side.contains(&k));
     // The current side: the query, its connections and every keyframe made since (they were tracked in the
     // drifted frame too); what is on both sides is already tied and stays where it is.
     let mut group: BTreeSet<KfId> = map.keyframes[kf].connections.keys().copied().collect();
@@ -115,9 +116,21 @@ pub fn close_loop(
     // Is the drift real? The correction (a twist, ω then υ, as the optimiser perturbs) against the pose's
     // uncertainty from the old points: below the 95 % χ² of 6 DoF it is measurement noise, and spreading it
     // over the map would add error, not remove it. The two sides are still fused (the same points, tied as map
-    // reuse would), without moving anything.
-    let twist = super::log_se3(&(corrected * map.keyframes[kf].camera_from_world.inverse()));
-    let drift_chi2 = (twist.transpose() * optimiser.information() * twist)[(0, 0)];
+    // reuse would), without moving anything, and the global adjustment after the loop weighs both.
+    // Tied in by map reuse, the query's pose is a compromise of both sides: the drift is then between the
+    // pose its own side's points give and the old side's, each with its own uncertainty.
+    let (own_pose, information) = if found.tied_side.is_empty() {
+        (map.keyframes[kf].camera_from_world, *optimiser.information())
+    } else {
+        let own_side = own_side_pose(map, cam, scales, kf, &loop_kfs);
+        let combined = own_side.and_then(|(pose, own_information)| {
+            let sum = optimiser.information().try_inverse()? + own_information.try_inverse()?;
+            Some((pose, sum.try_inverse()?))
+        });
+        combined.unwrap_or((map.keyframes[kf].camera_from_world, *optimiser.information()))
+    };
+    let twist = super::log_se3(&(corrected * own_pose.inverse()));
+    let drift_chi2 = (twist.transpose() * information * twist)[(0, 0)];
     let significant = drift_chi2 > CHI2_6DOF_95;
     let corrected = if significant { corrected } else { map.keyframes[kf].camera_from_world };
     // Every keyframe's pose before the correction: the odometry's relative poses the graph must keep.
@@ -192,6 +205,40 @@ pub fn close_loop(
     })
 }
 
+/// The pose of keyframe `kf` from its own side's points alone (those no keyframe of `loop_kfs` observes), and
+/// its information; `None` when too few of them hold.
+fn own_side_pose(
+    map: &Map,
+    cam: &RectifiedCamera,
+    scales: &Scales,
+    kf: KfId,
+    loop_kfs: &BTreeSet<KfId>,
+) -> Option<(CameraFromWorld, nalgebra::Matrix6<f64>)> {
+    let k = &map.keyframes[kf];
+    let mut points = Vec::new();
+    let mut observations = Vec::new();
+    for (i, p) in k.points.iter().enumerate() {
+        let Some(p) = *p else { continue };
+        let point = &map.points[p];
+        if point.bad || point.observations.keys().any(|o| loop_kfs.contains(o)) {
+            continue;
+        }
+        let kp = &k.keypoints[i];
+        points.push(point.position);
+        observations.push(Observation {
+            u: f64::from(kp.x),
+            v: f64::from(kp.y),
+            u_right: k.is_stereo(i).then(|| f64::from(k.u_right[i])),
+            inv_sigma2: scales.inv_sigma2[usize::from(kp.octave)],
+        });
+    }
+    let mut outlier = vec![false; points.len()];
+    let mut pose = k.camera_from_world;
+    let mut optimiser = PoseOptimizer::default();
+    let inliers = optimiser.optimize(cam, &mut pose, &points, &observations, &mut outlier);
+    (inliers >= MIN_LOOP_MATCHES_AFTER_PROJECTION).then(|| (pose, *optimiser.information()))
+}
+
 /// The essential graph (§8.4): every good keyframe; edges of the spanning tree and of strong covisibility with
 /// the odometry's relative poses (before the correction), the loop's edges with the corrected ones. Keyframe 0
 /// (or the oldest good one) is held.
@@ -247,23 +294,7 @@ pub fn apply_graph(map: &mut Map, job: &GraphJob, scales: &Scales) -> Vec<KfId> 
     for (n, &k) in job.nodes.iter().enumerate() {
         correction.insert(k, job.initial[n].inverse() * job.graph.poses[n]);
     }
-    let newest = job.nodes.last().and_then(|k| correction.get(k).copied()).unwrap_or_else(Isometry3::identity);
-    let mut of_keyframe: Vec<Isometry3<f64>> = Vec::with_capacity(map.keyframes.len());
-    for k in 0..map.keyframes.len() {
-        let w = correction.get(&k).copied().unwrap_or_else(|| {
-            let mut ancestor = map.keyframes[k].parent;
-            for _ in 0..map.keyframes.len() {
-                match ancestor {
-                    Some(a) if correction.contains_key(&a) => return correction[&a],
-                    Some(a) if a < k => return of_keyframe[a],
-                    Some(a) => ancestor = map.keyframes[a].parent,
-                    None => break,
-                }
-            }
-            newest
-        });
-        of_keyframe.push(w);
-    }
+    let of_keyframe = corrections_by_ancestry(map, &correction);
     let mut moved = Vec::new();
     for (k, w) in of_keyframe.iter().enumerate() {
         if !map.keyframes[k].bad {
@@ -282,7 +313,31 @@ pub fn apply_graph(map: &mut Map, job: &GraphJob, scales: &Scales) -> Vec<KfId> 
     moved
 }
 
-fn renormalised(mut t: Isometry3<f64>) -> Isometry3<f64> {
+/// Per keyframe of the map, the correction (applied as `camera_from_world · w`) it takes: its own when it has
+/// one, else its nearest ancestor's that has (a keyframe made after the cut), else the newest keyframe's.
+pub fn corrections_by_ancestry(map: &Map, correction: &BTreeMap<KfId, Isometry3<f64>>) -> Vec<Isometry3<f64>> {
+    let newest = correction.last_key_value().map_or_else(Isometry3::identity, |(_, w)| *w);
+    let mut of_keyframe: Vec<Isometry3<f64>> = Vec::with_capacity(map.keyframes.len());
+    for k in 0..map.keyframes.len() {
+        let w = correction.get(&k).copied().unwrap_or_else(|| {
+            let mut ancestor = map.keyframes[k].parent;
+            for _ in 0..map.keyframes.len() {
+                match ancestor {
+                    Some(a) if correction.contains_key(&a) => return correction[&a],
+                    Some(a) if a < k => return of_keyframe[a],
+                    Some(a) => ancestor = map.keyframes[a].parent,
+                    None => break,
+                }
+            }
+            newest
+        });
+        of_keyframe.push(w);
+    }
+    of_keyframe
+}
+
+/// A rotation renormalised after products of corrections (rounding would otherwise accumulate).
+pub fn renormalised(mut t: Isometry3<f64>) -> Isometry3<f64> {
     t.rotation = nalgebra::UnitQuaternion::new_normalize(t.rotation.into_inner());
     t
 }

@@ -66,6 +66,9 @@ pub struct PlaceMatch {
     pub query_from_candidate: Isometry3<f64>,
     /// (query keypoint, candidate keypoint) of the inliers.
     pub pairs: Vec<(usize, usize)>,
+    /// When map reuse had already tied the query to the candidate ([`super::tied_in`]): the keyframes the query
+    /// was tracked among, its side of the loop. Empty for a place found by the 3-D check.
+    pub tied_side: Vec<KfId>,
 }
 
 /// What the loop worker keeps of every keyframe, by id.
@@ -188,7 +191,12 @@ impl PlaceStore {
             t = refit;
         }
         let inliers: Vec<(usize, usize)> = (0..pairs.len()).filter(|&k| inlier(&t, k)).map(|k| pairs[k]).collect();
-        (inliers.len() >= MIN_LOOP_INLIERS).then_some(PlaceMatch { candidate, query_from_candidate: t, pairs: inliers })
+        (inliers.len() >= MIN_LOOP_INLIERS).then_some(PlaceMatch {
+            candidate,
+            query_from_candidate: t,
+            pairs: inliers,
+            tied_side: Vec::new(),
+        })
     }
 }
 

@@ -19,6 +19,27 @@ pub struct BaJob {
 pub(super) fn snapshot_local_ba(map: &Map, kf: KfId, cam: &RectifiedCamera, scales: &Scales) -> BaJob {
     let mut local: Vec<KfId> = vec![kf];
     local.extend(map.keyframes[kf].ordered.iter().map(|(k, _)| *k).filter(|&k| !map.keyframes[k].bad));
+    snapshot_ba(map, kf, local, None, cam, scales)
+}
+
+/// §8.5's global bundle adjustment: every good keyframe (the oldest held, as the pose graph holds it) and every
+/// point they observe. `kf` is the keyframe it was cut at.
+pub(super) fn snapshot_global_ba(map: &Map, kf: KfId, cam: &RectifiedCamera, scales: &Scales) -> BaJob {
+    let all: Vec<KfId> = map.good_keyframes().map(|k| k.id).collect();
+    let oldest = all.first().copied();
+    snapshot_ba(map, kf, all, oldest, cam, scales)
+}
+
+/// The problem over keyframes `local` (free, but `hold`) and their points; keyframes outside `local` that see
+/// those points join fixed.
+fn snapshot_ba(
+    map: &Map,
+    kf: KfId,
+    local: Vec<KfId>,
+    hold: Option<KfId>,
+    cam: &RectifiedCamera,
+    scales: &Scales,
+) -> BaJob {
     let local_set: BTreeSet<KfId> = local.iter().copied().collect();
     let mut points: BTreeSet<PointId> = BTreeSet::new();
     for &k in &local {
@@ -39,7 +60,7 @@ pub(super) fn snapshot_local_ba(map: &Map, kf: KfId, cam: &RectifiedCamera, scal
         pose_index.insert(k, problem.poses.len());
         pose_ids.push(k);
         problem.poses.push(map.keyframes[k].camera_from_world);
-        problem.fixed.push(is_fixed || k == 0);
+        problem.fixed.push(is_fixed || k == 0 || Some(k) == hold);
     }
     let point_ids: Vec<PointId> = points.into_iter().collect();
     let mut edge_keys: Vec<(PointId, KfId)> = Vec::new();
@@ -111,4 +132,113 @@ pub(super) fn apply_local_ba(map: &mut Map, job: &BaJob, scales: &Scales, report
     report.ba_iterations = job.iterations;
     report.ba_keyframes = job.pose_ids.iter().zip(&job.problem.fixed).filter(|(_, f)| !**f).count();
     report.ba_points = job.point_ids.len();
+}
+
+/// A global bundle adjustment in flight: the snapshot as cut (the correction is solved minus cut, so what local
+/// bundle adjustment changed meanwhile stays) and the solve, on its own thread or already done.
+#[derive(Debug)]
+pub(super) struct GlobalBa {
+    /// Keyframes processed before it is applied (it waits there if the solve is not done: deterministic).
+    pub due_in: usize,
+    cut_poses: Vec<CameraFromWorld>,
+    cut_points: Vec<Point3<f64>>,
+    solve: GlobalSolve,
+}
+
+#[derive(Debug)]
+enum GlobalSolve {
+    Thread(std::thread::JoinHandle<(BaJob, f64)>),
+    Done(Box<(BaJob, f64)>),
+}
+
+/// Solves a global adjustment; returns it with its wall time, ms.
+fn solve_timed(job: BaJob) -> (BaJob, f64) {
+    let start = std::time::Instant::now();
+    let solved = solve_local_ba(job);
+    (solved, start.elapsed().as_secs_f64() * 1e3)
+}
+
+impl GlobalBa {
+    /// Cuts the problem at keyframe `kf` and starts solving it: on a thread of its own (`on_start` first), or
+    /// here when `inline` (or when no thread can be made).
+    pub fn start(
+        map: &Map,
+        kf: KfId,
+        cam: &RectifiedCamera,
+        scales: &Scales,
+        inline: bool,
+        on_start: Option<WorkerStart>,
+    ) -> Self {
+        let job = snapshot_global_ba(map, kf, cam, scales);
+        let cut_poses = job.problem.poses.clone();
+        let cut_points = job.problem.points.clone();
+        let solve = if inline {
+            GlobalSolve::Done(Box::new(solve_timed(job)))
+        } else {
+            let spawned = std::thread::Builder::new().name("global-ba".into()).spawn(move || {
+                if let Some(start) = on_start {
+                    start();
+                }
+                solve_timed(job)
+            });
+            match spawned {
+                Ok(handle) => GlobalSolve::Thread(handle),
+                // No thread to be had (the job went with the closure): cut again and solve here.
+                Err(_) => GlobalSolve::Done(Box::new(solve_timed(snapshot_global_ba(map, kf, cam, scales)))),
+            }
+        };
+        Self { due_in: GLOBAL_BA_AFTER_KEYFRAMES, cut_poses, cut_points, solve }
+    }
+
+    /// Waits for the solve and writes it into the map as corrections: keyframe k moves by cut⁻¹·solved (what
+    /// changed since the cut stays), a keyframe made since moves with its nearest cut ancestor, a cut point by
+    /// solved − cut, any other point with its reference keyframe. No observation is erased (ORB-SLAM2's global
+    /// adjustment does not either). Returns the keyframes moved, or nothing if the solve was lost.
+    pub fn apply(self, map: &mut Map, scales: &Scales, report: &mut MapperReport) -> Vec<KfId> {
+        let (job, solve_ms) = match self.solve {
+            GlobalSolve::Done(solved) => *solved,
+            GlobalSolve::Thread(handle) => match handle.join() {
+                Ok(solved) => solved,
+                Err(_) => return Vec::new(),
+            },
+        };
+        if job.pose_ids.len() != self.cut_poses.len() || job.point_ids.len() != self.cut_points.len() {
+            return Vec::new();
+        }
+        let mut correction: BTreeMap<KfId, nalgebra::Isometry3<f64>> = BTreeMap::new();
+        for (i, &k) in job.pose_ids.iter().enumerate() {
+            correction.insert(k, self.cut_poses[i].inverse() * job.problem.poses[i]);
+        }
+        let of_keyframe = crate::loop_closing::corrections_by_ancestry(map, &correction);
+        let mut moved = Vec::new();
+        for (k, w) in of_keyframe.iter().enumerate() {
+            if !map.keyframes[k].bad {
+                map.keyframes[k].camera_from_world =
+                    crate::loop_closing::renormalised(map.keyframes[k].camera_from_world * w);
+                moved.push(k);
+            }
+        }
+        let mut in_cut = vec![false; map.points.len()];
+        for (pi, &p) in job.point_ids.iter().enumerate() {
+            if p < map.points.len() && !map.points[p].bad {
+                map.points[p].position += job.problem.points[pi] - self.cut_points[pi];
+                in_cut[p] = true;
+            }
+        }
+        for p in 0..map.points.len() {
+            if map.points[p].bad {
+                continue;
+            }
+            if !in_cut[p] {
+                let w = of_keyframe[map.points[p].ref_kf];
+                map.points[p].position = w.inverse() * map.points[p].position;
+            }
+            map.update_normal_and_depth(p, scales);
+        }
+        report.global_ba_iterations = job.iterations;
+        report.global_ba_keyframes = job.pose_ids.len();
+        report.global_ba_points = job.point_ids.len();
+        report.global_ba_ms = solve_ms;
+        moved
+    }
 }

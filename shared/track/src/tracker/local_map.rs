@@ -144,14 +144,8 @@ impl Tracker {
         let Some(pose) = self.current.camera_from_world else { return };
         let centre = pose.inverse() * Point3::origin();
         self.in_view.clear();
-        let horizon = self.loop_horizon_stamp();
         for kf in &self.map.keyframes {
             if kf.bad || self.kf_stamp[kf.id] == stamp || !kf.median_depth.is_finite() {
-                continue;
-            }
-            // With loop closing on, a keyframe beyond the loop horizon is a loop's business: tying it in here
-            // would hide the drift between the two from the pose graph and leave it in the map.
-            if horizon.is_some_and(|h| self.near_stamp.get(kf.id) != Some(&h)) {
                 continue;
             }
             let closeness = (kf.centre() - centre).norm() / kf.median_depth;
@@ -172,44 +166,6 @@ impl Tracker {
             self.kf_stamp[k] = stamp;
             self.local_kfs.push(k);
         }
-    }
-
-    /// With loop closing on: stamps the keyframes within the loop horizon of the reference keyframe (when the
-    /// reference or the map changed) and returns the stamp; `None` with loop closing off.
-    fn loop_horizon_stamp(&mut self) -> Option<u64> {
-        // With loop closing on, map reuse stops at the loop horizon (beyond it, a revisit is a loop to close).
-        if !self.mapper.loop_closing() {
-            return None;
-        }
-        let reference = self.reference_kf?;
-        let key = (reference, self.map.keyframes.len());
-        let stamp = key.1 as u64 * 1_000_003 + reference as u64;
-        if self.near_for == Some(key) {
-            return Some(stamp);
-        }
-        self.near_for = Some(key);
-        if self.near_stamp.len() < self.map.keyframes.len() {
-            self.near_stamp.resize(self.map.keyframes.len(), u64::MAX);
-        }
-        // Breadth first over the strong links, `LOOP_HORIZON_HOPS` deep.
-        self.near_stamp[reference] = stamp;
-        let mut frontier_start = 0;
-        self.near_frontier.clear();
-        self.near_frontier.push(reference);
-        for _ in 0..crate::loop_closing::LOOP_HORIZON_HOPS {
-            let frontier_end = self.near_frontier.len();
-            for idx in frontier_start..frontier_end {
-                let k = self.near_frontier[idx];
-                for &(n, _) in &self.map.keyframes[k].ordered {
-                    if self.near_stamp[n] != stamp && !self.map.keyframes[n].bad {
-                        self.near_stamp[n] = stamp;
-                        self.near_frontier.push(n);
-                    }
-                }
-            }
-            frontier_start = frontier_end;
-        }
-        Some(stamp)
     }
 
     pub(super) fn update_local_points(&mut self) {
