@@ -1,4 +1,6 @@
-//! Local bundle adjustment (§6.5): the problem cut out of the map around the new keyframe, solved on the\n//! worker thread (or inline), and its result written back.
+//! Local bundle adjustment (§6.5): the problem cut out of the map around the new keyframe, solved on the
+//! worker thread (or inline), and its result written back; and the global one after a loop (§8.5), on a thread
+//! of its own, written back as corrections.
 use super::*;
 
 /// A local bundle adjustment taken out of the map: the problem and which map ids its rows are.
@@ -142,7 +144,18 @@ pub(super) struct GlobalBa {
     pub due_in: usize,
     cut_poses: Vec<CameraFromWorld>,
     cut_points: Vec<Point3<f64>>,
-    solve: GlobalSolve,
+    /// `None` once taken by `apply`.
+    solve: Option<GlobalSolve>,
+}
+
+impl Drop for GlobalBa {
+    /// A solve still running is waited for, not left detached (ORB-SLAM2-STEREO.md §10): it owns nothing shared
+    /// and ends within its iterations.
+    fn drop(&mut self) {
+        if let Some(GlobalSolve::Thread(handle)) = self.solve.take() {
+            let _ = handle.join();
+        }
+    }
 }
 
 #[derive(Debug)]
@@ -187,20 +200,21 @@ impl GlobalBa {
                 Err(_) => GlobalSolve::Done(Box::new(solve_timed(snapshot_global_ba(map, kf, cam, scales)))),
             }
         };
-        Self { due_in: GLOBAL_BA_AFTER_KEYFRAMES, cut_poses, cut_points, solve }
+        Self { due_in: GLOBAL_BA_AFTER_KEYFRAMES, cut_poses, cut_points, solve: Some(solve) }
     }
 
     /// Waits for the solve and writes it into the map as corrections: keyframe k moves by cut⁻¹·solved (what
     /// changed since the cut stays), a keyframe made since moves with its nearest cut ancestor, a cut point by
     /// solved − cut, any other point with its reference keyframe. No observation is erased (ORB-SLAM2's global
     /// adjustment does not either). Returns the keyframes moved, or nothing if the solve was lost.
-    pub fn apply(self, map: &mut Map, scales: &Scales, report: &mut MapperReport) -> Vec<KfId> {
-        let (job, solve_ms) = match self.solve {
-            GlobalSolve::Done(solved) => *solved,
-            GlobalSolve::Thread(handle) => match handle.join() {
+    pub fn apply(mut self, map: &mut Map, scales: &Scales, report: &mut MapperReport) -> Vec<KfId> {
+        let (job, solve_ms) = match self.solve.take() {
+            Some(GlobalSolve::Done(solved)) => *solved,
+            Some(GlobalSolve::Thread(handle)) => match handle.join() {
                 Ok(solved) => solved,
                 Err(_) => return Vec::new(),
             },
+            None => return Vec::new(),
         };
         if job.pose_ids.len() != self.cut_poses.len() || job.point_ids.len() != self.cut_points.len() {
             return Vec::new();
