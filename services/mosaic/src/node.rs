@@ -46,6 +46,9 @@ struct Counters {
     snapshots: u64,
     removed: u64,
     kept_occluded: u64,
+    /// Points the overlap rule removed when it ran again after corrections moved keyframes (a loop's second
+    /// surface).
+    realigned_removed: u64,
     /// Per keyframe: the mosaic update (removal and lifting), ms, and how many earlier keyframes it visited.
     update_ms: Vec<f64>,
     overlapping: Vec<usize>,
@@ -121,6 +124,9 @@ pub fn run(config: Config) -> Result<()> {
     counters.corrections += pending.apply_up_to(u64::MAX, counters.highest_kf_id, &mut mosaic, |r| {
         telemetry.rejected(Topic::Corrections, &crate::pending::rejection(r))
     });
+    // The last corrections can move keyframes as a loop's did: the map written is the corrected one, one surface
+    // where the passes meet.
+    count_realigned(&mut counters, mosaic.realign());
     let written = write_results(&mosaic, &counters, &out_dir, preview_width, end_of_stream);
     match (failure, written) {
         (None, Ok(())) => {
@@ -230,6 +236,7 @@ fn take_depth(
         }
         counters.inserted += 1;
         counters.removed += report.removed as u64;
+        count_realigned(counters, report.realigned);
         counters.kept_occluded += report.kept_occluded as u64;
         counters.update_ms.push((t_done_ns - start) as f64 / 1e6);
         counters.overlapping.push(report.overlapping_keyframes);
@@ -257,6 +264,18 @@ fn take_depth(
             0,
         );
     }
+}
+
+fn count_realigned(counters: &mut Counters, realigned: bdis_mosaic::Realigned) {
+    if realigned.keyframes_moved > 0 {
+        tracing::info!(
+            "corrections moved {} keyframes: the overlap rule again removed {} points seen again and {} seen through",
+            realigned.keyframes_moved,
+            realigned.removed,
+            realigned.seen_through
+        );
+    }
+    counters.realigned_removed += (realigned.removed + realigned.seen_through) as u64;
 }
 
 fn answer_snapshots(
@@ -340,6 +359,7 @@ fn write_results(
         points: mosaic.n_points() as u64,
         points_replaced: counters.removed,
         points_kept_behind: counters.kept_occluded,
+        points_removed_realigned: counters.realigned_removed,
         update_ms_p50: pick(0.5),
         update_ms_p99: pick(0.99),
         overlapping_keyframes_max: counters.overlapping.iter().max().map(|&n| n as u64),

@@ -202,6 +202,8 @@ pub fn run(config: Config) -> Result<()> {
         tracing::warn!("{e:#}");
     }
     pending.apply_up_to(u64::MAX, newest_kf_id, &mut replica, |_| {});
+    // As the mosaic does before writing the map.
+    replica.realign();
     updates.clear();
     live.sync(&replica, &mut updates);
     for update in updates.drain(..) {

@@ -11,6 +11,8 @@ use crate::RectifiedCamera;
 /// A keyframe's usable depth (mm; NaN = none) at its point grid: every `gap`-th row and column.
 #[derive(Debug, Clone, Default)]
 pub(crate) struct SeenDepth {
+    /// The keyframe's pose when the overlap rule last ran with this view ([`crate::Mosaic::realign`]).
+    pub(crate) ruled_at: Isometry3<f64>,
     gap: usize,
     gw: usize,
     gh: usize,
@@ -18,14 +20,14 @@ pub(crate) struct SeenDepth {
 }
 
 impl SeenDepth {
-    /// Samples a view's per-pixel usable depth (`w × h`) at its grid.
-    pub(crate) fn sample(depth: &[f32], w: usize, h: usize, gap: usize) -> Self {
+    /// Samples a view's per-pixel usable depth (`w × h`) at its grid; the view is at `world_from_camera`.
+    pub(crate) fn sample(depth: &[f32], w: usize, h: usize, gap: usize, world_from_camera: Isometry3<f64>) -> Self {
         let (gw, gh) = (w.div_ceil(gap), h.div_ceil(gap));
         let mut grid = Vec::with_capacity(gw * gh);
         for v in (0..h).step_by(gap) {
             grid.extend((0..w).step_by(gap).map(|u| depth[v * w + u]));
         }
-        Self { gap, gw, gh, depth: grid }
+        Self { ruled_at: world_from_camera, gap, gw, gh, depth: grid }
     }
 
     /// Removes from `points` (camera frame of a new view at `world_from_new`) those this view — posed at
@@ -48,34 +50,44 @@ impl SeenDepth {
         let rotation: Matrix3<f32> = seen_from_new.rotation.to_rotation_matrix().matrix().cast();
         let translation: Vector3<f32> = seen_from_new.translation.vector.cast();
         let (fx, fy, cx, cy, bf) = (k.fx as f32, k.fy as f32, k.cx as f32, k.cy as f32, k.bf as f32);
-        let gap = self.gap as f32;
         let before = points.len();
         points.retain(|pt| {
             let q = rotation * Vector3::from(xyz(pt)) + translation;
             if q.z <= 0.0 {
                 return true;
             }
-            // Grid coordinates of the projection.
-            let gu = (fx * q.x / q.z + cx) / gap;
-            let gv = (fy * q.y / q.z + cy) / gap;
-            if !(gu >= 0.0 && gv >= 0.0) {
+            let nearest = self.nearest_of_four(fx * q.x / q.z + cx, fy * q.y / q.z + cy);
+            if !nearest.is_finite() {
                 return true;
-            }
-            let (u0, v0) = (gu.floor() as usize, gv.floor() as usize);
-            if u0 + 1 >= self.gw || v0 + 1 >= self.gh {
-                return true;
-            }
-            let mut nearest = f32::INFINITY;
-            for (du, dv) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
-                let z = self.depth[(v0 + dv) * self.gw + u0 + du];
-                if !z.is_finite() {
-                    return true;
-                }
-                nearest = nearest.min(z);
             }
             // In the seen view's disparity: the surface it saw is farther than the point by more than the margin.
             bf / nearest >= bf / q.z - carve_disparity_px
         });
         before - points.len()
+    }
+}
+
+impl SeenDepth {
+    /// The nearest depth among the four grid samples around pixel (`u`, `v`); NaN unless all four have depth.
+    /// The nearest of four keeps a point on a depth edge: a surface it may belong to counts.
+    pub(crate) fn nearest_of_four(&self, u: f32, v: f32) -> f32 {
+        let gap = self.gap as f32;
+        let (gu, gv) = (u / gap, v / gap);
+        if !(gu >= 0.0 && gv >= 0.0) {
+            return f32::NAN;
+        }
+        let (u0, v0) = (gu.floor() as usize, gv.floor() as usize);
+        if u0 + 1 >= self.gw || v0 + 1 >= self.gh {
+            return f32::NAN;
+        }
+        let mut nearest = f32::INFINITY;
+        for (du, dv) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
+            let z = self.depth[(v0 + dv) * self.gw + u0 + du];
+            if !z.is_finite() {
+                return f32::NAN;
+            }
+            nearest = nearest.min(z);
+        }
+        nearest
     }
 }

@@ -20,6 +20,7 @@ mod carve;
 mod normals;
 mod params;
 pub mod pending;
+mod realign;
 mod render;
 mod store;
 mod summary;
@@ -31,6 +32,7 @@ use serde::{Deserialize, Serialize};
 
 pub use normals::keyframe_normals;
 pub use params::{Fusion, MosaicParams};
+pub use realign::Realigned;
 pub use render::{PreviewView, render_preview};
 pub use store::{MOSAIC_FORMAT, Outputs, decode, load, save, write_outputs};
 pub use summary::MosaicSummary;
@@ -134,6 +136,9 @@ pub struct InsertReport {
     pub tested: usize,
     /// New points dropped because an earlier keyframe saw through them (see `carve_disparity_px`).
     pub seen_through: usize,
+    /// Before this keyframe: the overlap rule run again on keyframes that corrections had moved
+    /// ([`Mosaic::realign`]).
+    pub realigned: Realigned,
 }
 
 /// The whole map: keyframe clouds by id, and the newest pose correction of every keyframe seen so far (a
@@ -154,6 +159,9 @@ pub struct Mosaic {
     seen: BTreeMap<u64, carve::SeenDepth>,
     /// Reused per keyframe: the earlier keyframes the new view overlaps.
     overlapping: Vec<u64>,
+    /// Reused by [`Mosaic::realign`]: the keyframes moved since, and every keyframe id in order.
+    moved: Vec<u64>,
+    ids: Vec<u64>,
 }
 
 pub(crate) fn check_pose(kf_id: u64, pose: &Isometry3<f64>) -> Result<(), MosaicError> {
@@ -177,6 +185,8 @@ impl Mosaic {
             covered: Vec::new(),
             seen: BTreeMap::new(),
             overlapping: Vec::new(),
+            moved: Vec::new(),
+            ids: Vec::new(),
         }
     }
 
@@ -241,6 +251,9 @@ impl Mosaic {
         if self.keyframes.contains_key(&kf.kf_id) {
             return Ok(InsertReport { duplicate: true, ..Default::default() });
         }
+        // The rule below runs with the current poses; where corrections since the last keyframe moved earlier
+        // keyframes relative to each other, it runs again between them first.
+        let realigned = self.realign();
         // A correction that arrived before the depth is newer than the pose the keyframe was published with.
         let world_from_camera = self.corrections.get(&kf.kf_id).copied().unwrap_or(kf.world_from_camera);
         check_pose(kf.kf_id, &world_from_camera)?;
@@ -271,10 +284,9 @@ impl Mosaic {
             self.fuse_weighted_z.resize(gw * gh, 0.0);
         }
 
-        let mut report = InsertReport::default();
+        let mut report = InsertReport { realigned, ..InsertReport::default() };
         let camera_from_world = world_from_camera.inverse();
         let frustum = Frustum::new(&kf.intrinsics);
-        let bf32 = bf as f32;
         self.overlapping.clear();
         for old in self.keyframes.values_mut() {
             let Some((centre_world, radius)) = old.bounding_sphere_world() else { continue };
@@ -288,11 +300,10 @@ impl Mosaic {
             let rotation: Matrix3<f32> = new_from_old.rotation.to_rotation_matrix().matrix().cast();
             let translation: Vector3<f32> = new_from_old.translation.vector.cast();
             let (fxf, fyf, cxf, cyf) = (fx as f32, fy as f32, cx as f32, cy as f32);
-            let (abs_tol, disp_tol) = (p.depth_tolerance_mm as f32, p.disparity_tolerance_px as f32);
+            let test = realign::DepthTest::new(&p, bf);
             let depth = &self.depth_scratch;
             let (fuse_weight, fuse_weighted_z) = (&mut self.fuse_weight, &mut self.fuse_weighted_z);
             let covered = &mut self.covered;
-            let keep_closer = p.keep_closer_ratio;
             let mut kept_closer = 0usize;
             let before = old.points.len();
             let mut kept_occluded = 0usize;
@@ -311,20 +322,20 @@ impl Mosaic {
                 if !z_new.is_finite() {
                     return true;
                 }
-                let z_old_own = pt.xyz[2];
-                let tolerance = abs_tol + disp_tol * (z_new * z_new + z_old_own * z_old_own) / bf32;
-                if q.z > z_new + tolerance {
-                    kept_occluded += 1;
-                    return true;
-                }
                 // The grid cell of the new view this earlier point falls in.
                 let cell = ((v + gap / 2) / gap).min(gh - 1) * gw + ((u + gap / 2) / gap).min(gw - 1);
-                let agrees = (q.z - z_new).abs() <= tolerance;
-                if agrees && z_old_own < keep_closer * z_new {
-                    covered[cell] = true;
-                    kept_closer += 1;
-                    return true;
-                }
+                let agrees = match test.verdict(q.z, z_new, pt.xyz[2]) {
+                    realign::Verdict::Occluded => {
+                        kept_occluded += 1;
+                        return true;
+                    }
+                    realign::Verdict::SeenCloser => {
+                        covered[cell] = true;
+                        kept_closer += 1;
+                        return true;
+                    }
+                    realign::Verdict::Replaced { agrees } => agrees,
+                };
                 if fuse && agrees {
                     fuse_weight[cell] += pt.weight;
                     fuse_weighted_z[cell] += pt.weight * q.z;
@@ -392,7 +403,7 @@ impl Mosaic {
                 }
             }
         }
-        self.seen.insert(kf.kf_id, carve::SeenDepth::sample(&self.depth_scratch, w, h, gap));
+        self.seen.insert(kf.kf_id, carve::SeenDepth::sample(&self.depth_scratch, w, h, gap, world_from_camera));
         report.added = cloud.points.len();
         cloud.update_bounds();
         // Kept even when empty (all dark, or all replaced later): the id stays known, so a keyframe sent again is

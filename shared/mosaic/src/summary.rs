@@ -29,6 +29,10 @@ pub struct MosaicSummary {
     /// Points a later, closer view replaced, and points kept behind a closer surface.
     pub points_replaced: u64,
     pub points_kept_behind: u64,
+    /// Points removed when the overlap rule ran again after corrections had moved keyframes (a loop's second
+    /// surface, [`crate::Mosaic::realign`]). Absent from summaries written before it existed.
+    #[serde(default)]
+    pub points_removed_realigned: u64,
     /// The map update per keyframe, ms, by the nearest-rank rule; `None` without keyframes.
     pub update_ms_p50: Option<f64>,
     pub update_ms_p99: Option<f64>,

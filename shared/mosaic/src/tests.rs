@@ -396,3 +396,67 @@ fn an_hd_keyframe_is_lifted_on_a_grid_as_wide_as_its_depth_is_fine() {
     }
     assert_eq!(added, vec![128 * 72, 192 * 108]);
 }
+
+/// Two passes over a flat wall at 50 mm. The second pass's keyframe was published 15 mm off along its axis (drift),
+/// so the first pass's points lay far behind its surface — occluded, kept: two surfaces. A loop correction puts
+/// it where it was; the overlap rule, run again, leaves one.
+#[test]
+fn a_correction_that_brings_two_passes_together_leaves_one_surface() {
+    let mut m = Mosaic::new(MosaicParams::default());
+    let wall = views(|_, _| Some(50.0), [100, 100, 100]);
+    m.insert(&keyframe(0, Isometry3::identity(), &wall)).unwrap();
+    let first_pass = m.n_points();
+    let truth = Isometry3::translation(2.0, 0.0, 0.0);
+    let drifted = Isometry3::translation(2.0, 0.0, -15.0);
+    let r = m.insert(&keyframe(1, drifted, &wall)).unwrap();
+    assert_eq!((r.removed, r.kept_occluded), (0, first_pass), "drifted, the first pass lies behind: {r:?}");
+    let behind = |m: &Mosaic| world_points_of(m, 0).iter().filter(|p| (p[2] - 50.0).abs() < 1e-3).count();
+    assert_eq!(behind(&m), first_pass);
+
+    // A correction well under a pixel in the keyframe's image does not run the rule again.
+    m.correct_pose(1, Isometry3::translation(2.0, 0.0, -14.99)).unwrap();
+    assert_eq!(m.realign(), Realigned::default());
+
+    m.correct_pose(1, truth).unwrap();
+    let realigned = m.realign();
+    assert_eq!(realigned.keyframes_moved, 1);
+    // What keyframe 1 sees of the wall inside its grid now agrees with it and is replaced; the strip its view
+    // misses stays, and so does its last grid step (each test needs the four grid samples around the point).
+    let k = intrinsics();
+    let kept = m.keyframe(0).unwrap();
+    assert!(realigned.removed > 0 && !kept.points.is_empty(), "{realigned:?}");
+    let (last_u, last_v) = (f64::from((W - 1) / 5 * 5), f64::from((H - 1) / 5 * 5));
+    for p in &kept.points {
+        let u = k.fx * (f64::from(p.xyz[0]) - 2.0) / 50.0 + k.cx;
+        let v = k.fy * f64::from(p.xyz[1]) / 50.0 + k.cy;
+        // (A hundredth of a pixel: the map projects in f32.)
+        assert!(u < 0.0 || u > last_u - 0.01 || v > last_v - 0.01, "a point inside view 1's grid kept at ({u}, {v})");
+    }
+    assert_eq!(realigned.removed, first_pass - kept.points.len());
+    assert_eq!(realigned.seen_through, 0, "one wall, nothing seen through");
+    // Run again at the same poses it changes nothing; the next keyframe's insertion reports no realignment.
+    assert_eq!(m.realign(), Realigned::default());
+    let r = m.insert(&keyframe(2, Isometry3::translation(4.0, 0.0, 0.0), &wall)).unwrap();
+    assert_eq!(r.realigned, Realigned::default());
+    // Without the second run the wall would keep its first pass behind the second inside view 1.
+    let mut stale = Mosaic::new(MosaicParams::default());
+    stale.insert(&keyframe(0, Isometry3::identity(), &wall)).unwrap();
+    stale.insert(&keyframe(1, drifted, &wall)).unwrap();
+    stale.correct_pose(1, truth).unwrap();
+    assert_eq!(stale.keyframe(0).unwrap().points.len(), first_pass);
+}
+
+/// The rule runs again inside [`Mosaic::insert`] when corrections applied before a keyframe moved earlier ones.
+#[test]
+fn a_keyframe_inserted_after_a_correction_realigns_first() {
+    let mut m = Mosaic::new(MosaicParams::default());
+    let wall = views(|_, _| Some(50.0), [100, 100, 100]);
+    m.insert(&keyframe(0, Isometry3::identity(), &wall)).unwrap();
+    m.insert(&keyframe(1, Isometry3::translation(2.0, 0.0, -15.0), &wall)).unwrap();
+    m.correct_pose(1, Isometry3::translation(2.0, 0.0, 0.0)).unwrap();
+    // Keyframe 2 looks elsewhere (a wall 200 mm to the side): only the realignment touches the first two.
+    let r = m.insert(&keyframe(2, Isometry3::translation(200.0, 0.0, 0.0), &wall)).unwrap();
+    assert_eq!(r.realigned.keyframes_moved, 1);
+    assert!(r.realigned.removed > 0);
+    assert_eq!(r.overlapping_keyframes, 0);
+}
