@@ -61,6 +61,11 @@ pub struct MapArgs {
     /// passes over the same tissue should not leave two surfaces).
     #[arg(long, default_value_t = 2.0)]
     layer_gap_mm: f64,
+    /// A second layer counts from this far on; by default from the map's own thickness (3 robust σ of its
+    /// distances to the mesh, so noise is not a layer). Give one value to compare maps of different noise: a
+    /// sharper map's own thickness is thinner, so more of its tail would count.
+    #[arg(long)]
+    layer_thickness_mm: Option<f64>,
     /// Bring the map into the ground truth's frame first: the SE(3) alignment of this estimated trajectory
     /// (TUM) onto --align-gt, as the ATE computes it.
     #[arg(long, requires = "align_gt")]
@@ -146,12 +151,13 @@ pub fn eval(command: EvalCommand) -> Result<()> {
                 gt,
                 first_pose: a.align_by == "first",
             });
-            let score = score_map_file(&a.mesh, &a.map, align, a.outlier_mm, a.coverage_mm, a.layer_gap_mm)?;
+            let layers = Layers { gap_mm: a.layer_gap_mm, thickness_mm: a.layer_thickness_mm };
+            let score = score_map_file(&a.mesh, &a.map, align, a.outlier_mm, a.coverage_mm, layers)?;
             if a.json {
                 println!("{}", serde_json::to_string_pretty(&score)?);
             } else {
                 println!(
-                    "map: {} points, {} outliers (> {} mm, {:.1} %); inliers: mean {:.4} mm, median {:.4} mm, RMSE {:.4} mm; coverage {:.1} % (within {} mm); second layer {:.2} % (within {} mm)",
+                    "map: {} points, {} outliers (> {} mm, {:.1} %); inliers: mean {:.4} mm, median {:.4} mm, RMSE {:.4} mm; coverage {:.1} % (within {} mm); second layer {:.2} % ({:.3}–{} mm)",
                     score.points,
                     score.outliers,
                     score.outlier_threshold,
@@ -162,6 +168,7 @@ pub fn eval(command: EvalCommand) -> Result<()> {
                     100.0 * score.coverage,
                     score.coverage_radius,
                     100.0 * score.second_layer,
+                    score.second_layer_thickness,
                     score.second_layer_gap
                 );
                 if let Some(in_front) = score.in_front {
@@ -246,6 +253,13 @@ pub struct MapAlignment<'a> {
     pub first_pose: bool,
 }
 
+/// Where a second layer counts: from `thickness_mm` (the map's own thickness when `None`) to `gap_mm`.
+#[derive(Debug, Clone, Copy)]
+pub struct Layers {
+    pub gap_mm: f64,
+    pub thickness_mm: Option<f64>,
+}
+
 /// The paper's map metric for a PLY map against a mesh; with `align`, the map is first moved into the ground
 /// truth's frame.
 pub fn score_map_file(
@@ -254,7 +268,7 @@ pub fn score_map_file(
     align: Option<MapAlignment>,
     outlier_mm: f64,
     coverage_mm: f64,
-    layer_gap_mm: f64,
+    layers: Layers,
 ) -> Result<bdis_eval::map::MapScore> {
     let mesh =
         bdis_eval::map::Mesh::from_cloud(&ply::read(mesh_path)?).with_context(|| mesh_path.display().to_string())?;
@@ -276,8 +290,9 @@ pub fn score_map_file(
         cameras.extend(gt.iter().map(|pose| Point3::from(pose.world_from_camera.translation.vector)));
     }
     let index = bdis_eval::map::MeshIndex::new(mesh)?;
-    let mut score = bdis_eval::map::score_map(&points, &index, outlier_mm, coverage_mm, layer_gap_mm)
-        .with_context(|| map_path.display().to_string())?;
+    let mut score =
+        bdis_eval::map::score_map(&points, &index, outlier_mm, coverage_mm, layers.gap_mm, layers.thickness_mm)
+            .with_context(|| map_path.display().to_string())?;
     if !cameras.is_empty() {
         score.in_front = Some(bdis_eval::map::in_front_fraction(&points, &index, &cameras, outlier_mm));
     }

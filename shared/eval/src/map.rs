@@ -216,6 +216,9 @@ pub struct MapScore {
     pub second_layer: f64,
     #[serde(default)]
     pub second_layer_gap: f64,
+    /// The least gap that counted as a second layer: the map's own thickness, or the one asked for.
+    #[serde(default)]
+    pub second_layer_thickness: f64,
     /// Share of all points farther than `outlier_threshold` from the mesh on the cameras' side of it: floating
     /// in front of the tissue, where instruments are (see [`in_front_fraction`]); `None` without cameras.
     #[serde(default)]
@@ -251,8 +254,17 @@ pub fn in_front_fraction(points: &[Point3<f64>], index: &MeshIndex, cameras: &[P
 /// within `radius` of theirs, at least a quarter (and 2) lie more than the map's own thickness and at most
 /// `max_gap` in front of or behind them, along the mesh's normal. The thickness is 3 robust σ of the inliers'
 /// signed distances (1.4826 · MAD), so noise is not a layer; `radius` is twice the median spacing of the feet
-/// (a neighbourhood of a few points whatever the map's density). Both come from the map, in its unit.
-pub fn second_layer_fraction(points: &[Point3<f64>], index: &MeshIndex, outlier_threshold: f64, max_gap: f64) -> f64 {
+/// (a neighbourhood of a few points whatever the map's density). Both come from the map, in its unit. A given
+/// `thickness` replaces the map's own: two maps of different noise are then compared with one yardstick (a
+/// sharper map's own thickness is thinner, so more of its tail would count). Returns the share and the thickness
+/// used.
+pub fn second_layer_fraction(
+    points: &[Point3<f64>],
+    index: &MeshIndex,
+    outlier_threshold: f64,
+    max_gap: f64,
+    thickness: Option<f64>,
+) -> (f64, f64) {
     // Foot on the mesh and signed offset along its normal, per inlier.
     let mut feet: Vec<(Point3<f64>, f64)> = Vec::with_capacity(points.len());
     for p in points {
@@ -263,7 +275,7 @@ pub fn second_layer_fraction(points: &[Point3<f64>], index: &MeshIndex, outlier_
         }
     }
     if feet.len() < 3 {
-        return 0.0;
+        return (0.0, thickness.unwrap_or(0.0));
     }
     let mut offsets: Vec<f64> = feet.iter().map(|f| f.1).collect();
     let median = |v: &mut Vec<f64>| {
@@ -272,7 +284,7 @@ pub fn second_layer_fraction(points: &[Point3<f64>], index: &MeshIndex, outlier_
     };
     let centre = median(&mut offsets);
     let mut deviations: Vec<f64> = offsets.iter().map(|o| (o - centre).abs()).collect();
-    let thickness = 3.0 * 1.4826 * median(&mut deviations);
+    let thickness = thickness.unwrap_or_else(|| 3.0 * 1.4826 * median(&mut deviations));
     // Spacing: the median distance from a foot to its nearest other foot, by a hash grid (cell = a first guess
     // from the bounding box and the count, refined once).
     let grid_of = |cell: f64| {
@@ -304,7 +316,7 @@ pub fn second_layer_fraction(points: &[Point3<f64>], index: &MeshIndex, outlier_
         .filter(|d| d.is_finite())
         .collect();
     if nearest.is_empty() {
-        return 0.0;
+        return (0.0, thickness);
     }
     let radius = 2.0 * median(&mut nearest);
     let grid = grid_of(radius);
@@ -325,7 +337,7 @@ pub fn second_layer_fraction(points: &[Point3<f64>], index: &MeshIndex, outlier_
             layered += 1;
         }
     }
-    layered as f64 / feet.len() as f64
+    (layered as f64 / feet.len() as f64, thickness)
 }
 
 fn key(v: &Vector3<f64>, cell: f64) -> (i64, i64, i64) {
@@ -348,13 +360,15 @@ fn neighbours<'a>(
     })
 }
 
-/// Scores map `points` against the mesh; `layer_gap`: the farthest a second layer counts ([`second_layer_fraction`]).
+/// Scores map `points` against the mesh; `layer_gap`: the farthest a second layer counts, `layer_thickness`: the
+/// least (the map's own thickness by default; [`second_layer_fraction`]).
 pub fn score_map(
     points: &[Point3<f64>],
     index: &MeshIndex,
     outlier_threshold: f64,
     coverage_radius: f64,
     layer_gap: f64,
+    layer_thickness: Option<f64>,
 ) -> Result<MapScore, MapError> {
     if points.is_empty() {
         return Err(MapError::NoPoints);
@@ -402,6 +416,8 @@ pub fn score_map(
             covered += area;
         }
     }
+    let (second_layer, second_layer_thickness) =
+        second_layer_fraction(points, index, outlier_threshold, layer_gap, layer_thickness);
     Ok(MapScore {
         points: points.len(),
         outlier_threshold,
@@ -410,8 +426,9 @@ pub fn score_map(
         inliers: Stats::of(&mut inliers),
         coverage: if total > 0.0 { covered / total } else { 0.0 },
         coverage_radius,
-        second_layer: second_layer_fraction(points, index, outlier_threshold, layer_gap),
+        second_layer,
         second_layer_gap: layer_gap,
+        second_layer_thickness,
         in_front: None,
     })
 }
@@ -489,14 +506,14 @@ mod tests {
                 Point3::new(x, y, z)
             })
             .collect();
-        let s = score_map(&points, &index, 5.0, 2.0, 2.0).unwrap();
+        let s = score_map(&points, &index, 5.0, 2.0, 2.0, None).unwrap();
         assert_eq!(s.outliers, 500);
         assert!((s.outlier_fraction - 0.05).abs() < 1e-12);
         assert!((s.inliers.mean - sigma).abs() < 1e-9 && (s.inliers.median - sigma).abs() < 1e-9);
         assert!(s.coverage > 0.99, "the points cover the whole plane: {}", s.coverage);
         // Half the plane covered → half the coverage.
         let half: Vec<Point3<f64>> = points.iter().copied().filter(|p| p.x < 50.0).collect();
-        let s = score_map(&half, &index, 5.0, 2.0, 2.0).unwrap();
+        let s = score_map(&half, &index, 5.0, 2.0, 2.0, None).unwrap();
         assert!((s.coverage - 0.5).abs() < 0.05, "{}", s.coverage);
     }
 
@@ -509,7 +526,7 @@ mod tests {
         let surface: Vec<Point3<f64>> = (0..40_000)
             .map(|i| Point3::new((i % 200) as f64 * 0.5 + 0.25, (i / 200) as f64 * 0.5 + 0.25, noise(i)))
             .collect();
-        let single = second_layer_fraction(&surface, &index, 5.0, 2.0);
+        let single = second_layer_fraction(&surface, &index, 5.0, 2.0, None).0;
         assert!(single < 0.01, "one noisy surface: {single}");
         // The strip x < 20 mm seen again 1 mm above (a fifth of the plane).
         let again = |lift: f64| {
@@ -519,9 +536,9 @@ mod tests {
         };
         let twice = again(1.0);
         let expected = 2.0 * 8_000.0 / twice.len() as f64;
-        let layered = second_layer_fraction(&twice, &index, 5.0, 2.0);
+        let layered = second_layer_fraction(&twice, &index, 5.0, 2.0, None).0;
         assert!((layered - expected).abs() < 0.03, "{layered} against {expected}");
-        let far = second_layer_fraction(&again(3.0), &index, 5.0, 2.0);
+        let far = second_layer_fraction(&again(3.0), &index, 5.0, 2.0, None).0;
         assert!(far < 0.01, "a copy 3 mm away is no second layer within 2 mm: {far}");
     }
 }

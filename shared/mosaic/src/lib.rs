@@ -13,8 +13,9 @@
 //! map it overlaps, not on the size of the map.
 //!
 //! By default (the paper's future work) an agreeing earlier point is not just replaced: it is folded into the new
-//! point of the same grid cell, weighted by confidence ([`Fusion::Weighted`]), so tissue that breathes is mapped
-//! at its mean; [`Fusion::Replace`] is the paper's plain replacement.
+//! point of the same grid cell, weighted by confidence, by its offset from the new surface where it falls
+//! ([`Fusion::Weighted`]), so tissue that breathes is mapped at its mean and a slope stays a slope;
+//! [`Fusion::Replace`] is the paper's plain replacement.
 
 mod carve;
 mod normals;
@@ -152,7 +153,7 @@ pub struct Mosaic {
     /// grid cell.
     depth_scratch: Vec<f32>,
     fuse_weight: Vec<f32>,
-    fuse_weighted_z: Vec<f32>,
+    fuse_weighted_offset: Vec<f32>,
     /// Grid cells of the new view where an earlier, closer point was kept: no new point there.
     covered: Vec<bool>,
     /// What each keyframe saw (its depth on its grid), to test later keyframes' points against.
@@ -181,7 +182,7 @@ impl Mosaic {
             corrections: BTreeMap::new(),
             depth_scratch: Vec::new(),
             fuse_weight: Vec::new(),
-            fuse_weighted_z: Vec::new(),
+            fuse_weighted_offset: Vec::new(),
             covered: Vec::new(),
             seen: BTreeMap::new(),
             overlapping: Vec::new(),
@@ -280,8 +281,8 @@ impl Mosaic {
         if fuse {
             self.fuse_weight.clear();
             self.fuse_weight.resize(gw * gh, 0.0);
-            self.fuse_weighted_z.clear();
-            self.fuse_weighted_z.resize(gw * gh, 0.0);
+            self.fuse_weighted_offset.clear();
+            self.fuse_weighted_offset.resize(gw * gh, 0.0);
         }
 
         let mut report = InsertReport { realigned, ..InsertReport::default() };
@@ -302,7 +303,7 @@ impl Mosaic {
             let (fxf, fyf, cxf, cyf) = (fx as f32, fy as f32, cx as f32, cy as f32);
             let test = realign::DepthTest::new(&p, bf);
             let depth = &self.depth_scratch;
-            let (fuse_weight, fuse_weighted_z) = (&mut self.fuse_weight, &mut self.fuse_weighted_z);
+            let (fuse_weight, fuse_weighted_offset) = (&mut self.fuse_weight, &mut self.fuse_weighted_offset);
             let covered = &mut self.covered;
             let mut kept_closer = 0usize;
             let before = old.points.len();
@@ -312,8 +313,8 @@ impl Mosaic {
                 if q.z <= 0.0 {
                     return true;
                 }
-                let u = (fxf * q.x / q.z + cxf).round();
-                let v = (fyf * q.y / q.z + cyf).round();
+                let (u_exact, v_exact) = (fxf * q.x / q.z + cxf, fyf * q.y / q.z + cyf);
+                let (u, v) = (u_exact.round(), v_exact.round());
                 if !(u >= 0.0 && v >= 0.0 && (u as usize) < w && (v as usize) < h) {
                     return true;
                 }
@@ -338,7 +339,10 @@ impl Mosaic {
                 };
                 if fuse && agrees {
                     fuse_weight[cell] += pt.weight;
-                    fuse_weighted_z[cell] += pt.weight * q.z;
+                    // How far it lies from the new surface where it falls (not the raw depth: on a slope, a point
+                    // off the cell's centre has another depth than the surface there), carried to the centre.
+                    let surface = bilinear(depth, w, h, u_exact, v_exact).unwrap_or(z_new);
+                    fuse_weighted_offset[cell] += pt.weight * (q.z - surface);
                 }
                 false
             });
@@ -373,7 +377,9 @@ impl Mosaic {
                     let cell = (v / gap) * gw + u / gap;
                     let w_old = self.fuse_weight[cell];
                     if w_old > 0.0 {
-                        z = (weight * z + self.fuse_weighted_z[cell]) / (weight + w_old);
+                        // The weighted mean of this view's depth and the earlier points', each carried to the cell's
+                        // centre along this view's surface: z plus their weighted offsets from it.
+                        z += self.fuse_weighted_offset[cell] / (weight + w_old);
                         weight = (weight + w_old).min(p.max_weight);
                     }
                 }
@@ -467,6 +473,21 @@ impl Mosaic {
     pub fn corrections(&self) -> impl Iterator<Item = (u64, &Isometry3<f64>)> {
         self.corrections.iter().map(|(k, p)| (*k, p))
     }
+}
+
+/// `depth` (`w × h`, NaN = none) at sub-pixel (`u`, `v`), when the four pixels around it all have depth. A
+/// position within half a pixel outside the image (a point that rounds onto its border) is taken at the border.
+fn bilinear(depth: &[f32], w: usize, h: usize, u: f32, v: f32) -> Option<f32> {
+    if w < 2 || h < 2 {
+        return None;
+    }
+    let (u, v) = (u.clamp(0.0, (w - 1) as f32), v.clamp(0.0, (h - 1) as f32));
+    let (u0, v0) = ((u.floor() as usize).min(w - 2), (v.floor() as usize).min(h - 2));
+    let (a, b) = (u - u0 as f32, v - v0 as f32);
+    let at = |x: usize, y: usize| depth[y * w + x];
+    let z = (1.0 - b) * ((1.0 - a) * at(u0, v0) + a * at(u0 + 1, v0))
+        + b * ((1.0 - a) * at(u0, v0 + 1) + a * at(u0 + 1, v0 + 1));
+    z.is_finite().then_some(z)
 }
 
 /// The new view's frustum as four side planes through the camera centre plus z > 0, for a sphere test.
