@@ -273,8 +273,6 @@ pub struct LoopCloser {
     /// The keyframe of the last loop closed, and whether its pose graph is being solved.
     last_loop_kf: Option<KfId>,
     graph_pending: bool,
-    /// A global bundle adjustment after a loop is running (no new loop until it is in).
-    global_pending: bool,
     /// Loops closed so far: (query keyframe, candidate).
     pub loops: Vec<(KfId, KfId)>,
     worker_start: Option<crate::workers::WorkerStart>,
@@ -296,7 +294,6 @@ impl LoopCloser {
             culled_sent: BTreeSet::new(),
             last_loop_kf: None,
             graph_pending: false,
-            global_pending: false,
             loops: Vec::new(),
             worker_start: None,
             previous_near: BTreeSet::new(),
@@ -348,7 +345,8 @@ impl LoopCloser {
         }
     }
 
-    /// Sends keyframe `kf` (after local mapping has linked it) and the pose graph of a loop just closed.
+    /// Sends keyframe `kf` (after local mapping has linked it) and the pose graph of a loop just closed;
+    /// `global_pending`: the global bundle adjustment after a loop is still running (no new loop until it is in).
     pub fn send_keyframe(
         &mut self,
         map: &Map,
@@ -356,6 +354,7 @@ impl LoopCloser {
         cam: &RectifiedCamera,
         scales: &Scales,
         graph: Option<GraphJob>,
+        global_pending: bool,
     ) {
         let k = &map.keyframes[kf];
         if k.bad {
@@ -367,10 +366,8 @@ impl LoopCloser {
         self.culled_sent.extend(culled.iter().copied());
         self.graph_pending |= graph.is_some();
         let quiet = self.last_loop_kf.is_some_and(|l| kf < l + MIN_KEYFRAMES_BETWEEN_LOOPS);
-        let detect = !self.graph_pending
-            && !self.global_pending
-            && !quiet
-            && map.n_good_keyframes() > MIN_KEYFRAMES_BETWEEN_LOOPS;
+        let detect =
+            !self.graph_pending && !global_pending && !quiet && map.n_good_keyframes() > MIN_KEYFRAMES_BETWEEN_LOOPS;
         let mut near = std::mem::replace(&mut self.previous_near, neighbourhood(map, kf, LOOP_HORIZON_HOPS));
         near.insert(kf);
         let candidates = if detect { self.candidates(map, cam, kf, &near) } else { Vec::new() };
@@ -410,11 +407,6 @@ impl LoopCloser {
         self.revisit_side.clear();
         self.last_loop_kf = Some(kf);
         self.loops.push((kf, candidate));
-    }
-
-    /// A global bundle adjustment started (`true`) or was applied.
-    pub fn set_global_pending(&mut self, on: bool) {
-        self.global_pending = on;
     }
 
     /// A pose graph came back (applied by the caller).

@@ -247,8 +247,10 @@ impl LocalMapper {
             self.submit_ba(job, map, scales, &mut report);
         }
         report.culled_keyframes = cull_keyframes(map, kf, cam, th_depth);
+        // No detection while a global adjustment is running: a loop closed now would be overwritten by it.
+        let global_pending = self.global.is_some();
         if let Some(loops) = self.loops.as_mut() {
-            loops.send_keyframe(map, kf, cam, scales, graph);
+            loops.send_keyframe(map, kf, cam, scales, graph, global_pending);
         }
         lap(&mut report, 4);
         report

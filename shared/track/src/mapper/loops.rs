@@ -26,7 +26,6 @@ impl LocalMapper {
             report.pose_graph = Some(job.report);
             // The loop's correction is in: now the whole map, from its observations (§8.5).
             self.global = Some(GlobalBa::start(map, kf, cam, scales, inline, self.worker_start));
-            loops.set_global_pending(true);
         }
         let (query, found) = outcome.found?;
         let closed = close_loop(map, cam, scales, query, &found)?;
@@ -39,7 +38,6 @@ impl LocalMapper {
             // Drift within noise: nothing was moved, but the fused points tie the two passes together, and a
             // global adjustment lets both passes' observations place every keyframe.
             self.global = Some(GlobalBa::start(map, kf, cam, scales, inline, self.worker_start));
-            loops.set_global_pending(true);
         }
         closed.graph
     }
@@ -56,9 +54,6 @@ impl LocalMapper {
             report.moved.extend(moved);
             report.moved.sort_unstable();
             report.moved.dedup();
-        }
-        if let Some(l) = self.loops.as_mut() {
-            l.set_global_pending(false);
         }
     }
 
