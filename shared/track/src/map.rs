@@ -84,6 +84,18 @@ impl KeyFrame {
     pub fn is_stereo(&self, i: usize) -> bool {
         self.u_right.get(i).is_some_and(|u| *u >= 0.0)
     }
+
+    /// Keypoint `i` as a measurement for the optimisers (with its right-image u when it has one), weighted by
+    /// `inv_sigma2`.
+    pub fn observation(&self, i: usize, inv_sigma2: f64) -> crate::optim::Observation {
+        let kp = &self.keypoints[i];
+        crate::optim::Observation {
+            u: f64::from(kp.x),
+            v: f64::from(kp.y),
+            u_right: self.is_stereo(i).then(|| f64::from(self.u_right[i])),
+            inv_sigma2,
+        }
+    }
 }
 
 /// Per-frame scratch of the local-map search (§5.6), kept with the point.

@@ -11,7 +11,7 @@ use crate::frame::Scales;
 use crate::geometry::{CameraFromWorld, RectifiedCamera, skew};
 use crate::loop_closing::{LoopCloser, apply_graph, close_loop};
 use crate::map::{KfId, Map, PointId};
-use crate::optim::{BaEdge, BaProblem, CHI2_MONO, CHI2_STEREO, Observation};
+use crate::optim::{BaEdge, BaProblem, CHI2_MONO, CHI2_STEREO};
 use crate::search::TH_LOW;
 use crate::search::fuse_point;
 use crate::workers::WorkerStart;
@@ -430,13 +430,7 @@ fn triangulate_pair(
         if pc.z <= 0.0 {
             return None;
         }
-        let kp = &k.keypoints[idx];
-        let obs = Observation {
-            u: f64::from(kp.x),
-            v: f64::from(kp.y),
-            u_right: k.is_stereo(idx).then(|| f64::from(k.u_right[idx])),
-            inv_sigma2: scales.inv_sigma2[usize::from(kp.octave)],
-        };
+        let obs = k.observation(idx, scales.inv_sigma2[usize::from(k.keypoints[idx].octave)]);
         let limit = if obs.is_stereo() { 7.8 } else { CHI2_MONO };
         if crate::optim::chi2(cam, t, &x, &obs) > limit {
             return None;

@@ -94,18 +94,8 @@ pub fn close_loop(
     let k = &map.keyframes[kf];
     let pairs: Vec<(usize, PointId)> = matched.into_iter().collect();
     let points: Vec<nalgebra::Point3<f64>> = pairs.iter().map(|&(_, p)| map.points[p].position).collect();
-    let observations: Vec<Observation> = pairs
-        .iter()
-        .map(|&(i, _)| {
-            let kp = &k.keypoints[i];
-            Observation {
-                u: f64::from(kp.x),
-                v: f64::from(kp.y),
-                u_right: k.is_stereo(i).then(|| f64::from(k.u_right[i])),
-                inv_sigma2: scales.inv_sigma2[usize::from(kp.octave)],
-            }
-        })
-        .collect();
+    let observations: Vec<Observation> =
+        pairs.iter().map(|&(i, _)| k.observation(i, scales.inv_sigma2[usize::from(k.keypoints[i].octave)])).collect();
     let mut outlier = vec![false; pairs.len()];
     let mut corrected = guess;
     let mut optimiser = PoseOptimizer::default();
@@ -223,14 +213,8 @@ fn own_side_pose(
         if point.bad || point.observations.keys().any(|o| loop_kfs.contains(o)) {
             continue;
         }
-        let kp = &k.keypoints[i];
         points.push(point.position);
-        observations.push(Observation {
-            u: f64::from(kp.x),
-            v: f64::from(kp.y),
-            u_right: k.is_stereo(i).then(|| f64::from(k.u_right[i])),
-            inv_sigma2: scales.inv_sigma2[usize::from(kp.octave)],
-        });
+        observations.push(k.observation(i, scales.inv_sigma2[usize::from(k.keypoints[i].octave)]));
     }
     let mut outlier = vec![false; points.len()];
     let mut pose = k.camera_from_world;

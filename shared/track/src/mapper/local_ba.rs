@@ -70,14 +70,10 @@ fn snapshot_ba(
         problem.points.push(map.points[p].position);
         for (&k, &idx) in &map.points[p].observations {
             let Some(&pose) = pose_index.get(&k) else { continue };
-            let kp = &map.keyframes[k].keypoints[idx];
-            let refined = map.keyframes[k].refined[idx];
-            let obs = Observation {
-                u: f64::from(kp.x),
-                v: f64::from(kp.y),
-                u_right: map.keyframes[k].is_stereo(idx).then(|| f64::from(map.keyframes[k].u_right[idx])),
-                inv_sigma2: scales.information(kp.octave, refined, map.refined_sigma),
-            };
+            let keyframe = &map.keyframes[k];
+            let refined = keyframe.refined[idx];
+            let octave = keyframe.keypoints[idx].octave;
+            let obs = keyframe.observation(idx, scales.information(octave, refined, map.refined_sigma));
             let octave_chi2_scale = if refined { map.refined_sigma * map.refined_sigma } else { 1.0 };
             problem.edges.push(BaEdge { pose, point: pi, obs, octave_chi2_scale });
             edge_keys.push((p, k));
