@@ -115,15 +115,23 @@ impl Mosaic {
         report.keyframes_moved = self.moved.len();
         self.ids.clear();
         self.ids.extend(self.keyframes.keys().copied());
+        // Every pair with a moved keyframe in it, by newer then older id: a moved newer one against every older
+        // keyframe, any other against the moved older ones only (`moved` is in id order) — so the work grows with
+        // what moved times the map, as an insertion's does, not with the map squared.
         for newer_at in 1..self.ids.len() {
             let newer = self.ids[newer_at];
-            let newer_moved = self.moved.binary_search(&newer).is_ok();
-            for older_at in 0..newer_at {
-                let older = self.ids[older_at];
-                if !newer_moved && self.moved.binary_search(&older).is_err() {
-                    continue;
+            if self.moved.binary_search(&newer).is_ok() {
+                for older_at in 0..newer_at {
+                    self.realign_pair(self.ids[older_at], newer, &mut report);
                 }
-                self.realign_pair(older, newer, &mut report);
+            } else {
+                for moved_at in 0..self.moved.len() {
+                    let older = self.moved[moved_at];
+                    if older >= newer {
+                        break;
+                    }
+                    self.realign_pair(older, newer, &mut report);
+                }
             }
         }
         for &kf_id in &self.moved {
