@@ -32,7 +32,7 @@ pub struct MapArgs {
     #[arg(long)]
     out: PathBuf,
     /// Override a map parameter, e.g. `--map-param fusion=weighted` (repeatable; names: depth_gap_px,
-    /// min_colour, min_confidence, min_disparity_px, depth_tolerance_mm, disparity_tolerance_px, keep_closer_ratio, fusion,
+    /// min_colour, min_confidence, min_disparity_px, depth_tolerance_ratio, disparity_tolerance_px, keep_closer_ratio, fusion,
     /// max_weight).
     #[arg(long = "map-param", value_name = "NAME=VALUE")]
     map_params: Vec<String>,

@@ -35,9 +35,12 @@ pub struct MosaicParams {
     /// 8 px of disparity.
     pub min_disparity_px: f32,
     /// Depth test: an earlier point is replaced when it lies less than `tolerance` behind the new surface, with
-    /// tolerance = `depth_tolerance_mm` + `disparity_tolerance_px` · (z_new² + z_old²) / bf (the depth
-    /// uncertainty of a disparity error in either view). Farther behind, it is occluded and stays.
-    pub depth_tolerance_mm: f64,
+    /// tolerance = `depth_tolerance_ratio` · max(z_new, z_old) + `disparity_tolerance_px` · (z_new² + z_old²) / bf
+    /// (a share of the depth, plus the depth uncertainty of a disparity error in either view). Farther behind, it
+    /// is occluded and stays. A share, not a length: the map's unit is the calibration's (millimetres for an
+    /// endoscope, metres for `kitti-a`); 0.01 is the 0.5 mm this was at a 50 mm stand-off.
+    #[serde(default = "default_depth_tolerance_ratio")]
+    pub depth_tolerance_ratio: f64,
     pub disparity_tolerance_px: f64,
     /// An earlier point that agrees with the new surface is kept, and the new view adds no point in that grid
     /// cell, when the earlier keyframe saw it from less than this fraction of the new view's depth: depth error
@@ -55,6 +58,10 @@ pub struct MosaicParams {
     pub carve_disparity_px: f32,
 }
 
+fn default_depth_tolerance_ratio() -> f64 {
+    0.01
+}
+
 impl Default for MosaicParams {
     fn default() -> Self {
         Self {
@@ -62,7 +69,7 @@ impl Default for MosaicParams {
             min_colour: 40,
             min_confidence: 0.3,
             min_disparity_px: 8.0,
-            depth_tolerance_mm: 0.5,
+            depth_tolerance_ratio: default_depth_tolerance_ratio(),
             disparity_tolerance_px: 1.0,
             keep_closer_ratio: 0.8,
             fusion: Fusion::Weighted,
@@ -101,7 +108,7 @@ impl MosaicParams {
         "min_colour",
         "min_confidence",
         "min_disparity_px",
-        "depth_tolerance_mm",
+        "depth_tolerance_ratio",
         "disparity_tolerance_px",
         "keep_closer_ratio",
         "fusion",
@@ -128,7 +135,12 @@ impl MosaicParams {
             "min_colour" => self.min_colour = num(name, value)?,
             "min_confidence" => self.min_confidence = non_negative(name, num(name, value)?)? as f32,
             "min_disparity_px" => self.min_disparity_px = non_negative(name, num(name, value)?)? as f32,
-            "depth_tolerance_mm" => self.depth_tolerance_mm = non_negative(name, num(name, value)?)?,
+            "depth_tolerance_ratio" => self.depth_tolerance_ratio = non_negative(name, num(name, value)?)?,
+            "depth_tolerance_mm" => {
+                return Err("depth_tolerance_mm: now `depth_tolerance_ratio`, a share of the depth whatever the \
+                            calibration's unit (0.01 = 0.5 mm at 50 mm)"
+                    .into());
+            }
             "disparity_tolerance_px" => self.disparity_tolerance_px = non_negative(name, num(name, value)?)?,
             "keep_closer_ratio" => self.keep_closer_ratio = non_negative(name, num(name, value)?)? as f32,
             "max_weight" => self.max_weight = non_negative(name, num(name, value)?)? as f32,

@@ -22,11 +22,11 @@ pub(crate) enum Verdict {
     Replaced { agrees: bool },
 }
 
-/// The depth test of the overlap rule, in the units of the map (the tolerance's fixed part is the user's, the
-/// rest is the depth error of a disparity error in either view).
+/// The depth test of the overlap rule: the tolerance is a share of the depth plus the depth error of a disparity
+/// error in either view, so it means the same in millimetres and in metres.
 #[derive(Debug, Clone, Copy)]
 pub(crate) struct DepthTest {
-    abs_tol: f32,
+    depth_share: f32,
     disp_tol: f32,
     bf: f32,
     keep_closer: f32,
@@ -36,7 +36,7 @@ impl DepthTest {
     /// `p`: the parameters at the new view's size ([`MosaicParams::for_size`]); `bf` of the new view.
     pub(crate) fn new(p: &MosaicParams, bf: f64) -> Self {
         Self {
-            abs_tol: p.depth_tolerance_mm as f32,
+            depth_share: p.depth_tolerance_ratio as f32,
             disp_tol: p.disparity_tolerance_px as f32,
             bf: bf as f32,
             keep_closer: p.keep_closer_ratio,
@@ -45,7 +45,7 @@ impl DepthTest {
 
     /// `z_in_new`: the earlier point's depth in the new view; `z_own`: its depth in the view it came from.
     pub(crate) fn verdict(&self, z_in_new: f32, z_new: f32, z_own: f32) -> Verdict {
-        let tolerance = self.abs_tol + self.disp_tol * (z_new * z_new + z_own * z_own) / self.bf;
+        let tolerance = self.depth_share * z_new.max(z_own) + self.disp_tol * (z_new * z_new + z_own * z_own) / self.bf;
         if z_in_new > z_new + tolerance {
             return Verdict::Occluded;
         }

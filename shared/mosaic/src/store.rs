@@ -9,7 +9,11 @@ use crate::{KeyframeCloud, Mosaic, MosaicError, MosaicParams};
 
 /// The format tag at the start of every saved map; a file with another tag is refused with this name in the
 /// message.
-pub const MOSAIC_FORMAT: &str = "bdis.v1.mosaic";
+pub const MOSAIC_FORMAT: &str = "bdis.v2.mosaic";
+
+/// The format before the depth tolerance became a share of the depth (its value was a length in the map's unit):
+/// recognised, to say so, and refused.
+const MOSAIC_FORMAT_V1: &str = "bdis.v1.mosaic";
 
 #[derive(Serialize, Deserialize)]
 struct MosaicFile {
@@ -53,6 +57,17 @@ pub fn decode(bytes: &[u8], path: &Path) -> Result<Mosaic, MosaicError> {
     let tag = bincode::serde::encode_to_vec(MOSAIC_FORMAT, bincode::config::standard())
         .map_err(|e| file_error(path, format!("cannot encode the format tag: {e}")))?;
     if !bytes.starts_with(&tag) {
+        let v1 = bincode::serde::encode_to_vec(MOSAIC_FORMAT_V1, bincode::config::standard())
+            .map_err(|e| file_error(path, format!("cannot encode the format tag: {e}")))?;
+        if bytes.starts_with(&v1) {
+            return Err(file_error(
+                path,
+                format!(
+                    "a map of an earlier bdis-slam (`{MOSAIC_FORMAT_V1}`, whose depth tolerance was a length; this \
+                     one reads `{MOSAIC_FORMAT}`): build it again from its run with `bdis-slam map`"
+                ),
+            ));
+        }
         return Err(file_error(path, format!("not a bdis-slam map: it does not start with `{MOSAIC_FORMAT}`")));
     }
     let (file, used): (MosaicFile, usize) =
@@ -75,7 +90,7 @@ fn check(file: &MosaicFile) -> Result<(), String> {
     let p = &file.params;
     let finite =
         [p.min_confidence, p.min_disparity_px, p.keep_closer_ratio, p.max_weight].iter().all(|v| v.is_finite())
-            && p.depth_tolerance_mm.is_finite()
+            && p.depth_tolerance_ratio.is_finite()
             && p.disparity_tolerance_px.is_finite();
     if p.depth_gap_px == 0 || !finite {
         return Err(format!("params: {p:?} are not usable (a grid step ≥ 1 and finite numbers)"));

@@ -169,7 +169,7 @@ fn a_surface_behind_an_occluder_is_not_erased() {
     assert_eq!(r.removed, wall_points - behind);
     // The original's rule (no depth test) would have erased the wall behind the instrument too: with a huge
     // tolerance the depth test degenerates into it.
-    let mut original = Mosaic::new(MosaicParams { depth_tolerance_mm: 1e9, ..MosaicParams::default() });
+    let mut original = Mosaic::new(MosaicParams { depth_tolerance_ratio: 1e9, ..MosaicParams::default() });
     original.insert(&keyframe(0, Isometry3::identity(), &wall)).unwrap();
     original.insert(&keyframe(1, Isometry3::identity(), &with_tool)).unwrap();
     assert!(original.keyframe(0).unwrap().points.is_empty());
@@ -292,6 +292,12 @@ fn a_saved_map_loads_back_identical_and_a_foreign_file_is_refused() {
     std::fs::write(&path, b"ply\nformat ascii 1.0\n").unwrap();
     let err = load(&path).unwrap_err().to_string();
     assert!(err.contains("map.bin") && err.contains(MOSAIC_FORMAT), "{err}");
+    // A map of the format before (its depth tolerance a length): named as such, not read in the wrong unit.
+    let mut v1 = bincode::serde::encode_to_vec("bdis.v1.mosaic", bincode::config::standard()).unwrap();
+    v1.extend_from_slice(&[0; 64]);
+    std::fs::write(&path, v1).unwrap();
+    let err = load(&path).unwrap_err().to_string();
+    assert!(err.contains("map.bin") && err.contains("earlier bdis-slam") && err.contains("bdis-slam map"), "{err}");
     std::fs::remove_dir_all(&dir).ok();
 }
 
@@ -348,6 +354,10 @@ fn parameters_are_set_by_name_and_bad_values_say_which() {
     assert!(p.apply_overrides(&["fusion=blend".into()]).unwrap_err().contains("fusion"));
     assert!(p.apply_overrides(&["gap=3".into()]).unwrap_err().contains("depth_gap_px"));
     assert!(p.apply_overrides(&["min_confidence=-1".into()]).unwrap_err().contains("min_confidence"));
+    // The tolerance that was a length says what it became rather than being taken in another unit.
+    assert!(p.apply_overrides(&["depth_tolerance_mm=0.5".into()]).unwrap_err().contains("depth_tolerance_ratio"));
+    p.apply_overrides(&["depth_tolerance_ratio=0.02".into()]).unwrap();
+    assert_eq!(p.depth_tolerance_ratio, 0.02);
 }
 
 #[test]
