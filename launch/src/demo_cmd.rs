@@ -148,7 +148,7 @@ pub fn demo(args: DemoArgs) -> Result<ExitCode> {
             Some(eval_cmd::MapAlignment { est: &trajectory, gt: &gt_poses, first_pose: false }),
             5.0,
             1.0,
-            eval_cmd::Layers { gap_mm: 2.0, thickness_mm: None },
+            bdis_eval::map::Layers { max_gap: 2.0, thickness: None },
         ) {
             Ok(s) => println!(
                 "  map         vs the renderer's mesh: mean {:.3} mm, median {:.3} mm, {:.1} % outliers (> 5 mm)",

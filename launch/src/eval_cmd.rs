@@ -6,6 +6,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result, bail};
 use bdis_core::formats::{pfm, ply, trajectory};
 use bdis_core::geometry::StampedPose;
+use bdis_eval::map::Layers;
 use nalgebra::Point3;
 
 #[derive(Debug, clap::Subcommand)]
@@ -151,7 +152,7 @@ pub fn eval(command: EvalCommand) -> Result<()> {
                 gt,
                 first_pose: a.align_by == "first",
             });
-            let layers = Layers { gap_mm: a.layer_gap_mm, thickness_mm: a.layer_thickness_mm };
+            let layers = Layers { max_gap: a.layer_gap_mm, thickness: a.layer_thickness_mm };
             let score = score_map_file(&a.mesh, &a.map, align, a.outlier_mm, a.coverage_mm, layers)?;
             if a.json {
                 println!("{}", serde_json::to_string_pretty(&score)?);
@@ -253,13 +254,6 @@ pub struct MapAlignment<'a> {
     pub first_pose: bool,
 }
 
-/// Where a second layer counts: from `thickness_mm` (the map's own thickness when `None`) to `gap_mm`.
-#[derive(Debug, Clone, Copy)]
-pub struct Layers {
-    pub gap_mm: f64,
-    pub thickness_mm: Option<f64>,
-}
-
 /// The paper's map metric for a PLY map against a mesh; with `align`, the map is first moved into the ground
 /// truth's frame.
 pub fn score_map_file(
@@ -290,9 +284,8 @@ pub fn score_map_file(
         cameras.extend(gt.iter().map(|pose| Point3::from(pose.world_from_camera.translation.vector)));
     }
     let index = bdis_eval::map::MeshIndex::new(mesh)?;
-    let mut score =
-        bdis_eval::map::score_map(&points, &index, outlier_mm, coverage_mm, layers.gap_mm, layers.thickness_mm)
-            .with_context(|| map_path.display().to_string())?;
+    let mut score = bdis_eval::map::score_map(&points, &index, outlier_mm, coverage_mm, layers)
+        .with_context(|| map_path.display().to_string())?;
     if !cameras.is_empty() {
         score.in_front = Some(bdis_eval::map::in_front_fraction(&points, &index, &cameras, outlier_mm));
     }

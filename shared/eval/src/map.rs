@@ -199,6 +199,14 @@ impl MeshIndex {
     }
 }
 
+/// Where a second layer counts: from `thickness` (the map's own when `None`, see [`second_layer_fraction`]) to
+/// `max_gap`, in the map's unit.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Layers {
+    pub max_gap: f64,
+    pub thickness: Option<f64>,
+}
+
 /// The map-to-mesh figures.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct MapScore {
@@ -277,14 +285,16 @@ pub fn second_layer_fraction(
     if feet.len() < 3 {
         return (0.0, thickness.unwrap_or(0.0));
     }
-    let mut offsets: Vec<f64> = feet.iter().map(|f| f.1).collect();
     let median = |v: &mut Vec<f64>| {
         v.sort_by(f64::total_cmp);
         v[v.len() / 2]
     };
-    let centre = median(&mut offsets);
-    let mut deviations: Vec<f64> = offsets.iter().map(|o| (o - centre).abs()).collect();
-    let thickness = thickness.unwrap_or_else(|| 3.0 * 1.4826 * median(&mut deviations));
+    let thickness = thickness.unwrap_or_else(|| {
+        let mut offsets: Vec<f64> = feet.iter().map(|f| f.1).collect();
+        let centre = median(&mut offsets);
+        let mut deviations: Vec<f64> = offsets.iter().map(|o| (o - centre).abs()).collect();
+        3.0 * 1.4826 * median(&mut deviations)
+    });
     // Spacing: the median distance from a foot to its nearest other foot, by a hash grid (cell = a first guess
     // from the bounding box and the count, refined once).
     let grid_of = |cell: f64| {
@@ -360,15 +370,13 @@ fn neighbours<'a>(
     })
 }
 
-/// Scores map `points` against the mesh; `layer_gap`: the farthest a second layer counts, `layer_thickness`: the
-/// least (the map's own thickness by default; [`second_layer_fraction`]).
+/// Scores map `points` against the mesh; `layers`: where a second layer counts ([`second_layer_fraction`]).
 pub fn score_map(
     points: &[Point3<f64>],
     index: &MeshIndex,
     outlier_threshold: f64,
     coverage_radius: f64,
-    layer_gap: f64,
-    layer_thickness: Option<f64>,
+    layers: Layers,
 ) -> Result<MapScore, MapError> {
     if points.is_empty() {
         return Err(MapError::NoPoints);
@@ -417,7 +425,7 @@ pub fn score_map(
         }
     }
     let (second_layer, second_layer_thickness) =
-        second_layer_fraction(points, index, outlier_threshold, layer_gap, layer_thickness);
+        second_layer_fraction(points, index, outlier_threshold, layers.max_gap, layers.thickness);
     Ok(MapScore {
         points: points.len(),
         outlier_threshold,
@@ -427,7 +435,7 @@ pub fn score_map(
         coverage: if total > 0.0 { covered / total } else { 0.0 },
         coverage_radius,
         second_layer,
-        second_layer_gap: layer_gap,
+        second_layer_gap: layers.max_gap,
         second_layer_thickness,
         in_front: None,
     })
@@ -506,14 +514,14 @@ mod tests {
                 Point3::new(x, y, z)
             })
             .collect();
-        let s = score_map(&points, &index, 5.0, 2.0, 2.0, None).unwrap();
+        let s = score_map(&points, &index, 5.0, 2.0, Layers { max_gap: 2.0, thickness: None }).unwrap();
         assert_eq!(s.outliers, 500);
         assert!((s.outlier_fraction - 0.05).abs() < 1e-12);
         assert!((s.inliers.mean - sigma).abs() < 1e-9 && (s.inliers.median - sigma).abs() < 1e-9);
         assert!(s.coverage > 0.99, "the points cover the whole plane: {}", s.coverage);
         // Half the plane covered → half the coverage.
         let half: Vec<Point3<f64>> = points.iter().copied().filter(|p| p.x < 50.0).collect();
-        let s = score_map(&half, &index, 5.0, 2.0, 2.0, None).unwrap();
+        let s = score_map(&half, &index, 5.0, 2.0, Layers { max_gap: 2.0, thickness: None }).unwrap();
         assert!((s.coverage - 0.5).abs() < 0.05, "{}", s.coverage);
     }
 

@@ -8,7 +8,7 @@ use nalgebra::{Isometry3, Matrix3, Vector3};
 
 use crate::RectifiedCamera;
 
-/// A keyframe's usable depth (mm; NaN = none) at its point grid: every `gap`-th row and column.
+/// A keyframe's usable depth (the map's unit; NaN = none) at its point grid: every `gap`-th row and column.
 #[derive(Debug, Clone, Default)]
 pub(crate) struct SeenDepth {
     /// The keyframe's pose when the overlap rule last ran with this view ([`crate::Mosaic::realign`]).
@@ -65,9 +65,7 @@ impl SeenDepth {
         });
         before - points.len()
     }
-}
 
-impl SeenDepth {
     /// The nearest depth among the four grid samples around pixel (`u`, `v`); NaN unless all four have depth.
     /// The nearest of four keeps a point on a depth edge: a surface it may belong to counts.
     pub(crate) fn nearest_of_four(&self, u: f32, v: f32) -> f32 {
