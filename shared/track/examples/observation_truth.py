@@ -8,7 +8,9 @@ the residuals of its observations are then measurement error, free of pose error
 (by refined/whole-pixel, view-scale change since the first keyframe, octave), each keyframe posed from its
 observations of those points, and (MODE other than `depth`) a full bundle adjustment of the observations from
 the truth, first keyframe fixed, whose optimum's keyframe centres are compared with the truth (SE(3)-aligned).
-MODE: all | refined | whole | clean | cleanobs | depth (points against the rendered surface) | synth (every
+MODE: all | refined | whole | clean | cleanobs | depth (points against the rendered surface) | offsets (each point's
+later observations against the point its first observation defines) | dropoffset (the same, then the points
+off by more than OFFSET px, default 0.4, left out of the adjustment) | synth (every
 observation replaced by its true projection + Gaussian noise 0.25·s^octave px) | synth_uv (true left u, v, the
 measured disparity kept) | synth_ur (measured left u, v, true disparity) | shuf_all | shuf_kf | shuf_pt (the
 left residuals permuted over all observations / within a keyframe / within a point).
@@ -93,6 +95,45 @@ for pid, os_ in obs.items():
         ru=o['u']-(fx*x/zc+cx); rv=o['v']-(fy*y/zc+cy); rr=(o['ur']-(fx*x/zc+cx-bf/zc)) if o['ur']>=0 else np.nan
         o['rsd']=max(abs(ru),abs(rv),abs(rr) if rr==rr else 0)/(1.2**o['oc'])/0.25
         rows.append((pid,o['kf'],o['kf']-o['first'],zc/c0[2],o['oc'],o['ref'],ru,rv,rr,len(os_),o['kf']==o0['kf'],o['u'],o['v']))
+def point_offsets():
+    """Per point: its true position is where its first keyframe's observation (the anchor's centre) meets the
+    rendered surface (gt/depth of that frame); the mean of its later refined observations' residuals against
+    that point, in units of their octave's pixel. Independent errors would make the mean's spread that of the
+    residuals over √n; a common offset (the track measuring other tissue than its first observation) does not
+    shrink with n."""
+    full=[float(l) for l in open(seq.split('-s')[0]+'/times.txt') if l.strip()]
+    cache={}; out={}
+    for pid,os_ in obs.items():
+        if pid not in TRI: continue
+        a=[o for o in os_ if o['kf']==o['first']]
+        if not a: continue
+        a=a[0]; i=min(range(len(full)),key=lambda k:abs(full[k]-a['t']))+1
+        if i not in cache: cache[i]=pfm(seq.split('-s')[0]+f'/gt/depth/{i}.pfm')
+        D=cache[i]; u,v=a['u'],a['v']; x0,y0=int(u),int(v); ax,ay=u-x0,v-y0
+        z=(1-ay)*((1-ax)*D[y0,x0]+ax*D[y0,x0+1])+ay*((1-ax)*D[y0+1,x0]+ax*D[y0+1,x0+1])
+        R,t=gtpose(a['t']); X=R@np.array([(u-cx)*z/fx,(v-cy)*z/fy,z])+t
+        res=[]
+        for o in os_:
+            if o is a or not o['ref']: continue
+            R,t=gtpose(o['t']); c=R.T@(X-t); sc=1.2**o['oc']
+            res.append(((o['u']-(fx*c[0]/c[2]+cx))/sc,(o['v']-(fy*c[1]/c[2]+cy))/sc))
+        if len(res)>=2: out[pid]=np.array(res)
+    return out
+if sys.argv[3] in ('offsets','dropoffset'):
+    offs=point_offsets()
+    m=np.array([r.mean(0) for r in offs.values()]); n=np.array([len(r) for r in offs.values()])
+    w=np.array([((r-r.mean(0))**2).sum(0)/(len(r)-1) for r in offs.values()])
+    mad=lambda x:1.4826*np.median(abs(x-np.median(x,0)),0)
+    print(f"points {len(m)}, later refined observations per point {n.mean():.1f}")
+    print("per-point mean offset u, v: rms", np.sqrt((m**2).mean(0)).round(3), "robust σ", mad(m).round(3),
+          "| if independent: rms", np.sqrt((w/n[:,None]).mean(0)).round(3))
+    nm=np.linalg.norm(m,axis=1)
+    print("points whose later observations are off their first by > 0.25 / 0.4 px: %.3f / %.3f"%((nm>0.25).mean(),(nm>0.4).mean()))
+    if sys.argv[3]=='dropoffset':
+        limit=float(os.environ.get('OFFSET','0.4'))
+        for pid,r in offs.items():
+            if np.linalg.norm(r.mean(0))>limit: del TRI[pid]; del obs[pid]
+        print(f"left out the points off by > {limit} px")
 if sys.argv[3] in ('synth','synthexact','synth_uv','synth_ur'):
     rng=np.random.default_rng(1)
     for pid,os_ in obs.items():
