@@ -1,6 +1,6 @@
 #![allow(clippy::unwrap_used, clippy::expect_used)] // test code: a panic is the failure report
 //! Issue #18's video "Done when", through the real processes: one colon flight rendered as PNG pairs, made into
-//! videos at test time by ffmpeg — both views stacked top/bottom in an mp4 (H.264, lossless, 4:4:4), side by
+//! videos at test time by ffmpeg — both views stacked top/bottom in an mp4 (H.264, lossless in RGB), side by
 //! side in an AVI (FFV1, lossless; and MJPEG at high quality: a lossy codec as recorders write it), and one
 //! file per view (FFV1, lossless) — and each tracked and mapped end to end from the video. Every frame gets a pose, stamped with
 //! the container's time (the PNGs' `times.txt`), and the ATE is within 10 % of the PNG runs. The MJPEG AVI and
@@ -53,7 +53,10 @@ fn shared() -> &'static Shared {
         if have_ffmpeg() {
             ffmpeg("stacked.mp4", &|c| {
                 views(c);
-                c.args(["-filter_complex", "vstack", "-c:v", "libx264", "-qp", "0", "-pix_fmt", "yuv444p"]);
+                // libx264rgb: lossless in the PNGs' own RGB, so the tracker sees the very same pixels. (x264 in
+                // YUV 4:4:4 moved them by up to 2 levels — enough to send a single run elsewhere: over 8 start
+                // frames the ATE of such a video was 0.57–2.3× its PNG run's, before and after issue #16's gain.)
+                c.args(["-filter_complex", "vstack", "-c:v", "libx264rgb", "-qp", "0", "-pix_fmt", "rgb24"]);
             });
             ffmpeg("side-by-side.avi", &|c| {
                 views(c);
