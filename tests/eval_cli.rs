@@ -50,10 +50,34 @@ fn trajectory_error_matches_an_independent_implementation() {
         return;
     }
     let script = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/interop/ate.py");
-    let out = Command::new("python3").arg(script).arg(&gt_path).arg(&est_path).output().unwrap();
+    let out = Command::new("python3").arg(&script).arg(&gt_path).arg(&est_path).output().unwrap();
     assert!(out.status.success(), "{}", text(&out.stderr));
     let numpy: f64 = text(&out.stdout).trim().parse().unwrap();
     assert!((rmse - numpy).abs() < 1e-9, "bdis-slam {rmse} vs numpy {numpy}");
+
+    // A copy 0.4 % too large, about a point off the path: the similarity fit must give numpy's error and scale.
+    let scaled_path = tmp.path().join("scaled.txt");
+    let scaled: Vec<StampedPose> = est
+        .iter()
+        .map(|p| {
+            let mut q = *p;
+            let about = Vector3::new(3.0, -1.0, 2.0);
+            let t = &mut q.world_from_camera.translation.vector;
+            *t = about + (*t - about) * 1.004;
+            q
+        })
+        .collect();
+    trajectory::write_tum(&scaled_path, &scaled).unwrap();
+    let v = eval_json(&["traj", "--gt", gt_path.to_str().unwrap(), "--est", scaled_path.to_str().unwrap()]);
+    let (sim3_rmse, size) =
+        (v["ate"]["sim3"]["translation"]["rmse"].as_f64().unwrap(), v["ate"]["sim3"]["est_over_gt"].as_f64().unwrap());
+    let out = Command::new("python3").arg(&script).arg(&gt_path).arg(&scaled_path).arg("--scale").output().unwrap();
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let numpy: Vec<f64> = text(&out.stdout).split_whitespace().map(|x| x.parse().unwrap()).collect();
+    assert!((sim3_rmse - numpy[0]).abs() < 1e-9, "bdis-slam {sim3_rmse} vs numpy {}", numpy[0]);
+    assert!((size - numpy[1]).abs() < 1e-9 && (size - 1.004).abs() < 1e-3, "bdis-slam {size} vs numpy {}", numpy[1]);
+    let scaled_rmse = v["ate"]["translation"]["rmse"].as_f64().unwrap();
+    assert!(scaled_rmse > 1.5 * sim3_rmse, "a scale error shows in the SE(3) ATE: {scaled_rmse} vs {sim3_rmse}");
 
     // KITTI: the same poses matched by line.
     let (gk, ek) = (tmp.path().join("gt.kitti"), tmp.path().join("est.kitti"));

@@ -11,7 +11,8 @@ use nalgebra::Point3;
 
 #[derive(Debug, clap::Subcommand)]
 pub enum EvalCommand {
-    /// Trajectory error: ATE after SE(3) alignment without scale (as `evo_ape tum gt est -a`), and RPE.
+    /// Trajectory error: ATE after SE(3) alignment without scale (as `evo_ape tum gt est -a`), RPE, and the
+    /// estimate's scale error (a Sim(3) fit, as `evo_ape -as`, and the ratio of step lengths).
     Traj(TrajArgs),
     /// Map error: distance of each map point to the ground-truth mesh (the paper's metric), and coverage.
     Map(MapArgs),
@@ -143,6 +144,17 @@ pub fn eval(command: EvalCommand) -> Result<()> {
                 println!(
                     "alignment: rotation {:.3}°, translation {:?}",
                     ate.alignment_rotation_deg, ate.alignment_translation
+                );
+                // Stereo fixes the scale, so a scale off 1 is an error; shown apart so that a scale error can be
+                // told from drift.
+                println!(
+                    "scale error: {:+.3} % by a Sim(3) fit, {:+.3} % by the length of {} {} steps (+: the \
+                     estimate is too large); ATE after Sim(3) alignment: RMSE {:.6}",
+                    100.0 * (ate.sim3.est_over_gt - 1.0),
+                    100.0 * (rpe.length_ratio - 1.0),
+                    a.delta,
+                    if a.format == "kitti" { "pose" } else { "s" },
+                    ate.sim3.translation.rmse
                 );
             }
         }

@@ -38,6 +38,16 @@ pub fn associate(gt: &[StampedPose], est: &[StampedPose], max_dt_s: f64) -> Vec<
 
 /// The rigid transform `dst_from_src` minimising Σ‖dst − (R·src + t)‖² (Umeyama 1991, no scale).
 pub fn umeyama_se3(src: &[Point3<f64>], dst: &[Point3<f64>]) -> Result<Isometry3<f64>, TrajError> {
+    umeyama(src, dst, false).map(|(rigid, _)| rigid)
+}
+
+/// The similarity `dst_from_src` minimising Σ‖dst − (s·R·src + t)‖² (Umeyama 1991 with scale), as
+/// (R and t, s): the point maps to `s · (R·src) + t`, so `rigid * src` is not the fit unless s = 1.
+pub fn umeyama_sim3(src: &[Point3<f64>], dst: &[Point3<f64>]) -> Result<(Isometry3<f64>, f64), TrajError> {
+    umeyama(src, dst, true)
+}
+
+fn umeyama(src: &[Point3<f64>], dst: &[Point3<f64>], with_scale: bool) -> Result<(Isometry3<f64>, f64), TrajError> {
     let n = src.len().min(dst.len());
     if n < 3 {
         return Err(TrajError::TooFewPairs { pairs: n, max_dt_s: f64::NAN });
@@ -45,10 +55,13 @@ pub fn umeyama_se3(src: &[Point3<f64>], dst: &[Point3<f64>]) -> Result<Isometry3
     let mean = |p: &[Point3<f64>]| p.iter().fold(Vector3::zeros(), |acc, q| acc + q.coords) / n as f64;
     let (ms, md) = (mean(&src[..n]), mean(&dst[..n]));
     let mut cov = Matrix3::zeros();
+    let mut src_variance = 0.0;
     for (s, d) in src.iter().zip(dst) {
         cov += (d.coords - md) * (s.coords - ms).transpose();
+        src_variance += (s.coords - ms).norm_squared();
     }
     cov /= n as f64;
+    src_variance /= n as f64;
     let svd = cov.svd(true, true);
     let (Some(u), Some(v_t)) = (svd.u, svd.v_t) else { return Err(TrajError::Degenerate) };
     // Rank < 2 leaves the rotation about the line undetermined.
@@ -62,9 +75,17 @@ pub fn umeyama_se3(src: &[Point3<f64>], dst: &[Point3<f64>]) -> Result<Isometry3
         s[(2, 2)] = -1.0;
     }
     let r = u * s * v_t;
-    let t = md - r * ms;
+    // The scale is tr(D·S)/σ²_src; `svd` sorts the singular values in decreasing order, so the sign flip goes
+    // with the last.
+    let scale = if with_scale {
+        let d = svd.singular_values;
+        (d[0] + d[1] + s[(2, 2)] * d[2]) / src_variance
+    } else {
+        1.0
+    };
+    let t = md - scale * (r * ms);
     let rotation = UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(r));
-    Ok(Isometry3::from_parts(Translation3::from(t), rotation))
+    Ok((Isometry3::from_parts(Translation3::from(t), rotation), scale))
 }
 
 /// Absolute trajectory error after alignment.
@@ -76,6 +97,21 @@ pub struct Ate {
     pub alignment_translation: [f64; 3],
     pub alignment_rotation_deg: f64,
     pub pairs: usize,
+    /// The same positions under a similarity alignment (`evo_ape -as`): what is left when the estimate's
+    /// scale is forgiven, and that scale.
+    pub sim3: Sim3Fit,
+}
+
+/// A trajectory fitted to the ground truth with a scale as well as a rigid motion. Stereo fixes the scale, so a
+/// `est_over_gt` off 1 is an error of the estimate (a biased depth, or rotation traded for translation), not
+/// a freedom; it is reported to tell a scale error from drift: the SE(3) ATE of a trajectory 0.5 % too large
+/// grows with the size of the path, the Sim(3) one does not.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Sim3Fit {
+    /// How much larger the estimate is than the ground truth (1.005: 0.5 % too large).
+    pub est_over_gt: f64,
+    /// Translation error after the similarity alignment, in the ground truth's unit.
+    pub translation: Stats,
 }
 
 /// Relative pose error over a fixed time step.
@@ -86,6 +122,10 @@ pub struct Rpe {
     pub translation: Stats,
     /// Rotation drift per step, degrees.
     pub rotation_deg: Stats,
+    /// Σ of the estimate's step lengths over Σ of the ground truth's, over the same steps: the estimate's
+    /// local scale (1.005: each step 0.5 % too long). Noise lengthens a step by about σ²/(2·length), so it
+    /// reads true only where steps are long against the noise (as at the default 1 s).
+    pub length_ratio: f64,
 }
 
 /// Camera positions of time-matched poses: (estimate, ground truth).
@@ -124,11 +164,18 @@ pub fn ate(gt: &[StampedPose], est: &[StampedPose], max_dt_s: f64) -> Result<Ate
     let (src, dst) = matched_positions(gt, est, max_dt_s)?;
     let gt_from_est = umeyama_se3(&src, &dst)?;
     let mut errors: Vec<f64> = src.iter().zip(&dst).map(|(s, d)| (d - gt_from_est * s).norm()).collect();
+    let (rigid, scale) = umeyama_sim3(&src, &dst)?;
+    let mut sim3_errors: Vec<f64> = src
+        .iter()
+        .zip(&dst)
+        .map(|(s, d)| (d.coords - (scale * (rigid.rotation * s.coords) + rigid.translation.vector)).norm())
+        .collect();
     Ok(Ate {
         translation: Stats::of(&mut errors),
         alignment_translation: gt_from_est.translation.vector.into(),
         alignment_rotation_deg: gt_from_est.rotation.angle().to_degrees(),
         pairs: src.len(),
+        sim3: Sim3Fit { est_over_gt: 1.0 / scale, translation: Stats::of(&mut sim3_errors) },
     })
 }
 
@@ -140,6 +187,7 @@ pub fn rpe(gt: &[StampedPose], est: &[StampedPose], max_dt_s: f64, delta_s: f64)
         return Err(TrajError::TooFewPairs { pairs: pairs.len(), max_dt_s });
     }
     let (mut trans, mut rot) = (Vec::new(), Vec::new());
+    let (mut est_length, mut gt_length) = (0.0, 0.0);
     for (a, &(ga, ea)) in pairs.iter().enumerate() {
         let t0 = est[ea].t_s;
         let Some(&(gb, eb)) = pairs[a + 1..].iter().find(|&&(_, e)| est[e].t_s - t0 >= delta_s - 1e-9) else { break };
@@ -147,9 +195,16 @@ pub fn rpe(gt: &[StampedPose], est: &[StampedPose], max_dt_s: f64, delta_s: f64)
         let est_rel = est[ea].world_from_camera.inverse() * est[eb].world_from_camera;
         let err = gt_rel.inverse() * est_rel;
         trans.push(err.translation.vector.norm());
+        est_length += est_rel.translation.vector.norm();
+        gt_length += gt_rel.translation.vector.norm();
         rot.push(err.rotation.angle().to_degrees());
     }
-    Ok(Rpe { delta_s, translation: Stats::of(&mut trans), rotation_deg: Stats::of(&mut rot) })
+    Ok(Rpe {
+        delta_s,
+        translation: Stats::of(&mut trans),
+        rotation_deg: Stats::of(&mut rot),
+        length_ratio: est_length / gt_length,
+    })
 }
 
 #[cfg(test)]
@@ -234,8 +289,10 @@ mod tests {
         let a = ate(&gt, &est, 0.01).unwrap();
         assert!(a.translation.rmse < 1e-9, "{a:?}");
         assert!((a.alignment_rotation_deg - moved.rotation.angle().to_degrees()).abs() < 1e-6);
+        assert!((a.sim3.est_over_gt - 1.0).abs() < 1e-9 && a.sim3.translation.rmse < 1e-9, "{a:?}");
         let r = rpe(&gt, &est, 0.01, 1.0).unwrap();
         assert!(r.translation.max < 1e-9 && r.rotation_deg.max < 1e-6);
+        assert!((r.length_ratio - 1.0).abs() < 1e-9);
     }
 
     #[test]
@@ -283,6 +340,32 @@ mod tests {
             (s - 1.0) * rms
         );
         assert!(a.alignment_rotation_deg < 1e-6);
+        // The similarity fit takes the scale out, and says what it was; each step is s times as long.
+        assert!((a.sim3.est_over_gt - s).abs() < 1e-9 && a.sim3.translation.rmse < 1e-9, "{:?}", a.sim3);
+        assert!((rpe(&gt, &est, 0.01, 1.0).unwrap().length_ratio - s).abs() < 1e-9);
+    }
+
+    #[test]
+    fn a_scaled_and_moved_trajectory_is_fitted_whole_by_the_similarity() {
+        // Scale about another point, then a rigid motion with a turn of more than 90°: the fit must find all
+        // three, and its error must be the noise's, not the scale's.
+        let gt = gt_path(600);
+        let moved = Isometry3::new(Vector3::new(-40.0, 7.0, 3.0), Vector3::new(0.4, 1.9, -0.7));
+        let mut noise = Noise(11);
+        let sigma = 0.01;
+        let est: Vec<StampedPose> = gt
+            .iter()
+            .map(|p| {
+                let mut q = p.world_from_camera;
+                q.translation.vector =
+                    q.translation.vector * 0.995 + Vector3::new(noise.gauss(), noise.gauss(), noise.gauss()) * sigma;
+                StampedPose { t_s: p.t_s, world_from_camera: moved * q }
+            })
+            .collect();
+        let a = ate(&gt, &est, 0.01).unwrap();
+        assert!((a.sim3.est_over_gt - 0.995).abs() < 1e-4, "{:?}", a.sim3);
+        assert!((a.sim3.translation.rmse - sigma * 3f64.sqrt()).abs() < 0.1 * sigma * 3f64.sqrt(), "{:?}", a.sim3);
+        assert!(a.translation.rmse > 3.0 * a.sim3.translation.rmse, "{a:?}");
     }
 
     #[test]
