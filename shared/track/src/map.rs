@@ -453,22 +453,39 @@ impl Map {
         camera_from_x * self.keyframes[0].camera_from_world
     }
 
-    /// Whether `p` projects into `kf` (in front, inside, distance in the invariance range, view angle ≤ 60°).
-    pub fn point_visible_in(&self, cam: &RectifiedCamera, p: PointId, kf: KfId) -> bool {
+    /// Where `p` projects in a camera at `camera_from_world`, if it can be seen there: in front, inside the
+    /// image, at a distance in its scale-invariance range (0.8·min – 1.2·max) and within 60° of its normal.
+    pub fn projection_from(
+        &self,
+        cam: &RectifiedCamera,
+        p: PointId,
+        camera_from_world: &CameraFromWorld,
+    ) -> Option<Projection> {
         let point = &self.points[p];
-        let k = &self.keyframes[kf];
-        let pc = k.camera_from_world * point.position;
+        let pc = camera_from_world * point.position;
         if pc.z <= 0.0 {
-            return false;
+            return None;
         }
         let (u, v) = cam.project(&pc);
         if !cam.in_image(u, v) {
-            return false;
+            return None;
         }
-        let d = point.position - k.centre();
-        let dist = d.norm();
-        dist >= 0.8 * point.min_dist && dist <= 1.2 * point.max_dist && d.dot(&point.normal) >= 0.5 * dist
+        let d = point.position - camera_from_world.inverse() * Point3::origin();
+        let distance = d.norm();
+        (distance >= 0.8 * point.min_dist && distance <= 1.2 * point.max_dist && d.dot(&point.normal) >= 0.5 * distance)
+            .then_some(Projection { u, v, depth: pc.z, distance })
     }
+}
+
+/// A map point seen from a camera ([`Map::projection_from`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Projection {
+    pub u: f64,
+    pub v: f64,
+    /// z in the camera's frame.
+    pub depth: f64,
+    /// From the camera's centre.
+    pub distance: f64,
 }
 
 /// Median of the positive depths (−1 marks none); NaN when there is none.

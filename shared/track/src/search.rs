@@ -272,16 +272,11 @@ pub fn fuse_point(map: &mut Map, cam: &RectifiedCamera, scales: &Scales, kf: KfI
     if point.bad || point.observations.contains_key(&kf) {
         return false;
     }
-    if !map.point_visible_in(cam, p, kf) {
-        return false;
-    }
     let k = &map.keyframes[kf];
-    let t = k.camera_from_world;
-    let pc = t * point.position;
-    let (u, v) = cam.project(&pc);
-    let u_r = u - cam.bf / pc.z;
-    let dist = (point.position - k.centre()).norm();
-    let level = scales.predict_level(dist, point.max_dist);
+    let Some(seen) = map.projection_from(cam, p, &k.camera_from_world) else { return false };
+    let (u, v) = (seen.u, seen.v);
+    let u_r = u - cam.bf / seen.depth;
+    let level = scales.predict_level(seen.distance, point.max_dist);
     let r = 3.0 * scales.scale[level];
     let mut found = Vec::new();
     k.grid.features_in_area(

@@ -340,7 +340,6 @@ fn search_by_projection(
     matched: &mut BTreeMap<usize, PointId>,
 ) {
     let k = &map.keyframes[kf];
-    let centre = pose.inverse() * nalgebra::Point3::origin();
     let mut found = Vec::new();
     let mut best_for_keypoint: BTreeMap<usize, (u32, PointId)> = BTreeMap::new();
     for &p in points {
@@ -348,20 +347,9 @@ fn search_by_projection(
             continue;
         }
         let point = &map.points[p];
-        let pc = pose * point.position;
-        if pc.z <= 0.0 {
-            continue;
-        }
-        let (u, v) = cam.project(&pc);
-        if !cam.in_image(u, v) {
-            continue;
-        }
-        let d = point.position - centre;
-        let dist = d.norm();
-        if dist < 0.8 * point.min_dist || dist > 1.2 * point.max_dist || d.dot(&point.normal) < 0.5 * dist {
-            continue;
-        }
-        let level = scales.predict_level(dist, point.max_dist);
+        let Some(seen) = map.projection_from(cam, p, pose) else { continue };
+        let (u, v) = (seen.u, seen.v);
+        let level = scales.predict_level(seen.distance, point.max_dist);
         let r = LOOP_SEARCH_RADIUS_PX * scales.scale[level];
         found.clear();
         k.grid.features_in_area(
