@@ -8,50 +8,20 @@
 //!
 //! `--dump-map F` writes the finished map's keyframes and observations for `observation_truth.py` (beside this).
 #![allow(clippy::unwrap_used, clippy::expect_used)]
-use bdis_track::{Tracker, TrackerSettings};
 use std::io::Write;
 
-fn grey(path: &std::path::Path) -> (Vec<u8>, usize, usize) {
-    let img = image::open(path).unwrap().to_rgb8();
-    let (w, h) = (img.width() as usize, img.height() as usize);
-    let g = img
-        .pixels()
-        .map(|p| ((u32::from(p[0]) * 4899 + u32::from(p[1]) * 9617 + u32::from(p[2]) * 1868 + 8192) >> 14) as u8)
-        .collect();
-    (g, w, h)
-}
+#[path = "common/sequence.rs"]
+mod sequence;
 
 fn main() {
     let a: Vec<String> = std::env::args().collect();
     let dir = std::path::Path::new(&a[1]);
     let max: usize = a.get(3).and_then(|s| s.parse().ok()).unwrap_or(usize::MAX);
-    let settings_path = a
-        .iter()
-        .position(|x| x == "--settings")
-        .map_or_else(|| dir.join("settings.yaml"), |i| std::path::PathBuf::from(&a[i + 1]));
+    let settings_path = a.iter().position(|x| x == "--settings").map(|i| std::path::PathBuf::from(&a[i + 1]));
     let verbose = a.iter().any(|x| x == "--verbose");
-    let settings = bdis_core::settings::Settings::load(&settings_path).unwrap();
-    let times: Vec<f64> = std::fs::read_to_string(dir.join("times.txt"))
-        .unwrap()
-        .lines()
-        .filter(|l| !l.trim().is_empty())
-        .map(|l| l.trim().parse().unwrap())
-        .collect();
-    let list = |side: &str| {
-        let mut files: Vec<std::path::PathBuf> =
-            std::fs::read_dir(dir.join(side)).unwrap().map(|e| e.unwrap().path()).collect();
-        files.sort_by_key(|p| p.file_stem().and_then(|s| s.to_str()).and_then(|s| s.parse::<u64>().ok()));
-        files
-    };
-    let (lefts, rights) = (list("left"), list("right"));
-    let (_, w, h) = grey(&lefts[0]);
-    let cam = settings.camera.rectified(w as u32, h as u32).expect("rectified images");
-    let ts = TrackerSettings {
-        th_depth: settings.th_depth,
-        fps: settings.fps,
-        orb: bdis_orb::OrbParams::from_settings(&settings.orb),
-    };
-    let mut tracker = Tracker::new(cam, ts).unwrap();
+    let seq = sequence::Sequence::open(dir, settings_path.as_deref());
+    let times = &seq.times;
+    let mut tracker = seq.tracker();
     tracker.set_refinement(!a.iter().any(|x| x == "--whole-pixel"));
     tracker.set_loop_closing(!a.iter().any(|x| x == "--no-loop-closing"));
     let mut cpu = Vec::new();
@@ -59,8 +29,7 @@ fn main() {
     let mut steps = [0.0f64; 5];
     let (mut detect_ms, mut wait_ms) = (Vec::new(), Vec::new());
     for (i, &t) in times.iter().enumerate().take(max) {
-        let (l, _, _) = grey(&lefts[i]);
-        let (r, _, _) = grey(&rights[i]);
+        let (l, r) = seq.pair(i);
         let start = std::time::Instant::now();
         let res = tracker.track((t * 1e9).round() as u64, &l, &r).unwrap();
         let ms = start.elapsed().as_secs_f64() * 1e3;
