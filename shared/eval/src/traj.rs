@@ -38,16 +38,40 @@ pub fn associate(gt: &[StampedPose], est: &[StampedPose], max_dt_s: f64) -> Vec<
 
 /// The rigid transform `dst_from_src` minimising Σ‖dst − (R·src + t)‖² (Umeyama 1991, no scale).
 pub fn umeyama_se3(src: &[Point3<f64>], dst: &[Point3<f64>]) -> Result<Isometry3<f64>, TrajError> {
-    umeyama(src, dst, false).map(|(rigid, _)| rigid)
+    umeyama(src, dst).map(|fit| fit.rigid())
 }
 
 /// The similarity `dst_from_src` minimising Σ‖dst − (s·R·src + t)‖² (Umeyama 1991 with scale), as
 /// (R and t, s): the point maps to `s · (R·src) + t`, so `rigid * src` is not the fit unless s = 1.
 pub fn umeyama_sim3(src: &[Point3<f64>], dst: &[Point3<f64>]) -> Result<(Isometry3<f64>, f64), TrajError> {
-    umeyama(src, dst, true)
+    umeyama(src, dst).map(|fit| fit.similarity())
 }
 
-fn umeyama(src: &[Point3<f64>], dst: &[Point3<f64>], with_scale: bool) -> Result<(Isometry3<f64>, f64), TrajError> {
+/// One decomposition of the positions' cross-covariance, which both alignments are read from: the rotation
+/// is the same with or without a scale, only the translation differs.
+struct UmeyamaFit {
+    r: Matrix3<f64>,
+    src_mean: Vector3<f64>,
+    dst_mean: Vector3<f64>,
+    scale: f64,
+}
+
+impl UmeyamaFit {
+    fn rotation(&self) -> UnitQuaternion<f64> {
+        UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(self.r))
+    }
+
+    fn rigid(&self) -> Isometry3<f64> {
+        Isometry3::from_parts(Translation3::from(self.dst_mean - self.r * self.src_mean), self.rotation())
+    }
+
+    fn similarity(&self) -> (Isometry3<f64>, f64) {
+        let t = self.dst_mean - self.scale * (self.r * self.src_mean);
+        (Isometry3::from_parts(Translation3::from(t), self.rotation()), self.scale)
+    }
+}
+
+fn umeyama(src: &[Point3<f64>], dst: &[Point3<f64>]) -> Result<UmeyamaFit, TrajError> {
     let n = src.len().min(dst.len());
     if n < 3 {
         return Err(TrajError::TooFewPairs { pairs: n, max_dt_s: f64::NAN });
@@ -77,15 +101,9 @@ fn umeyama(src: &[Point3<f64>], dst: &[Point3<f64>], with_scale: bool) -> Result
     let r = u * s * v_t;
     // The scale is tr(D·S)/σ²_src; `svd` sorts the singular values in decreasing order, so the sign flip goes
     // with the last.
-    let scale = if with_scale {
-        let d = svd.singular_values;
-        (d[0] + d[1] + s[(2, 2)] * d[2]) / src_variance
-    } else {
-        1.0
-    };
-    let t = md - scale * (r * ms);
-    let rotation = UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(r));
-    Ok((Isometry3::from_parts(Translation3::from(t), rotation), scale))
+    let d = svd.singular_values;
+    let scale = (d[0] + d[1] + s[(2, 2)] * d[2]) / src_variance;
+    Ok(UmeyamaFit { r, src_mean: ms, dst_mean: md, scale })
 }
 
 /// Absolute trajectory error after alignment.
@@ -162,9 +180,10 @@ pub fn align_first(gt: &[StampedPose], est: &[StampedPose], max_dt_s: f64) -> Re
 /// ATE of `est` against `gt` after SE(3) alignment (`evo_ape tum gt est -a`).
 pub fn ate(gt: &[StampedPose], est: &[StampedPose], max_dt_s: f64) -> Result<Ate, TrajError> {
     let (src, dst) = matched_positions(gt, est, max_dt_s)?;
-    let gt_from_est = umeyama_se3(&src, &dst)?;
+    let fit = umeyama(&src, &dst)?;
+    let gt_from_est = fit.rigid();
     let mut errors: Vec<f64> = src.iter().zip(&dst).map(|(s, d)| (d - gt_from_est * s).norm()).collect();
-    let (rigid, scale) = umeyama_sim3(&src, &dst)?;
+    let (rigid, scale) = fit.similarity();
     let mut sim3_errors: Vec<f64> = src
         .iter()
         .zip(&dst)

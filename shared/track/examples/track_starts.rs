@@ -19,13 +19,6 @@ fn value<'a>(a: &'a [String], flag: &str) -> Option<&'a str> {
     a.iter().position(|x| x == flag).and_then(|i| a.get(i + 1)).map(String::as_str)
 }
 
-fn median(v: &[f64]) -> f64 {
-    let mut s = v.to_vec();
-    s.sort_by(f64::total_cmp);
-    let n = s.len();
-    if n == 0 { f64::NAN } else { 0.5 * (s[n / 2] + s[(n - 1) / 2]) }
-}
-
 fn main() {
     let a: Vec<String> = std::env::args().collect();
     let dir = Path::new(&a[1]);
@@ -73,8 +66,8 @@ fn main() {
     println!(
         "median over {} starts: ATE {:.6}, scale error {:+.3} %, ATE after Sim(3) {:.6}",
         starts.len(),
-        median(&ates),
-        median(&scales),
-        median(&sim3s)
+        bdis_eval::Stats::of(&mut ates).median,
+        bdis_eval::Stats::of(&mut scales).median,
+        bdis_eval::Stats::of(&mut sim3s).median
     );
 }
