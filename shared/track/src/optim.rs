@@ -378,6 +378,7 @@ impl BaProblem {
         }
         // Edges grouped by point.
         let mut by_point: Vec<Vec<usize>> = vec![Vec::new(); self.points.len()];
+        let mut free: Vec<(usize, usize)> = Vec::new();
         for (k, e) in self.edges.iter().enumerate() {
             by_point[e.point].push(k);
         }
@@ -445,23 +446,35 @@ impl BaProblem {
                     }
                     let ci = c.try_inverse()?;
                     c_inv[p] = ci;
-                    for &ka in edges {
-                        let Some(&ba) = block.get(self.edges[ka].pose).filter(|b| **b != usize::MAX) else { continue };
-                        if self.excluded[ka] {
-                            continue;
-                        }
+                    // This point's edges to free poses: (block, edge).
+                    free.clear();
+                    free.extend(
+                        edges.iter().filter(|&&k| !self.excluded[k]).filter_map(|&k| {
+                            block.get(self.edges[k].pose).filter(|b| **b != usize::MAX).map(|&b| (b, k))
+                        }),
+                    );
+                    for &(ba, ka) in &free {
                         let bci = h_pl[ka] * ci;
                         let mut r = rhs.rows_mut(6 * ba, 6);
                         r += bci * g_l[p];
-                        for &kb in edges {
-                            let Some(&bb) = block.get(self.edges[kb].pose).filter(|b| **b != usize::MAX) else {
-                                continue;
-                            };
-                            if self.excluded[kb] {
-                                continue;
+                        // Only the blocks on and below the diagonal: the Cholesky factorisation reads the lower
+                        // triangle alone, and S is symmetric, so the upper blocks were half the work for nothing.
+                        // A block gets one term per point (one observation per keyframe), in point order, so the
+                        // sums are the same to the bit.
+                        for &(bb, kb) in &free {
+                            if bb <= ba {
+                                // s[ba, bb] −= bci · h_pl[kb]ᵀ, written out down each column (the matrix is
+                                // column-major), the three terms summed in the order nalgebra's product sums them.
+                                let h = &h_pl[kb];
+                                for j in 0..6 {
+                                    let mut column = s.column_mut(6 * bb + j);
+                                    let block_column = &mut column.as_mut_slice()[6 * ba..6 * ba + 6];
+                                    for (i, x) in block_column.iter_mut().enumerate() {
+                                        *x -=
+                                            bci[(i, 0)] * h[(j, 0)] + bci[(i, 1)] * h[(j, 1)] + bci[(i, 2)] * h[(j, 2)];
+                                    }
+                                }
                             }
-                            let mut v = s.view_mut((6 * ba, 6 * bb), (6, 6));
-                            v -= bci * h_pl[kb].transpose();
                         }
                     }
                 }
