@@ -305,6 +305,22 @@ pub struct BaEdge {
     pub octave_chi2_scale: f64,
 }
 
+/// `s[ba, bb] −= a · bᵀ` for the 6×6 block at block row `ba`, block column `bb`, with `a`, `b` 6×3. Written out
+/// down each column of `s` (column-major) over the factors' column-major elements ((i, m) at 6m + i), with the
+/// three terms summed in the order nalgebra's product sums them: the result is the product's to the bit, without
+/// its bounds checks, and the inner loop vectorises.
+fn subtract_block_product(s: &mut DMatrix<f64>, ba: usize, bb: usize, a: &SMatrix<f64, 6, 3>, b: &SMatrix<f64, 6, 3>) {
+    let (a, b) = (a.as_slice(), b.as_slice());
+    let rows = 6 * ba;
+    for j in 0..6 {
+        let (b0, b1, b2) = (b[j], b[6 + j], b[12 + j]);
+        let mut column = s.column_mut(6 * bb + j);
+        for (i, x) in column.as_mut_slice()[rows..rows + 6].iter_mut().enumerate() {
+            *x -= a[i] * b0 + a[6 + i] * b1 + a[12 + i] * b2;
+        }
+    }
+}
+
 /// A bundle adjustment problem: poses (some fixed), points, edges. Solved in place.
 #[derive(Debug, Default, Clone)]
 pub struct BaProblem {
@@ -431,83 +447,74 @@ impl BaProblem {
                     .chain(h_ll.iter().flat_map(|m| (0..3).map(move |k| m[(k, k)])))
                     .fold(0.0, f64::max),
             );
-            let accepted =
-                damping.step(current_cost, |add| {
-                    // Schur complement with every diagonal damped.
-                    let mut s = h_pp.clone();
-                    let mut rhs = -g_p.clone();
-                    for k in 0..dim {
-                        s[(k, k)] += add(h_pp[(k, k)]);
+            let accepted = damping.step(current_cost, |add| {
+                // Schur complement with every diagonal damped.
+                let mut s = h_pp.clone();
+                let mut rhs = -g_p.clone();
+                for k in 0..dim {
+                    s[(k, k)] += add(h_pp[(k, k)]);
+                }
+                let mut c_inv = vec![Matrix3::<f64>::zeros(); self.points.len()];
+                for (p, edges) in by_point.iter().enumerate() {
+                    let mut c = h_ll[p];
+                    for k in 0..3 {
+                        c[(k, k)] += add(h_ll[p][(k, k)]);
                     }
-                    let mut c_inv = vec![Matrix3::<f64>::zeros(); self.points.len()];
-                    for (p, edges) in by_point.iter().enumerate() {
-                        let mut c = h_ll[p];
-                        for k in 0..3 {
-                            c[(k, k)] += add(h_ll[p][(k, k)]);
+                    let ci = c.try_inverse()?;
+                    c_inv[p] = ci;
+                    // This point's edges to free poses: (block, edge).
+                    free.clear();
+                    for &k in edges {
+                        if let Some(&b) = block.get(self.edges[k].pose)
+                            && b != usize::MAX
+                            && !self.excluded[k]
+                        {
+                            free.push((b, k));
                         }
-                        let ci = c.try_inverse()?;
-                        c_inv[p] = ci;
-                        // This point's edges to free poses: (block, edge).
-                        free.clear();
-                        free.extend(edges.iter().filter(|&&k| !self.excluded[k]).filter_map(|&k| {
-                            block.get(self.edges[k].pose).filter(|b| **b != usize::MAX).map(|&b| (b, k))
-                        }));
-                        for &(ba, ka) in &free {
-                            let bci = h_pl[ka] * ci;
-                            let mut r = rhs.rows_mut(6 * ba, 6);
-                            r += bci * g_l[p];
-                            // Only the blocks on and below the diagonal: the Cholesky factorisation reads the lower
-                            // triangle alone, and S is symmetric, so the upper blocks were half the work for nothing.
-                            // A block gets one term per point (one observation per keyframe), in point order, so the
-                            // sums are the same to the bit.
-                            for &(bb, kb) in &free {
-                                if bb <= ba {
-                                    // s[ba, bb] −= bci · h_pl[kb]ᵀ, written out down each column (the matrix is
-                                    // column-major), the three terms summed in the order nalgebra's product sums them.
-                                    // Both factors are column-major 6×3: element (i, m) at 6m + i.
-                                    let (a, h) = (bci.as_slice(), h_pl[kb].as_slice());
-                                    let rows = 6 * ba;
-                                    for j in 0..6 {
-                                        let (h0, h1, h2) = (h[j], h[6 + j], h[12 + j]);
-                                        let mut column = s.column_mut(6 * bb + j);
-                                        let block_column = &mut column.as_mut_slice()[rows..rows + 6];
-                                        for (i, x) in block_column.iter_mut().enumerate() {
-                                            *x -= a[i] * h0 + a[6 + i] * h1 + a[12 + i] * h2;
-                                        }
-                                    }
-                                }
+                    }
+                    for &(ba, ka) in &free {
+                        let bci = h_pl[ka] * ci;
+                        let mut r = rhs.rows_mut(6 * ba, 6);
+                        r += bci * g_l[p];
+                        // Only the blocks on and below the diagonal: the Cholesky factorisation reads the lower
+                        // triangle alone, and S is symmetric, so the upper blocks were half the work for nothing.
+                        // A block gets one term per point (one observation per keyframe), in point order.
+                        for &(bb, kb) in &free {
+                            if bb <= ba {
+                                subtract_block_product(&mut s, ba, bb, &bci, &h_pl[kb]);
                             }
                         }
                     }
-                    let dp = if dim == 0 { DVector::zeros(0) } else { s.clone().cholesky()?.solve(&rhs) };
-                    // Back-substitution for the points: dl = C⁻¹(−g_l − Σ H_plᵀ dp).
-                    let mut new_points = self.points.clone();
-                    for (p, edges) in by_point.iter().enumerate() {
-                        let mut r = -g_l[p];
-                        for &k in edges {
-                            if self.excluded[k] {
-                                continue;
-                            }
-                            if let Some(&b) = block.get(self.edges[k].pose).filter(|b| **b != usize::MAX) {
-                                r -= h_pl[k].transpose() * dp.fixed_rows::<6>(6 * b);
-                            }
+                }
+                let dp = if dim == 0 { DVector::zeros(0) } else { s.clone().cholesky()?.solve(&rhs) };
+                // Back-substitution for the points: dl = C⁻¹(−g_l − Σ H_plᵀ dp).
+                let mut new_points = self.points.clone();
+                for (p, edges) in by_point.iter().enumerate() {
+                    let mut r = -g_l[p];
+                    for &k in edges {
+                        if self.excluded[k] {
+                            continue;
                         }
-                        new_points[p] += c_inv[p] * r;
+                        if let Some(&b) = block.get(self.edges[k].pose).filter(|b| **b != usize::MAX) {
+                            r -= h_pl[k].transpose() * dp.fixed_rows::<6>(6 * b);
+                        }
                     }
-                    let new_poses: Vec<CameraFromWorld> = self
-                        .poses
-                        .iter()
-                        .enumerate()
-                        .map(|(i, t)| {
-                            if block[i] == usize::MAX {
-                                *t
-                            } else {
-                                update(&Vector6::from_iterator(dp.fixed_rows::<6>(6 * block[i]).iter().copied()), t)
-                            }
-                        })
-                        .collect();
-                    Some((self.cost(cam, &new_poses, &new_points, robust), (new_poses, new_points)))
-                });
+                    new_points[p] += c_inv[p] * r;
+                }
+                let new_poses: Vec<CameraFromWorld> = self
+                    .poses
+                    .iter()
+                    .enumerate()
+                    .map(|(i, t)| {
+                        if block[i] == usize::MAX {
+                            *t
+                        } else {
+                            update(&Vector6::from_iterator(dp.fixed_rows::<6>(6 * block[i]).iter().copied()), t)
+                        }
+                    })
+                    .collect();
+                Some((self.cost(cam, &new_poses, &new_points, robust), (new_poses, new_points)))
+            });
             let Some((c, (new_poses, new_points))) = accepted else { break };
             self.poses = new_poses;
             self.points = new_points;
