@@ -79,6 +79,13 @@ pub struct SynthArgs {
     /// opposite ways. Longer: more of what a view sees moves as a whole (which looks like the scope moving)
     #[arg(long, default_value_t = bdis_synth::breathing::WAVELENGTH_MM, value_name = "MM")]
     breathing_wavelength: f64,
+    /// How the scene is lit: `scope` (the light at the scope's tip, as an endoscope's: falloff with distance,
+    /// the relief's shading, moving highlights, vignetting), `no-highlights`, `flat-diffuse` (no relief shading:
+    /// every patch lit as if it faced the light), `albedo` (no light model: the texture as it is; sensor noise
+    /// kept). The light rides on the scope, so a patch's shading changes as it moves: vary it to see what
+    /// depends on the light
+    #[arg(long, default_value = "scope")]
+    lighting: String,
     /// Texture and shape seed: the same seed gives byte-identical files.
     #[arg(long, default_value_t = 2026)]
     seed: u64,
@@ -100,6 +107,9 @@ pub fn synth(args: SynthArgs) -> Result<()> {
     }
     let Some(motion) = bdis_synth::Motion::parse(&args.motion) else {
         bail!("--motion: `{}` is not a motion ({})", args.motion, bdis_synth::Motion::NAMES);
+    };
+    let Some(lighting) = bdis_synth::Lighting::parse(&args.lighting) else {
+        bail!("--lighting: `{}` is not a lighting ({})", args.lighting, bdis_synth::Lighting::NAMES);
     };
     let rig = RectifiedCamera {
         width: args.width,
@@ -127,6 +137,7 @@ pub fn synth(args: SynthArgs) -> Result<()> {
         breathing_mm: args.breathing,
         bleeding: args.bleeding,
         breathing_wavelength_mm: args.breathing_wavelength,
+        lighting,
     };
     if args.interlaced {
         render_with_progress(&args.out.join("fields"), &rig, &request)?;

@@ -275,6 +275,45 @@ pub enum Motion {
     Stop,
 }
 
+/// How the scene is lit: the scope's own light, or parts of it switched off — to vary the renderer, and to tell
+/// which part of the light an error comes from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Lighting {
+    /// The light at the scope's tip: falloff with distance, the relief's shading, highlights, vignetting.
+    #[default]
+    Scope,
+    /// As `Scope` without the specular highlights.
+    NoHighlights,
+    /// As `Scope` with the diffuse term blind to the surface's orientation (no relief shading).
+    FlatDiffuse,
+    /// No light model: each pixel is the texture's albedo (and the sensor's noise).
+    Albedo,
+}
+
+impl Lighting {
+    pub const NAMES: &'static str = "scope, no-highlights, flat-diffuse, albedo";
+
+    pub fn parse(name: &str) -> Option<Self> {
+        match name {
+            "scope" => Some(Self::Scope),
+            "no-highlights" => Some(Self::NoHighlights),
+            "flat-diffuse" => Some(Self::FlatDiffuse),
+            "albedo" => Some(Self::Albedo),
+            _ => None,
+        }
+    }
+
+    /// `shading` lit this way.
+    pub fn apply(self, shading: render::Shading) -> render::Shading {
+        match self {
+            Self::Scope => shading,
+            Self::NoHighlights => render::Shading { specular: 0.0, ..shading },
+            Self::FlatDiffuse => render::Shading { relief: false, ..shading },
+            Self::Albedo => render::Shading { lighting: false, ..shading },
+        }
+    }
+}
+
 impl Motion {
     pub const NAMES: &'static str = "steady, jerk, stop";
 
@@ -349,6 +388,8 @@ pub struct SceneRequest {
     pub bleeding: bool,
     /// Breathing's wavelength over the tissue ([`breathing::WAVELENGTH_MM`] by default), mm.
     pub breathing_wavelength_mm: f64,
+    /// How the scene is lit.
+    pub lighting: Lighting,
 }
 
 impl Default for SceneRequest {
@@ -368,6 +409,7 @@ impl Default for SceneRequest {
             breathing_mm: 0.0,
             breathing_wavelength_mm: breathing::WAVELENGTH_MM,
             bleeding: false,
+            lighting: Lighting::Scope,
         }
     }
 }
@@ -427,6 +469,7 @@ pub fn write_scene(
     let trajectory = request.trajectory.clone();
     let lens = request.raw.as_deref().and_then(|name| render::RawLens::preset(name, rig));
     let optics_blur_px = request.optics_blur_px;
+    let lighting = request.lighting;
     let breathing = (request.breathing_mm > 0.0)
         .then(|| breathing::Breathing::new(request.breathing_mm, request.breathing_wavelength_mm));
     let swell_at = move |t: f64| breathing.map_or_else(breathing::Swell::default, |b| b.swell_at(t));
@@ -448,7 +491,7 @@ pub fn write_scene(
                     Box::new(move |t| Box::new(colon::Colon { swell: swell_at(t), ..colon })),
                     Box::new(path),
                     colon.mesh(-20.0, far + 150.0, 0.5, 180),
-                    render::Shading { lens, optics_blur_px, ..render::Shading::default() },
+                    lighting.apply(render::Shading { lens, optics_blur_px, ..render::Shading::default() }),
                     instruments::InstrumentKind::WorkingChannel,
                     colon.radius_mm,
                 )
@@ -494,7 +537,12 @@ pub fn write_scene(
                     Box::new(surface_at),
                     Box::new(path),
                     mesh,
-                    render::Shading { exposure_distance_mm: 65.0, lens, optics_blur_px, ..render::Shading::default() },
+                    lighting.apply(render::Shading {
+                        exposure_distance_mm: 65.0,
+                        lens,
+                        optics_blur_px,
+                        ..render::Shading::default()
+                    }),
                     instruments::InstrumentKind::Laparoscopic,
                     abdomen::STANDOFF_MM,
                 )

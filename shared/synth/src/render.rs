@@ -30,8 +30,12 @@ pub trait Surface: Sync {
 /// How images are lit and degraded.
 #[derive(Debug, Clone, Copy)]
 pub struct Shading {
-    /// Off: images show the texture's albedo only (for tests of the geometry).
+    /// Off: images show the texture's albedo only, without light, shading or highlights (the sensor's noise is
+    /// `noise`'s alone).
     pub lighting: bool,
+    /// Off: the diffuse term ignores the surface's orientation, as if every patch faced the light; the falloff
+    /// with distance, the vignetting and the highlights stay.
+    pub relief: bool,
     /// Radiance scale: a wall at this distance, facing the light, is exposed to about 80 %.
     pub exposure_distance_mm: f64,
     /// Light scattered inside the lumen, as a fraction of full exposure.
@@ -137,6 +141,7 @@ impl Default for Shading {
     fn default() -> Self {
         Self {
             lighting: true,
+            relief: true,
             exposure_distance_mm: 40.0,
             ambient: 0.06,
             specular: 0.35,
@@ -236,8 +241,9 @@ pub fn render_scene(
             let d2 = to_light.norm_squared();
             let l = to_light / d2.sqrt();
             let half = (l - dir).normalize();
-            let n_l = normal.dot(&l).max(0.0);
-            let spec = if n_l > 0.0 { specular * normal.dot(&half).max(0.0).powf(shininess) } else { 0.0 };
+            let facing = normal.dot(&l).max(0.0);
+            let n_l = if shading.relief { facing } else { 1.0 };
+            let spec = if facing > 0.0 { specular * normal.dot(&half).max(0.0).powf(shininess) } else { 0.0 };
             let r2 = ((u - rig.cx).powi(2) + (v - rig.cy).powi(2)) / half_diag2;
             let vignette = 1.0 - shading.vignetting * r2;
             ((shading.ambient + exposure * n_l / d2) * vignette, exposure * spec / d2 * vignette)
@@ -343,11 +349,8 @@ pub fn render_scene(
                 continue;
             }
             for c in 0..3 {
-                let noise = if shading.lighting {
-                    (hash_noise(surface.seed() ^ view, frame, i as u64 * 3 + c as u64) - 0.5) * 2.0 * shading.noise
-                } else {
-                    0.0
-                };
+                let noise =
+                    (hash_noise(surface.seed() ^ view, frame, i as u64 * 3 + c as u64) - 0.5) * 2.0 * shading.noise;
                 px[c] = (radiance[c] + noise).round().clamp(0.0, 255.0) as u8;
             }
         }

@@ -28,7 +28,7 @@ fn rig() -> RectifiedCamera {
 }
 
 fn albedo_only() -> Shading {
-    Shading { lighting: false, ..Shading::default() }
+    Shading { lighting: false, noise: 0.0, ..Shading::default() }
 }
 
 fn bilinear(img: &image::RgbImage, x: f64, y: f64) -> Option<[f64; 3]> {
@@ -412,4 +412,36 @@ fn bleeding_reddens_and_wets_the_tissue_under_the_pool_and_leaves_the_ground_tru
     let changed = a.left.pixels().zip(b.left.pixels()).filter(|(p, q)| p != q).count();
     let share = changed as f64 / f64::from(rig.width * rig.height);
     assert!(share > 0.05 && share < 0.35, "{share:.3} of the image changed");
+}
+
+#[test]
+fn each_lighting_switches_off_its_own_part_of_the_light_and_keeps_the_sensor_noise() {
+    use bdis_synth::Lighting;
+    let rig = rig();
+    let abdomen = Abdomen::default();
+    let pose = abdomen.sweep_pose(0.5, 15.0);
+    let lit = |lighting: Lighting, frame: u64| {
+        let shading = lighting.apply(Shading { exposure_distance_mm: 65.0, ..Shading::default() });
+        render(&abdomen, &rig, &shading, &pose, frame).left
+    };
+    let grey = |img: &image::RgbImage| {
+        img.pixels().map(|p| p.0.iter().map(|&c| f64::from(c)).sum::<f64>()).collect::<Vec<_>>()
+    };
+    let scope = grey(&lit(Lighting::Scope, 3));
+    // Highlights only ever add light: without them no pixel is brighter (beyond the noise, ±2 per channel), and
+    // where they were some are much darker.
+    let matte = grey(&lit(Lighting::NoHighlights, 3));
+    assert!(scope.iter().zip(&matte).all(|(s, m)| m - s <= 6.0));
+    let dimmed = scope.iter().zip(&matte).filter(|(s, m)| *s - *m > 60.0).count();
+    assert!(dimmed > 0, "the scope light has highlights on this wall");
+    // Without the relief's shading the picture changes all over, not only in the highlights.
+    let flat = grey(&lit(Lighting::FlatDiffuse, 3));
+    let changed = scope.iter().zip(&flat).filter(|(s, f)| (*s - *f).abs() > 15.0).count();
+    assert!(changed > scope.len() / 10, "{changed} of {} pixels changed", scope.len());
+    // Albedo only: the texture as it is, but with the sensor's noise (it differs frame to frame at the same pose,
+    // by at most the noise), unlike the noiseless albedo the geometry tests use.
+    let (a, b) = (grey(&lit(Lighting::Albedo, 3)), grey(&lit(Lighting::Albedo, 4)));
+    let clean = grey(&render(&abdomen, &rig, &albedo_only(), &pose, 3).left);
+    assert!(a.iter().zip(&b).filter(|(x, y)| x != y).count() > a.len() / 2, "the noise changes frame to frame");
+    assert!(a.iter().zip(&clean).all(|(x, c)| (x - c).abs() <= 3.0 * 2.0 + 1e-9), "noise within ±2 per channel");
 }
