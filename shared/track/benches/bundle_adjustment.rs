@@ -1,8 +1,11 @@
-//! Criterion benchmark: one local bundle adjustment (`BaProblem::solve`, as the mapper's worker runs it: 5 robust
-//! iterations, outliers excluded, 10 plain ones), single thread, on a problem the size of the lit 320×240
-//! circle's local windows (measured there: ~25 free keyframes and ~10 fixed ones, ~1 450 points, ~10 000
-//! observations) — keyframes every few frames along a wall, each point seen by the keyframes whose view holds it.
-//! Built here from a fixed seed, so the figure does not depend on a rendered sequence.
+//! Criterion benchmark: bundle adjustment (`BaProblem::solve` as the mapper's worker runs it: 5 robust
+//! iterations, outliers excluded, 10 plain ones), single thread, on two problems built from a fixed seed (so the
+//! figures do not depend on a rendered sequence): keyframes along a wall, each point seen by the keyframes whose
+//! view holds it.
+//! - a local window the size of the lit 320×240 circle's (measured there: ~25 free keyframes and ~10 fixed ones,
+//!   ~1 450 points, ~10 000 observations);
+//! - a whole map of 200 keyframes 2 mm apart (~8 observations a point), as the global adjustment after a loop
+//!   solves it: its reduced camera system is banded, which the envelope Cholesky exploits.
 //!
 //! cargo bench -p bdis-track --bench bundle_adjustment
 
@@ -12,9 +15,16 @@ use bdis_track::{CameraFromWorld, RectifiedCamera};
 use criterion::{Criterion, criterion_group, criterion_main};
 use nalgebra::{Isometry3, Point3, Vector3, Vector6};
 
-const FREE: usize = 25;
-const FIXED: usize = 10;
-const POINTS: usize = 1450;
+/// Keyframes free and fixed, points, and the keyframes' spacing along the wall (mm).
+struct Shape {
+    free: usize,
+    fixed: usize,
+    points: usize,
+    spacing_mm: f64,
+}
+
+const LOCAL: Shape = Shape { free: 25, fixed: 10, points: 1450, spacing_mm: 0.6 };
+const WHOLE_MAP: Shape = Shape { free: 199, fixed: 1, points: 11_600, spacing_mm: 2.0 };
 
 /// Uniform in [−1, 1) from a 64-bit LCG.
 fn noise(state: &mut u64) -> f64 {
@@ -25,23 +35,23 @@ fn noise(state: &mut u64) -> f64 {
 /// The local window: the fixed keyframes first (older, further back along the path), then the free ones; points
 /// on a wall 45–85 mm away; every point observed (stereo, 0.3 px noise) by each keyframe that sees it, poses and
 /// points perturbed as a window is before its adjustment.
-fn problem() -> BaProblem {
+fn problem(shape: &Shape) -> BaProblem {
     let cam = RectifiedCamera { fx: 260.0, fy: 260.0, cx: 159.5, cy: 119.5, bf: 1300.0, width: 320, height: 240 };
     let mut s = 2026u64;
-    let n_poses = FIXED + FREE;
+    let n_poses = shape.fixed + shape.free;
     let truth: Vec<CameraFromWorld> = (0..n_poses)
         .map(|i| {
-            let along = i as f64 * 0.6;
+            let along = i as f64 * shape.spacing_mm;
             let world_from_camera = Isometry3::new(
                 Vector3::new(along, 0.3 * (i as f64 * 0.4).sin(), 0.0),
-                Vector3::new(0.0, 0.004 * i as f64, 0.0),
+                Vector3::new(0.0, 0.05 * (i as f64 * 0.1).sin(), 0.0),
             );
             world_from_camera.inverse()
         })
         .collect();
-    let points: Vec<Point3<f64>> = (0..POINTS)
+    let points: Vec<Point3<f64>> = (0..shape.points)
         .map(|_| {
-            let x = 0.6 * n_poses as f64 * 0.5 * (noise(&mut s) + 1.0) + 30.0 * noise(&mut s);
+            let x = shape.spacing_mm * n_poses as f64 * 0.5 * (noise(&mut s) + 1.0) + 30.0 * noise(&mut s);
             Point3::new(x, 24.0 * noise(&mut s), 65.0 + 20.0 * noise(&mut s))
         })
         .collect();
@@ -63,7 +73,7 @@ fn problem() -> BaProblem {
         .iter()
         .enumerate()
         .map(|(i, t)| {
-            if i < FIXED {
+            if i < shape.fixed {
                 *t
             } else {
                 let d = Vector6::from_fn(|k, _| if k < 3 { 0.002 } else { 0.2 } * noise(&mut s));
@@ -74,7 +84,7 @@ fn problem() -> BaProblem {
     let points = points.iter().map(|p| p + Vector3::from_fn(|_, _| 0.3 * noise(&mut s))).collect();
     BaProblem {
         poses,
-        fixed: (0..n_poses).map(|i| i < FIXED).collect(),
+        fixed: (0..n_poses).map(|i| i < shape.fixed).collect(),
         points,
         excluded: vec![false; edges.len()],
         edges,
@@ -94,21 +104,23 @@ fn local_ba(problem: &mut BaProblem, cam: &RectifiedCamera) {
 
 fn bench(c: &mut Criterion) {
     let cam = RectifiedCamera { fx: 260.0, fy: 260.0, cx: 159.5, cy: 119.5, bf: 1300.0, width: 320, height: 240 };
-    let start = problem();
-    let observed_points = {
+    let mut group = c.benchmark_group("bundle adjustment");
+    group.sample_size(10);
+    for (name, shape) in [("local window", LOCAL), ("whole map", WHOLE_MAP)] {
+        let start = problem(&shape);
         let mut seen = vec![0usize; start.points.len()];
         start.edges.iter().for_each(|e| seen[e.point] += 1);
-        seen.iter().filter(|&&n| n > 0).count()
-    };
-    eprintln!(
-        "local window: {FREE} free + {FIXED} fixed keyframes, {observed_points} points observed, {} observations",
-        start.edges.len()
-    );
-    let mut group = c.benchmark_group("local bundle adjustment");
-    group.sample_size(20);
-    group.bench_function(format!("{FREE} free keyframes, {} observations", start.edges.len()), |b| {
-        b.iter_batched(|| start.clone(), |mut p| local_ba(&mut p, &cam), criterion::BatchSize::LargeInput)
-    });
+        let observed_points = seen.iter().filter(|&&n| n > 0).count();
+        let label = format!(
+            "{name}: {} free + {} fixed keyframes, {observed_points} points, {} observations",
+            shape.free,
+            shape.fixed,
+            start.edges.len()
+        );
+        group.bench_function(label, |b| {
+            b.iter_batched(|| start.clone(), |mut p| local_ba(&mut p, &cam), criterion::BatchSize::LargeInput)
+        });
+    }
     group.finish();
 }
 

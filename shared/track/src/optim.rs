@@ -321,6 +321,52 @@ fn subtract_block_product(s: &mut DMatrix<f64>, ba: usize, bb: usize, a: &SMatri
     }
 }
 
+/// Solves `s · x = rhs` for a symmetric positive definite `s` of which only the lower triangle is read, as
+/// nalgebra's Cholesky does, but over the matrix's envelope only. The factor is zero wherever `s` is zero ahead
+/// of a row's first non-zero (no fill before a row's envelope), so column k of the factor ends at the last row
+/// whose envelope reaches k; every update skipped here would have added an exact zero, and the factor and the
+/// solution are nalgebra's to the bit. The reduced camera system of a bundle adjustment over keyframes in time
+/// order is nearly banded (a keyframe shares points with its neighbours in time, and with the old side of a
+/// loop), so over a whole map this is a small part of the dense factorisation's n³/3. `None` where nalgebra's
+/// would be (a pivot that is zero, negative or NaN).
+fn solve_by_envelope_cholesky(mut m: DMatrix<f64>, mut rhs: DVector<f64>) -> Option<DVector<f64>> {
+    let n = m.nrows();
+    // Each row's first non-zero column in the lower triangle, and each column's last row that reaches it.
+    let first: Vec<usize> = (0..n).map(|j| (0..j).find(|&c| m[(j, c)] != 0.0).unwrap_or(j)).collect();
+    let mut last: Vec<usize> = (0..n).collect();
+    for (i, &f) in first.iter().enumerate() {
+        for l in &mut last[f..i] {
+            *l = (*l).max(i);
+        }
+    }
+    let data = m.as_mut_slice();
+    for j in 0..n {
+        // Column j minus column k times the row's factor (nalgebra's left-looking loop), down to where
+        // column k ends.
+        let (before, from_j) = data.split_at_mut(j * n);
+        let column_j = &mut from_j[j..n];
+        for k in first[j]..j {
+            let column_k = &before[k * n + j..k * n + last[k] + 1];
+            let factor = -column_k[0];
+            for (y, &x) in column_j.iter_mut().zip(column_k) {
+                *y += factor * x;
+            }
+        }
+        let pivot = column_j[0];
+        if pivot == 0.0 || pivot.is_nan() || pivot < 0.0 {
+            return None;
+        }
+        let denom = pivot.sqrt();
+        column_j[0] = denom;
+        for x in &mut column_j[1..=last[j] - j] {
+            *x /= denom;
+        }
+    }
+    m.solve_lower_triangular_unchecked_mut(&mut rhs);
+    m.ad_solve_lower_triangular_unchecked_mut(&mut rhs);
+    Some(rhs)
+}
+
 /// A bundle adjustment problem: poses (some fixed), points, edges. Solved in place.
 #[derive(Debug, Default, Clone)]
 pub struct BaProblem {
@@ -486,7 +532,7 @@ impl BaProblem {
                         }
                     }
                 }
-                let dp = if dim == 0 { DVector::zeros(0) } else { s.clone().cholesky()?.solve(&rhs) };
+                let dp = if dim == 0 { DVector::zeros(0) } else { solve_by_envelope_cholesky(s, rhs)? };
                 // Back-substitution for the points: dl = C⁻¹(−g_l − Σ H_plᵀ dp).
                 let mut new_points = self.points.clone();
                 for (p, edges) in by_point.iter().enumerate() {

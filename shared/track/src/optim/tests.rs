@@ -219,3 +219,49 @@ fn the_written_out_block_update_is_nalgebras_product_to_the_bit() {
         );
     }
 }
+
+/// A symmetric positive definite matrix shaped like a reduced camera system over keyframes in time order:
+/// 6×6 blocks between neighbours up to `band` apart, and a few far ones (a loop's old side).
+fn banded_spd(blocks: usize, band: usize, state: &mut u64) -> DMatrix<f64> {
+    let n = 6 * blocks;
+    let mut j = DMatrix::<f64>::zeros(n, n);
+    // J·Jᵀ of a random block-sparse J is positive semidefinite; the diagonal makes it definite.
+    for a in 0..blocks {
+        for b in a.saturating_sub(band)..=a {
+            let far_link = a > 3 * band && b == a - band && a % 7 == 0;
+            let b = if far_link { a % band } else { b };
+            for r in 0..6 {
+                for c in 0..6 {
+                    j[(6 * a + r, 6 * b + c)] = noise(state);
+                }
+            }
+        }
+    }
+    let mut m = &j * j.transpose();
+    for k in 0..n {
+        m[(k, k)] += 0.5;
+    }
+    m
+}
+
+#[test]
+fn the_envelope_cholesky_is_nalgebras_to_the_bit_and_refuses_what_it_refuses() {
+    let mut state = 17u64;
+    for (blocks, band) in [(1, 1), (5, 5), (30, 3), (40, 6)] {
+        let m = banded_spd(blocks, band, &mut state);
+        let rhs = DVector::<f64>::from_fn(m.nrows(), |_, _| noise(&mut state));
+        let expected = m.clone().cholesky().expect("positive definite").solve(&rhs);
+        let envelope = solve_by_envelope_cholesky(m, rhs).expect("positive definite");
+        assert_eq!(
+            envelope.iter().map(|x| x.to_bits()).collect::<Vec<_>>(),
+            expected.iter().map(|x| x.to_bits()).collect::<Vec<_>>(),
+            "{blocks} blocks, band {band}"
+        );
+    }
+    // Indefinite, and a zero pivot: refused, as nalgebra refuses them.
+    let mut indefinite = banded_spd(10, 2, &mut state);
+    indefinite[(20, 20)] = -50.0;
+    assert!(indefinite.clone().cholesky().is_none());
+    assert!(solve_by_envelope_cholesky(indefinite, DVector::zeros(60)).is_none());
+    assert!(solve_by_envelope_cholesky(DMatrix::zeros(6, 6), DVector::zeros(6)).is_none());
+}
