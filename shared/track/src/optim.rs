@@ -416,6 +416,21 @@ impl BaProblem {
         chi2(cam, &self.poses[e.pose], &self.points[e.point], &e.obs)
     }
 
+    /// ORB-SLAM2's adjustment (§6.5 steps 3–4): 5 robust iterations, the edges then beyond their χ² gate
+    /// excluded, 10 plain ones. Returns the iterations done.
+    pub fn solve_robust_then_plain(&mut self, cam: &RectifiedCamera) -> usize {
+        let first = self.solve(cam, 5, true, &|| false);
+        for k in 0..self.edges.len() {
+            let x2 = self.edge_chi2(cam, k);
+            let e = &self.edges[k];
+            if x2.is_nan() || x2 > if e.obs.is_stereo() { CHI2_STEREO } else { CHI2_MONO } {
+                self.excluded[k] = true;
+            }
+        }
+        let second = self.solve(cam, 10, false, &|| false);
+        first.iterations + second.iterations
+    }
+
     /// Levenberg–Marquardt for `iterations` steps (or until no step lowers the cost, or `abort` says so), with
     /// Huber kernels when `robust`. Points are eliminated (Schur complement); the reduced system over the free
     /// poses is dense.

@@ -85,17 +85,7 @@ fn snapshot_ba(
 
 /// §6.5 steps 3–4, on the snapshot alone (no map): 5 robust iterations, outliers excluded, 10 plain ones.
 pub fn solve_local_ba(mut job: BaJob) -> BaJob {
-    let cam = job.cam;
-    let first = job.problem.solve(&cam, 5, true, &|| false);
-    for k in 0..job.problem.edges.len() {
-        let x2 = job.problem.edge_chi2(&cam, k);
-        let e = &job.problem.edges[k];
-        if x2.is_nan() || x2 > if e.obs.is_stereo() { CHI2_STEREO } else { CHI2_MONO } {
-            job.problem.excluded[k] = true;
-        }
-    }
-    let second = job.problem.solve(&cam, 10, false, &|| false);
-    job.iterations = first.iterations + second.iterations;
+    job.iterations = job.problem.solve_robust_then_plain(&job.cam);
     job
 }
 
