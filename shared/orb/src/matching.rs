@@ -187,7 +187,9 @@ impl RotationHistogram {
 
     /// Room for `matches` votes in every bin (they usually all fall in one), so that voting allocates nothing.
     pub fn with_capacity(bins: RotationBins, matches: usize) -> Self {
-        Self { bins, members: vec![Vec::with_capacity(matches); bins.count()] }
+        // Not `vec![Vec::with_capacity(matches); n]`: that clones the first bin, and a clone keeps the length,
+        // not the capacity, so every bin but the last started empty and grew on a frame's first votes there.
+        Self { bins, members: (0..bins.count()).map(|_| Vec::with_capacity(matches)).collect() }
     }
 
     pub fn clear(&mut self) {
@@ -305,5 +307,11 @@ mod tests {
         h.add(21, 90.0, 0.0);
         h.rejected(&mut rejected);
         assert_eq!(rejected, vec![21, 20], "one bin of 20; 1 < 10 % of 20");
+    }
+
+    #[test]
+    fn every_bin_of_a_histogram_with_capacity_has_that_capacity() {
+        let h = RotationHistogram::with_capacity(RotationBins::FAITHFUL, 500);
+        assert!(h.members.len() > 1 && h.members.iter().all(|m| m.capacity() >= 500));
     }
 }
