@@ -165,7 +165,7 @@ fn dump_map(map: &bdis_track::map::Map, path: &std::path::Path) {
             let kp = &kf.keypoints[idx];
             writeln!(
                 out,
-                "O {} {} {:.6} {} {} {} {} {} {} {} {} {}",
+                "O {} {} {:.6} {} {} {} {} {} {} {} {} {} {}",
                 pt.id,
                 kf_id,
                 kf.t_ns as f64 * 1e-9,
@@ -177,7 +177,8 @@ fn dump_map(map: &bdis_track::map::Map, path: &std::path::Path) {
                 pt.first_kf,
                 pt.position.x,
                 pt.position.y,
-                pt.position.z
+                pt.position.z,
+                kf.spread[idx]
             )
             .unwrap();
         }

@@ -27,11 +27,12 @@ impl Scales {
         self.scale.len()
     }
 
-    /// σ⁻² of a measurement at `octave`: s^−2o, or (s^o · `refined_sigma`)⁻² when it was refined by patch
-    /// alignment.
-    pub fn information(&self, octave: u8, refined: bool, refined_sigma: f64) -> f64 {
+    /// σ⁻² of a measurement at `octave`: s^−2o, or (s^o · `refined_sigma` · `spread`)⁻² when it was refined by
+    /// patch alignment.
+    pub fn information(&self, octave: u8, refined: bool, spread: f32, refined_sigma: f64) -> f64 {
         let base = self.inv_sigma2[usize::from(octave)];
-        if refined { base / (refined_sigma * refined_sigma) } else { base }
+        let sigma = refined_sigma * f64::from(spread);
+        if refined { base / (sigma * sigma) } else { base }
     }
 
     /// The octave at which a point seen at `dist` with a scale-invariance limit `max_dist` should appear.
@@ -62,6 +63,9 @@ pub struct Frame {
     /// Keypoint i's position (and right match) was refined by patch alignment ([`crate::refine`]): its σ is
     /// the map's `refined_sigma` of its octave's.
     pub refined: Vec<bool>,
+    /// Keypoint i's σ, when refined, as a factor of `refined_sigma`: its alignment's own σ over the frame's
+    /// median one (`Tracker::normalise_spreads`); 1 when not refined.
+    pub spread: Vec<f32>,
     pub camera_from_world: Option<CameraFromWorld>,
     /// The left image's texture contrast ([`texture_contrast`]): how much of the scene's texture reaches the
     /// camera (smoke, a fogged lens and blood lower it).
@@ -111,6 +115,7 @@ impl Frame {
             points: Vec::new(),
             outlier: Vec::new(),
             refined: Vec::new(),
+            spread: Vec::new(),
             camera_from_world: None,
             contrast: f32::NAN,
         }
@@ -127,6 +132,7 @@ impl Frame {
         frame.points.reserve(keypoints);
         frame.outlier.reserve(keypoints);
         frame.refined.reserve(keypoints);
+        frame.spread.reserve(keypoints);
         frame
     }
 
@@ -161,6 +167,7 @@ impl Frame {
         self.points.clone_from(&other.points);
         self.outlier.clone_from(&other.outlier);
         self.refined.clone_from(&other.refined);
+        self.spread.clone_from(&other.spread);
         self.camera_from_world = other.camera_from_world;
         self.contrast = other.contrast;
     }
@@ -251,6 +258,8 @@ impl FrameBuilder {
         frame.outlier.resize(n, false);
         frame.refined.clear();
         frame.refined.resize(n, false);
+        frame.spread.clear();
+        frame.spread.resize(n, 1.0);
         frame.camera_from_world = None;
         let (w, h) = (self.cam.width as usize, self.cam.height as usize);
         frame.contrast = texture_contrast(&left[..w * h], w, h, keep_out);

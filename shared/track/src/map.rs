@@ -27,6 +27,8 @@ pub struct KeyFrame {
     pub points: Vec<Option<PointId>>,
     /// Per keypoint: refined by patch alignment (see [`Frame::refined`]).
     pub refined: Vec<bool>,
+    /// Per keypoint: its refined measurement's relative σ (see [`Frame::spread`]).
+    pub spread: Vec<f32>,
     /// All neighbours with their shared-point counts.
     pub connections: BTreeMap<KfId, u32>,
     /// Neighbours with weight ≥ 15 (or the single strongest), by descending weight then id.
@@ -57,6 +59,7 @@ impl KeyFrame {
             grid: frame.grid.clone(),
             points: frame.points.iter().zip(&frame.outlier).map(|(p, o)| if *o { None } else { *p }).collect(),
             refined: frame.refined.clone(),
+            spread: frame.spread.clone(),
             connections: BTreeMap::new(),
             ordered: Vec::new(),
             parent: None,
@@ -204,12 +207,19 @@ impl Map {
     }
 
     pub fn add_observation(&mut self, p: PointId, kf: KfId, idx: usize) {
-        let stereo = self.keyframes[kf].is_stereo(idx);
+        let keyframe = &mut self.keyframes[kf];
+        let stereo = keyframe.is_stereo(idx);
+        if keyframe.points[idx] != Some(p) {
+            // The keypoint was aligned (if at all) to another point's anchor, or is a whole-pixel corner: its
+            // position is no sub-pixel measurement of this point's anchored tissue.
+            keyframe.refined[idx] = false;
+            keyframe.spread[idx] = 1.0;
+        }
+        keyframe.points[idx] = Some(p);
         let point = &mut self.points[p];
         if point.observations.insert(kf, idx).is_none() {
             point.n_obs += if stereo { 2 } else { 1 };
         }
-        self.keyframes[kf].points[idx] = Some(p);
     }
 
     /// Removes keyframe `kf`'s observation of point `p` (and the link); the point goes bad with ≤ 2 left.
@@ -500,52 +510,4 @@ fn median_depth(depth: &[f32]) -> f64 {
 }
 
 #[cfg(test)]
-mod tests {
-    use super::*;
-
-    fn keyframe(id: KfId, parent: Option<KfId>, bad: bool) -> KeyFrame {
-        KeyFrame {
-            id,
-            frame_id: id as u64,
-            t_ns: 0,
-            camera_from_world: Isometry3::identity(),
-            keypoints: Vec::new(),
-            descriptors: Vec::new(),
-            u_right: Vec::new(),
-            depth: Vec::new(),
-            grid: FeatureGrid::new(64.0, 48.0),
-            points: Vec::new(),
-            refined: Vec::new(),
-            connections: BTreeMap::new(),
-            ordered: Vec::new(),
-            parent,
-            children: BTreeSet::new(),
-            bad,
-            camera_from_parent: bad.then(Isometry3::identity),
-            median_depth: f64::NAN,
-            contrast: f32::NAN,
-        }
-    }
-
-    #[test]
-    fn a_culled_keyframe_moves_with_its_first_live_ancestor() {
-        // 0 ← 1 (culled) ← 2 (culled); 0 ← 3 ← 4 (culled); 5 (culled, no parent).
-        let map = Map {
-            keyframes: vec![
-                keyframe(0, None, false),
-                keyframe(1, Some(0), true),
-                keyframe(2, Some(1), true),
-                keyframe(3, Some(0), false),
-                keyframe(4, Some(3), true),
-                keyframe(5, None, true),
-            ],
-            ..Default::default()
-        };
-        assert_eq!(map.culled_following(&[0]), vec![1, 2], "through a chain of culled parents");
-        assert_eq!(map.culled_following(&[3]), vec![4]);
-        assert_eq!(map.culled_following(&[0, 3]), vec![1, 2, 4]);
-        assert!(map.culled_following(&[]).is_empty());
-        // A live keyframe never "follows": it has its own correction when it moved.
-        assert!(!map.culled_following(&[0]).contains(&3));
-    }
-}
+mod tests;

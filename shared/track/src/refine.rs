@@ -107,6 +107,8 @@ pub struct Aligner {
     /// Inverse normal matrix of (x, y, brightness offset), and of (x, offset) for the right image's row.
     inverse_2d: Matrix3<f64>,
     inverse_1d: Matrix2<f64>,
+    /// See [`Self::spread`].
+    last_spread: f64,
 }
 
 impl Default for Aligner {
@@ -117,11 +119,20 @@ impl Default for Aligner {
             jacobians: [Vector3::zeros(); TEMPLATE_SIDE * TEMPLATE_SIDE],
             inverse_2d: Matrix3::zeros(),
             inverse_1d: Matrix2::zeros(),
+            last_spread: f64::NAN,
         }
     }
 }
 
 impl Aligner {
+    /// σ (level px) of the last [`Self::refine`]'s position as its own fit sees it: the residual's variance
+    /// (81 pixels, 4 parameters) through the inverse normal matrix of the position, over the gain (the template
+    /// scaled by it has its gradients scaled too). A residual the gain and offset could not take out (a
+    /// highlight or a shadow that moved with the scope's light) widens it, as image noise does.
+    pub fn spread(&self) -> f64 {
+        self.last_spread
+    }
+
     /// Refines the level-0 measurement (u, v) of the point `x_world`, matched at a keypoint of `level` (scale
     /// `scale`) in a frame at `camera_from_world`, against the point's anchor. Returns the refined level-0
     /// position; the template stays loaded for [`Self::refine_right`].
@@ -140,7 +151,8 @@ impl Aligner {
         let warp = warp_to_anchor(cam, scale, u, v, x_world, camera_from_world, anchor).ok_or(Unrefined::Failed)?;
         self.load(anchor, &warp)?;
         let start = Vector2::new(to_level(u, scale), to_level(v, scale));
-        let aligned = self.align(level, start, false)?;
+        let (aligned, spread) = self.align(level, start, false)?;
+        self.last_spread = spread;
         Ok((to_image(aligned.x, scale), to_image(aligned.y, scale)))
     }
 
@@ -154,7 +166,7 @@ impl Aligner {
     /// `u_right`; returns the refined level-0 u of the right-image match.
     pub fn refine_right(&self, level: &Level, scale: f64, u_right: f64, v: f64) -> Result<f64, Unrefined> {
         let start = Vector2::new(to_level(u_right, scale), to_level(v, scale));
-        let aligned = self.align(level, start, true)?;
+        let (aligned, _) = self.align(level, start, true)?;
         Ok(to_image(aligned.x, scale))
     }
 
@@ -214,7 +226,7 @@ impl Aligner {
     /// offset that bundle adjustment cannot average away (BENCHMARKS, issue #16: on the 640×480 colon revisit
     /// 14.5 % of the points were off by > 0.4 px of their octave, and the median ATE over 12 starts went
     /// 0.031 → 0.018 mm with the gain).
-    fn align(&self, level: &Level, start: Vector2<f64>, horizontal: bool) -> Result<Vector2<f64>, Unrefined> {
+    fn align(&self, level: &Level, start: Vector2<f64>, horizontal: bool) -> Result<(Vector2<f64>, f64), Unrefined> {
         let mut position = start;
         let mut offset = 0.0;
         let reach = f64::from(TEMPLATE_HALF) + 1.0;
@@ -264,8 +276,11 @@ impl Aligner {
                 gain
             };
             let mut gradient = Vector3::<f64>::zeros();
+            let mut ssr = 0.0;
             for ((j, &t), &image) in self.jacobians.iter().zip(&self.values).zip(&window) {
-                gradient += j * (image - gain * t - offset);
+                let r = image - gain * t - offset;
+                gradient += j * r;
+                ssr += r * r;
             }
             let step = if horizontal {
                 let s = self.inverse_1d * Vector2::new(gradient.x, gradient.z);
@@ -277,7 +292,13 @@ impl Aligner {
             };
             position -= Vector2::new(step.x, step.y);
             if step.x * step.x + step.y * step.y < CONVERGED_STEP * CONVERGED_STEP {
-                return if (position - start).norm() > MAX_SHIFT { Err(Unrefined::Failed) } else { Ok(position) };
+                let var = ssr / (window.len() as f64 - 4.0);
+                let spread = (var * 0.5 * (self.inverse_2d[(0, 0)] + self.inverse_2d[(1, 1)])).sqrt() / gain;
+                return if (position - start).norm() > MAX_SHIFT {
+                    Err(Unrefined::Failed)
+                } else {
+                    Ok((position, spread))
+                };
             }
         }
         Err(Unrefined::Failed)
@@ -371,6 +392,22 @@ mod tests {
     /// move by tens of pixels and grow by 2.5 %), the second view's grey levels through `light`: each point's
     /// aligned error and its matched keypoint's (the true position rounded, as FAST reports it), sorted, px.
     fn align_moved_view(light: impl Fn(u8) -> u8) -> (Vec<f64>, Vec<f64>) {
+        let aligned = align_points_in_moved_view(|_, _, value| light(value));
+        let mut errors: Vec<f64> = aligned.iter().map(|a| a.error).collect();
+        let mut rounded: Vec<f64> = aligned.iter().map(|a| a.rounded).collect();
+        errors.sort_by(f64::total_cmp);
+        rounded.sort_by(f64::total_cmp);
+        (errors, rounded)
+    }
+
+    struct AlignedPoint {
+        error: f64,
+        rounded: f64,
+        spread: f64,
+    }
+
+    /// [`align_moved_view`]'s 40 points in order, the second view's grey level at (x, y) through `light`.
+    fn align_points_in_moved_view(light: impl Fn(usize, usize, u8) -> u8) -> Vec<AlignedPoint> {
         let c = cam();
         let first = Isometry3::identity();
         let second = Isometry3::from_parts(
@@ -380,9 +417,10 @@ mod tests {
         .inverse();
         let a = render(&first);
         let mut b = render(&second);
-        b.data.iter_mut().for_each(|value| *value = light(*value));
+        let width = b.w;
+        b.data.iter_mut().enumerate().for_each(|(i, value)| *value = light(i % width, i / width, *value));
         let mut aligner = Aligner::default();
-        let (mut errors, mut rounded) = (Vec::new(), Vec::new());
+        let mut aligned = Vec::new();
         for k in 0..40 {
             let (x, y) = ((k * 37 % 23) as f64 * 0.9 - 10.0, (k * 53 % 19) as f64 * 0.9 - 8.0);
             // A point at the dot's rim: texture in both directions.
@@ -392,12 +430,13 @@ mod tests {
             let (u1, v1) = c.project(&(second * world));
             let (ku, kv) = (u1.round(), v1.round());
             let (ru, rv) = aligner.refine(&c, &b, 1.0, ku, kv, &world, &second, &anchor).expect("aligned");
-            errors.push(((ru - u1).powi(2) + (rv - v1).powi(2)).sqrt());
-            rounded.push(((ku - u1).powi(2) + (kv - v1).powi(2)).sqrt());
+            aligned.push(AlignedPoint {
+                error: ((ru - u1).powi(2) + (rv - v1).powi(2)).sqrt(),
+                rounded: ((ku - u1).powi(2) + (kv - v1).powi(2)).sqrt(),
+                spread: aligner.spread(),
+            });
         }
-        errors.sort_by(f64::total_cmp);
-        rounded.sort_by(f64::total_cmp);
-        (errors, rounded)
+        aligned
     }
 
     #[test]
@@ -417,6 +456,55 @@ mod tests {
         eprintln!("1.35× brighter: median error {median:.3} px, worst {worst:.3} px");
         // With an offset alone: median 0.064 px, worst 0.088 px.
         assert!(median < 0.03 && worst < 0.06, "errors {errors:?}");
+    }
+
+    /// A highlight the scope's light moved onto a patch since its anchor was cut (a bright spot 3 px beside
+    /// the point, in every fourth patch): those fits are worse, and their own σ says so — the weight the tracker
+    /// gives each aligned measurement ([`Aligner::spread`]).
+    #[test]
+    fn a_fit_a_moved_highlight_spoiled_reports_a_wider_spread() {
+        let c = cam();
+        let second = Isometry3::from_parts(
+            Translation3::new(0.8, -0.4, 1.5),
+            UnitQuaternion::from_euler_angles(0.01, -0.008, 0.02),
+        )
+        .inverse();
+        let spots: Vec<(f64, f64)> = (0..40)
+            .step_by(4)
+            .map(|k| {
+                let (x, y) = ((k * 37 % 23) as f64 * 0.9 - 10.0, (k * 53 % 19) as f64 * 0.9 - 8.0);
+                let (u, v) = c.project(&(second * Point3::new(x + 0.2, y + 0.1, 60.0)));
+                (u + 3.0, v - 1.0)
+            })
+            .collect();
+        let highlight = |x: usize, y: usize, value: u8| {
+            let lift: f64 = spots
+                .iter()
+                .map(|&(u, v)| 70.0 * (-((x as f64 - u).powi(2) + (y as f64 - v).powi(2)) / 8.0).exp())
+                .sum();
+            (f64::from(value) + lift).round().min(255.0) as u8
+        };
+        let clean = align_points_in_moved_view(|_, _, value| value);
+        let lit = align_points_in_moved_view(highlight);
+        let median = |mut v: Vec<f64>| {
+            v.sort_by(f64::total_cmp);
+            v[v.len() / 2]
+        };
+        let spoiled = |k: usize| k.is_multiple_of(4);
+        let pick = |points: &[AlignedPoint], keep: &dyn Fn(usize) -> bool, field: fn(&AlignedPoint) -> f64| {
+            points.iter().enumerate().filter(|(k, _)| keep(*k)).map(|(_, p)| field(p)).collect::<Vec<_>>()
+        };
+        let spread_spoiled = median(pick(&lit, &spoiled, |p| p.spread));
+        let spread_others = median(pick(&lit, &|k| !spoiled(k), |p| p.spread));
+        let spread_clean = median(pick(&clean, &spoiled, |p| p.spread));
+        let error_spoiled = median(pick(&lit, &spoiled, |p| p.error));
+        let error_clean = median(pick(&clean, &spoiled, |p| p.error));
+        eprintln!(
+            "spoiled patches: spread {spread_spoiled:.4} (clean {spread_clean:.4}, the others {spread_others:.4}), \
+             error {error_spoiled:.3} px (clean {error_clean:.3})"
+        );
+        assert!(error_spoiled > 2.0 * error_clean, "the highlight did not spoil the fits");
+        assert!(spread_spoiled > 3.0 * spread_clean && spread_spoiled > 3.0 * spread_others);
     }
 
     #[test]

@@ -73,8 +73,10 @@ fn snapshot_ba(
             let keyframe = &map.keyframes[k];
             let refined = keyframe.refined[idx];
             let octave = keyframe.keypoints[idx].octave;
-            let obs = keyframe.observation(idx, scales.information(octave, refined, map.refined_sigma));
-            let octave_chi2_scale = if refined { map.refined_sigma * map.refined_sigma } else { 1.0 };
+            let spread = keyframe.spread[idx];
+            let obs = keyframe.observation(idx, scales.information(octave, refined, spread, map.refined_sigma));
+            let sigma = map.refined_sigma * f64::from(spread);
+            let octave_chi2_scale = if refined { sigma * sigma } else { 1.0 };
             problem.edges.push(BaEdge { pose, point: pi, obs, octave_chi2_scale });
             edge_keys.push((p, k));
         }

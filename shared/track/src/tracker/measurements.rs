@@ -3,6 +3,14 @@
 
 use super::*;
 
+/// An aligned measurement's σ relative to its frame's median one stays within a factor of two either way: the
+/// fit's residual over 81 pixels tells a clean fit from a spoiled one, not a σ to better than that (it cannot
+/// see the warp's own model error), and a measurement spoiled beyond 2× is left to the χ² gates and the robust
+/// kernel. (Unbounded below, a flat-residual fit would outweigh a whole frame.)
+const SPREAD_BOUNDS: (f64, f64) = (0.5, 2.0);
+/// Fewer aligned measurements than this give no median to measure against: all keep σ_r.
+const MIN_SPREADS: usize = 20;
+
 impl Tracker {
     /// Moves every matched keypoint whose point has an anchor to where the anchor's patch fits best
     /// ([`crate::refine`]) and its right-image match to where the same template fits along the row (failing
@@ -39,6 +47,7 @@ impl Tracker {
             match refined {
                 Ok((u, v)) => {
                     self.current.refined[i] = true;
+                    self.current.spread[i] = self.aligner.spread() as f32;
                     let shift = u as f32 - kp.x;
                     kp.x = u as f32;
                     kp.y = v as f32;
@@ -61,6 +70,36 @@ impl Tracker {
                 Err(Unrefined::Failed) => {}
             }
         }
+        self.normalise_spreads();
+    }
+
+    /// Turns each aligned measurement's own σ (from its fit's residual and normal matrix, [`Aligner::spread`])
+    /// into its σ relative to the frame's median one, within [`SPREAD_BOUNDS`]. The frame's typical σ is the
+    /// map's measured `refined_sigma`; the spread only shares the weight out among the frame's measurements.
+    ///
+    /// Why: the scope's light changes a patch's shading between its anchor's view and a later one, and a
+    /// highlight or a relief's shadow that moved leaves the fit a residual the gain and offset cannot take out;
+    /// those measurements are the biased ones. With one σ for all, they weighed as much as clean fits. Relative,
+    /// because the residual sees only what the fit could not explain: an absolute σ from it would trust a clean
+    /// fit's noise floor far beyond what the warp's model errors allow.
+    fn normalise_spreads(&mut self) {
+        let mut spreads = std::mem::take(&mut self.residual_scratch);
+        spreads.clear();
+        spreads.extend(
+            self.current.refined.iter().zip(&self.current.spread).filter(|&(&r, _)| r).map(|(_, &s)| f64::from(s)),
+        );
+        let median = if spreads.len() >= MIN_SPREADS {
+            let mid = spreads.len() / 2;
+            *spreads.select_nth_unstable_by(mid, f64::total_cmp).1
+        } else {
+            f64::NAN
+        };
+        let (low, high) = SPREAD_BOUNDS;
+        for (spread, &refined) in self.current.spread.iter_mut().zip(&self.current.refined) {
+            let relative = f64::from(*spread) / median;
+            *spread = if refined && relative.is_finite() { relative.clamp(low, high) as f32 } else { 1.0 };
+        }
+        self.residual_scratch = spreads;
     }
 
     /// Re-estimates the σ of refined measurements from this frame's residuals (median, so outliers do not
@@ -102,7 +141,8 @@ impl Tracker {
             if !self.current.refined[i] {
                 continue;
             }
-            let chi2 = self.optimizer.chi2()[k] * sigma2;
+            let spread = f64::from(self.current.spread[i]);
+            let chi2 = self.optimizer.chi2()[k] * sigma2 * spread * spread;
             let gate = if self.current.u_right[i] >= 0.0 { crate::optim::CHI2_STEREO } else { crate::optim::CHI2_MONO };
             self.current.outlier[i] = chi2.is_nan() || chi2 > gate;
         }
@@ -169,6 +209,8 @@ impl Tracker {
         anchor.camera_from_world = pose;
         self.map.points[p].anchor = Some(anchor);
         self.current.refined[i] = refined;
+        self.current.spread[i] = 1.0;
         self.map.keyframes[kf].refined[i] = refined;
+        self.map.keyframes[kf].spread[i] = 1.0;
     }
 }
