@@ -37,7 +37,7 @@ const MAX_ITERATIONS: usize = 10;
 const CONVERGED_STEP: f64 = 0.03;
 /// The aligned position may move at most this far (level px) from the matched keypoint: further means the
 /// alignment slid to other texture.
-const MAX_SHIFT: f64 = 1.5;
+pub const MAX_SHIFT: f64 = 1.5;
 
 /// The patch a map point was anchored with, the scale of its pyramid level and the pose of the frame it was
 /// cut from (for the warp into later views).

@@ -148,8 +148,8 @@ impl Tracker {
         }
     }
 
-    /// Anchors the points noted by [`Self::refine_measurements`] that are inliers of the final pose, at their
-    /// keypoints in this frame.
+    /// Anchors the points noted by [`Self::refine_measurements`] that are inliers of the final pose: a point's
+    /// first anchor at its keypoint in this frame, a new one where the point projects.
     pub(super) fn anchor_new_inliers(&mut self) {
         let Some(pose) = self.current.camera_from_world else { return };
         let levels = self.builder.left_levels();
@@ -161,7 +161,20 @@ impl Tracker {
             let kp = &self.current.keypoints[i];
             let octave = usize::from(kp.octave);
             let scale = self.scales.scale[octave];
-            self.map.points[p].anchor = Anchor::cut(&levels[octave], scale, f64::from(kp.x), f64::from(kp.y), pose);
+            let (mut u, mut v) = (f64::from(kp.x), f64::from(kp.y));
+            if self.map.points[p].anchor.is_some() {
+                // Anchored anew (the view moved beyond the old anchor's patch): centred where the point
+                // projects, not on the corner FAST found, so that later measurements go on following the
+                // tissue the old anchor's did. The point's position was adjusted over those measurements; a
+                // new corner is off that spot by its own detection error (~a pixel of its octave), which
+                // would split the point's observations into two groups that bundle adjustment cannot both fit.
+                let (pu, pv) = self.cam.project(&(pose * self.map.points[p].position));
+                let reach = crate::refine::MAX_SHIFT * scale;
+                if (pu - u).abs() <= reach && (pv - v).abs() <= reach {
+                    (u, v) = (pu, pv);
+                }
+            }
+            self.map.points[p].anchor = Anchor::cut(&levels[octave], scale, u, v, pose);
         }
     }
 
