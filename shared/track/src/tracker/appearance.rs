@@ -91,7 +91,19 @@ impl Tracker {
             self.current.outlier[m.keypoint] = !inlier;
         }
         self.optimise_current();
-        (self.drop_outliers() >= 10).then_some(fix)
+        if self.drop_outliers() >= 10 {
+            return Some(fix);
+        }
+        // The optimisation over these few matches slid off the hypothesis and kept fewer of them than it
+        // explained (a jerk's coarse-octave matches pull it): the hypothesis, with its consensus, is the better
+        // start. The local map's search and its inlier count then judge it, as they judge any appearance pose.
+        self.current.camera_from_world = Some(fix.pose);
+        let s = &self.appearance;
+        for (m, &inlier) in s.matches.iter().zip(&s.best_inlier) {
+            self.current.points[m.keypoint] = inlier.then_some(m.point);
+            self.current.outlier[m.keypoint] = false;
+        }
+        Some(fix)
     }
 
     /// Of the last appearance consensus, the fraction that `pose` explains too (χ² of a stereo observation at
