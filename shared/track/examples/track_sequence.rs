@@ -134,7 +134,8 @@ fn main() {
 }
 
 /// Every good point's observations in good keyframes, one line each:
-/// `point kf t_s u v octave u_right refined first_kf x y z spread` (spread: the measurement's σ as a factor of the aligned σ), and every good keyframe's estimated pose.
+/// `point kf t_s u v octave u_right refined first_kf x y z spread` (spread: the measurement's σ as a factor of
+/// the aligned σ), and every good keyframe's estimated pose.
 fn dump_map(map: &bdis_track::map::Map, path: &std::path::Path) {
     let mut out = std::io::BufWriter::new(std::fs::File::create(path).unwrap());
     for kf in map.good_keyframes() {
