@@ -174,12 +174,12 @@ fn dump_map(map: &bdis_track::map::Map, path: &std::path::Path) {
                 kp.y,
                 kp.octave,
                 kf.u_right[idx],
-                u8::from(kf.refined[idx]),
+                u8::from(kf.aligned[idx].is_some()),
                 pt.first_kf,
                 pt.position.x,
                 pt.position.y,
                 pt.position.z,
-                kf.spread[idx]
+                kf.aligned[idx].unwrap_or(1.0)
             )
             .unwrap();
         }

@@ -27,12 +27,17 @@ impl Scales {
         self.scale.len()
     }
 
-    /// σ⁻² of a measurement at `octave`: s^−2o, or (s^o · `refined_sigma` · `spread`)⁻² when it was refined by
-    /// patch alignment.
-    pub fn information(&self, octave: u8, refined: bool, spread: f32, refined_sigma: f64) -> f64 {
-        let base = self.inv_sigma2[usize::from(octave)];
-        let sigma = refined_sigma * f64::from(spread);
-        if refined { base / (sigma * sigma) } else { base }
+    /// σ of a measurement relative to its octave's: 1 for a corner as FAST found it, `refined_sigma` · its
+    /// spread for one aligned to its point's anchor (`aligned`, see [`Frame::aligned`]). The one place the
+    /// weights and the χ² gates of aligned measurements come from.
+    pub fn relative_sigma(aligned: Option<f32>, refined_sigma: f64) -> f64 {
+        aligned.map_or(1.0, |spread| refined_sigma * f64::from(spread))
+    }
+
+    /// σ⁻² of a measurement at `octave`: (s^o · [`Self::relative_sigma`])⁻².
+    pub fn information(&self, octave: u8, aligned: Option<f32>, refined_sigma: f64) -> f64 {
+        let sigma = Self::relative_sigma(aligned, refined_sigma);
+        self.inv_sigma2[usize::from(octave)] / (sigma * sigma)
     }
 
     /// The octave at which a point seen at `dist` with a scale-invariance limit `max_dist` should appear.
@@ -60,12 +65,11 @@ pub struct Frame {
     pub grid: FeatureGrid,
     pub points: Vec<Option<PointId>>,
     pub outlier: Vec<bool>,
-    /// Keypoint i's position (and right match) was refined by patch alignment ([`crate::refine`]): its σ is
-    /// the map's `refined_sigma` of its octave's.
-    pub refined: Vec<bool>,
-    /// Keypoint i's σ, when refined, as a factor of `refined_sigma`: its alignment's own σ over the frame's
-    /// median one (`Tracker::normalise_spreads`); 1 when not refined.
-    pub spread: Vec<f32>,
+    /// `Some(spread)` when keypoint i's position (and right match) was aligned to its point's anchor
+    /// ([`crate::refine`]): its σ is the map's `refined_sigma` of its octave's, times `spread`, the
+    /// alignment's own σ over the frame's median one (`Tracker::normalise_spreads`). `None`: the corner as
+    /// FAST found it, at its octave's σ.
+    pub aligned: Vec<Option<f32>>,
     pub camera_from_world: Option<CameraFromWorld>,
     /// The left image's texture contrast ([`texture_contrast`]): how much of the scene's texture reaches the
     /// camera (smoke, a fogged lens and blood lower it).
@@ -114,8 +118,7 @@ impl Frame {
             grid: FeatureGrid::new(cam.width as f32, cam.height as f32),
             points: Vec::new(),
             outlier: Vec::new(),
-            refined: Vec::new(),
-            spread: Vec::new(),
+            aligned: Vec::new(),
             camera_from_world: None,
             contrast: f32::NAN,
         }
@@ -131,8 +134,7 @@ impl Frame {
         frame.depth.reserve(keypoints);
         frame.points.reserve(keypoints);
         frame.outlier.reserve(keypoints);
-        frame.refined.reserve(keypoints);
-        frame.spread.reserve(keypoints);
+        frame.aligned.reserve(keypoints);
         frame
     }
 
@@ -166,8 +168,7 @@ impl Frame {
         self.grid.clone_from(&other.grid);
         self.points.clone_from(&other.points);
         self.outlier.clone_from(&other.outlier);
-        self.refined.clone_from(&other.refined);
-        self.spread.clone_from(&other.spread);
+        self.aligned.clone_from(&other.aligned);
         self.camera_from_world = other.camera_from_world;
         self.contrast = other.contrast;
     }
@@ -256,10 +257,8 @@ impl FrameBuilder {
         frame.points.resize(n, None);
         frame.outlier.clear();
         frame.outlier.resize(n, false);
-        frame.refined.clear();
-        frame.refined.resize(n, false);
-        frame.spread.clear();
-        frame.spread.resize(n, 1.0);
+        frame.aligned.clear();
+        frame.aligned.resize(n, None);
         frame.camera_from_world = None;
         let (w, h) = (self.cam.width as usize, self.cam.height as usize);
         frame.contrast = texture_contrast(&left[..w * h], w, h, keep_out);

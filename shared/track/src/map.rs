@@ -25,10 +25,8 @@ pub struct KeyFrame {
     pub depth: Vec<f32>,
     pub grid: FeatureGrid,
     pub points: Vec<Option<PointId>>,
-    /// Per keypoint: refined by patch alignment (see [`Frame::refined`]).
-    pub refined: Vec<bool>,
-    /// Per keypoint: its refined measurement's relative σ (see [`Frame::spread`]).
-    pub spread: Vec<f32>,
+    /// Per keypoint: aligned to its point's anchor, and the measurement's relative σ (see [`Frame::aligned`]).
+    pub aligned: Vec<Option<f32>>,
     /// All neighbours with their shared-point counts.
     pub connections: BTreeMap<KfId, u32>,
     /// Neighbours with weight ≥ 15 (or the single strongest), by descending weight then id.
@@ -58,8 +56,7 @@ impl KeyFrame {
             depth: frame.depth.clone(),
             grid: frame.grid.clone(),
             points: frame.points.iter().zip(&frame.outlier).map(|(p, o)| if *o { None } else { *p }).collect(),
-            refined: frame.refined.clone(),
-            spread: frame.spread.clone(),
+            aligned: frame.aligned.clone(),
             connections: BTreeMap::new(),
             ordered: Vec::new(),
             parent: None,
@@ -212,8 +209,7 @@ impl Map {
         if keyframe.points[idx] != Some(p) {
             // The keypoint was aligned (if at all) to another point's anchor, or is a whole-pixel corner: its
             // position is no sub-pixel measurement of this point's anchored tissue.
-            keyframe.refined[idx] = false;
-            keyframe.spread[idx] = 1.0;
+            keyframe.aligned[idx] = None;
         }
         keyframe.points[idx] = Some(p);
         let point = &mut self.points[p];

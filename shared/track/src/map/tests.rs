@@ -12,8 +12,7 @@ fn keyframe(id: KfId, parent: Option<KfId>, bad: bool) -> KeyFrame {
         depth: Vec::new(),
         grid: FeatureGrid::new(64.0, 48.0),
         points: Vec::new(),
-        refined: Vec::new(),
-        spread: Vec::new(),
+        aligned: Vec::new(),
         connections: BTreeMap::new(),
         ordered: Vec::new(),
         parent,
@@ -56,8 +55,7 @@ fn keyframe_with_aligned_keypoints(id: KfId, n: usize) -> KeyFrame {
     k.u_right = vec![90.0; n];
     k.depth = vec![60.0; n];
     k.points = vec![None; n];
-    k.refined = vec![true; n];
-    k.spread = vec![0.5; n];
+    k.aligned = vec![Some(0.5); n];
     k
 }
 
@@ -77,24 +75,23 @@ fn an_observation_moved_to_another_point_is_no_longer_an_aligned_measurement() {
     map.add_observation(old, 1, 0);
     let duplicate = map.new_point(Point3::new(0.0, 0.0, 60.0), 1, 1, &scales);
     // The tracker set these links itself, each keypoint aligned to its own point's anchor.
-    map.keyframes[0].refined = vec![true; 3];
-    map.keyframes[1].refined = vec![true; 3];
-    map.keyframes[1].spread = vec![0.5; 3];
+    map.keyframes[0].aligned = vec![Some(1.0); 3];
+    map.keyframes[1].aligned = vec![Some(0.5); 3];
     // Linking again what is linked keeps the measurement.
     map.add_observation(old, 1, 0);
-    assert!(map.keyframes[1].refined[0]);
+    assert_eq!(map.keyframes[1].aligned[0], Some(0.5));
     // Keyframe 0 had the point at keypoint 1 unmatched (not linked): fusion links it.
     map.keyframes[0].points[1] = None;
     map.add_observation(duplicate, 0, 1);
-    assert!(!map.keyframes[0].refined[1], "a keypoint linked to a point it was not aligned to");
+    assert_eq!(map.keyframes[0].aligned[1], None, "a keypoint linked to a point it was not aligned to");
     // The duplicate in keyframe 1 is fused into the old point: its keypoint moves over.
     let mut moved = map.clone();
     moved.points[old].observations.remove(&1);
     moved.keyframes[1].points[0] = None;
     moved.replace_point(duplicate, old);
     assert_eq!(moved.points[old].observations.get(&1), Some(&1));
-    assert!(!moved.keyframes[1].refined[1] && moved.keyframes[1].spread[1] == 1.0);
+    assert_eq!(moved.keyframes[1].aligned[1], None);
     // What is not touched keeps its alignment.
-    assert!(moved.keyframes[1].refined[2] && moved.keyframes[1].spread[2] == 0.5);
-    assert!(moved.keyframes[0].refined[0]);
+    assert_eq!(moved.keyframes[1].aligned[2], Some(0.5));
+    assert_eq!(moved.keyframes[0].aligned[0], Some(1.0));
 }

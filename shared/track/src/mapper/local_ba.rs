@@ -71,12 +71,11 @@ fn snapshot_ba(
         for (&k, &idx) in &map.points[p].observations {
             let Some(&pose) = pose_index.get(&k) else { continue };
             let keyframe = &map.keyframes[k];
-            let refined = keyframe.refined[idx];
+            let aligned = keyframe.aligned[idx];
             let octave = keyframe.keypoints[idx].octave;
-            let spread = keyframe.spread[idx];
-            let obs = keyframe.observation(idx, scales.information(octave, refined, spread, map.refined_sigma));
-            let sigma = map.refined_sigma * f64::from(spread);
-            let octave_chi2_scale = if refined { sigma * sigma } else { 1.0 };
+            let obs = keyframe.observation(idx, scales.information(octave, aligned, map.refined_sigma));
+            let sigma = Scales::relative_sigma(aligned, map.refined_sigma);
+            let octave_chi2_scale = sigma * sigma;
             problem.edges.push(BaEdge { pose, point: pi, obs, octave_chi2_scale });
             edge_keys.push((p, k));
         }

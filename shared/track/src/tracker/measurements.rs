@@ -46,8 +46,7 @@ impl Tracker {
             );
             match refined {
                 Ok((u, v)) => {
-                    self.current.refined[i] = true;
-                    self.current.spread[i] = self.aligner.spread() as f32;
+                    self.current.aligned[i] = Some(self.aligner.spread() as f32);
                     let shift = u as f32 - kp.x;
                     kp.x = u as f32;
                     kp.y = v as f32;
@@ -85,9 +84,7 @@ impl Tracker {
     fn normalise_spreads(&mut self) {
         let mut spreads = std::mem::take(&mut self.residual_scratch);
         spreads.clear();
-        spreads.extend(
-            self.current.refined.iter().zip(&self.current.spread).filter(|&(&r, _)| r).map(|(_, &s)| f64::from(s)),
-        );
+        spreads.extend(self.current.aligned.iter().flatten().map(|&s| f64::from(s)));
         let median = if spreads.len() >= MIN_SPREADS {
             let mid = spreads.len() / 2;
             *spreads.select_nth_unstable_by(mid, f64::total_cmp).1
@@ -95,9 +92,9 @@ impl Tracker {
             f64::NAN
         };
         let (low, high) = SPREAD_BOUNDS;
-        for (spread, &refined) in self.current.spread.iter_mut().zip(&self.current.refined) {
+        for spread in self.current.aligned.iter_mut().flatten() {
             let relative = f64::from(*spread) / median;
-            *spread = if refined && relative.is_finite() { relative.clamp(low, high) as f32 } else { 1.0 };
+            *spread = if relative.is_finite() { relative.clamp(low, high) as f32 } else { 1.0 };
         }
         self.residual_scratch = spreads;
     }
@@ -110,7 +107,7 @@ impl Tracker {
         scaled.clear();
         let sigma = self.map.refined_sigma;
         for (k, &i) in self.opt_index.iter().enumerate() {
-            if !self.current.refined[i] {
+            if self.current.aligned[i].is_none() {
                 continue;
             }
             let dof = if self.current.u_right[i] >= 0.0 { 3.0 } else { 2.0 };
@@ -136,13 +133,10 @@ impl Tracker {
     /// match 2σ_r off is a slightly worse measurement, not a mismatch. (Unlinking them at σ_r made a keyframe
     /// nearly every other frame, and points twice.)
     pub(super) fn reclassify_refined(&mut self) {
-        let sigma2 = self.map.refined_sigma * self.map.refined_sigma;
         for (k, &i) in self.opt_index.iter().enumerate() {
-            if !self.current.refined[i] {
-                continue;
-            }
-            let spread = f64::from(self.current.spread[i]);
-            let chi2 = self.optimizer.chi2()[k] * sigma2 * spread * spread;
+            let Some(spread) = self.current.aligned[i] else { continue };
+            let sigma = Scales::relative_sigma(Some(spread), self.map.refined_sigma);
+            let chi2 = self.optimizer.chi2()[k] * (sigma * sigma);
             let gate = if self.current.u_right[i] >= 0.0 { crate::optim::CHI2_STEREO } else { crate::optim::CHI2_MONO };
             self.current.outlier[i] = chi2.is_nan() || chi2 > gate;
         }
@@ -221,9 +215,8 @@ impl Tracker {
         let Some((mut anchor, refined)) = self.new_point_anchors.get_mut(i).and_then(Option::take) else { return };
         anchor.camera_from_world = pose;
         self.map.points[p].anchor = Some(anchor);
-        self.current.refined[i] = refined;
-        self.current.spread[i] = 1.0;
-        self.map.keyframes[kf].refined[i] = refined;
-        self.map.keyframes[kf].spread[i] = 1.0;
+        let aligned = refined.then_some(1.0);
+        self.current.aligned[i] = aligned;
+        self.map.keyframes[kf].aligned[i] = aligned;
     }
 }

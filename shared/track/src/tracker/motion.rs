@@ -29,12 +29,7 @@ impl Tracker {
                 u: f64::from(kp.x),
                 v: f64::from(kp.y),
                 u_right: (self.current.u_right[i] >= 0.0).then(|| f64::from(self.current.u_right[i])),
-                inv_sigma2: self.scales.information(
-                    kp.octave,
-                    self.current.refined[i],
-                    self.current.spread[i],
-                    self.map.refined_sigma,
-                ),
+                inv_sigma2: self.scales.information(kp.octave, self.current.aligned[i], self.map.refined_sigma),
             });
             self.opt_index.push(i);
         }
