@@ -191,5 +191,19 @@ pub fn render_with_progress(
     let bar = bdis_slam::progress::bar(request.frames as u64, "rendering {bar:40} {pos}/{len} frames ({eta} left)");
     let written = bdis_synth::write_scene(out, rig, request, |_| bar.inc(1))?;
     bar.finish_and_clear();
+    if let Some(past) = written.past_the_scene {
+        // Not an error (the oblique path looks into the distance by design), but a tracker judged on such frames
+        // is judged on a view a third of which may be black: say so where the sequence is made.
+        eprintln!(
+            "note: {} of {} frames ({}–{} in left/) see past the modelled scene: up to {:.0} % of the view is black \
+             there, with nothing to track (a path off the scene's edge, or a view across it into the distance); \
+             fewer --frames or a lower --speed keeps a path over the tissue",
+            past.frames,
+            written.frames,
+            past.first + 1,
+            past.last + 1,
+            100.0 * past.worst_share
+        );
+    }
     Ok(written)
 }

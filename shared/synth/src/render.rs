@@ -394,6 +394,38 @@ pub struct WrittenSequence {
     pub settings: std::path::PathBuf,
     pub frames: usize,
     pub mean_depth_mm: f64,
+    /// The frames whose left view sees past the modelled scene over more than [`VOID_SHARE_NOTED`] of the
+    /// image (`None`: none does).
+    pub past_the_scene: Option<PastTheScene>,
+}
+
+/// Share of the view above which a frame that sees nothing (no tissue within the renderer's range: black,
+/// without texture) is reported: a path that leaves its scene, or a view across it into the distance. The
+/// colon's lumen, far down the tube, is about 2 % of a forward view.
+pub const VOID_SHARE_NOTED: f64 = 0.05;
+
+/// Frames that see past the modelled scene: how many, the first and last (0-based), and the largest share of a
+/// view that saw nothing.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PastTheScene {
+    pub frames: usize,
+    pub first: usize,
+    pub last: usize,
+    pub worst_share: f64,
+}
+
+impl PastTheScene {
+    /// Adds frame `i`, whose view saw nothing over `share` of it.
+    fn note(seen: &mut Option<Self>, i: usize, share: f64) {
+        match seen {
+            None => *seen = Some(Self { frames: 1, first: i, last: i, worst_share: share }),
+            Some(s) => {
+                s.frames += 1;
+                s.last = i;
+                s.worst_share = s.worst_share.max(share);
+            }
+        }
+    }
 }
 
 /// What happens in front of and on the tissue during a sequence, besides the tissue itself.
@@ -441,6 +473,7 @@ pub fn write_sequence(
     let mut poses = Vec::with_capacity(frames);
     let mut times = String::new();
     let (mut depth_sum, mut depth_n) = (0.0, 0usize);
+    let mut past_the_scene = None;
     for i in 0..frames {
         let t = i as f64 / fps;
         let pose = path(t);
@@ -472,9 +505,15 @@ pub fn write_sequence(
             let disp_path = dir.join(format!("gt/disparity/{}.pfm", i + 1));
             pfm::write_disparity(&disp_path, w, h, &disparity).map_err(|e| fail(&disp_path, &e))?;
         }
+        let mut seen = 0usize;
         for &z in pair.depth.iter().filter(|z| z.is_finite()) {
             depth_sum += f64::from(z);
             depth_n += 1;
+            seen += 1;
+        }
+        let void_share = 1.0 - seen as f64 / pair.depth.len().max(1) as f64;
+        if void_share > VOID_SHARE_NOTED {
+            PastTheScene::note(&mut past_the_scene, i, void_share);
         }
         poses.push(bdis_core::geometry::StampedPose { t_s: t, world_from_camera: pose });
         times += &format!("{t:.6}\n");
@@ -515,6 +554,7 @@ Camera.fx: {}\nCamera.fy: {}\nCamera.cx: {}\nCamera.cy: {}\nCamera.width: {}\nCa
         settings,
         frames,
         mean_depth_mm: if depth_n > 0 { depth_sum / depth_n as f64 } else { f64::NAN },
+        past_the_scene,
     })
 }
 

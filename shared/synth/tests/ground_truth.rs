@@ -445,3 +445,28 @@ fn each_lighting_switches_off_its_own_part_of_the_light_and_keeps_the_sensor_noi
     assert!(a.iter().zip(&b).filter(|(x, y)| x != y).count() > a.len() / 2, "the noise changes frame to frame");
     assert!(a.iter().zip(&clean).all(|(x, c)| (x - c).abs() <= 3.0 * 2.0 + 1e-9), "noise within ±2 per channel");
 }
+
+/// A path that leaves the modelled scene is told where it is made: a sweep far past the abdominal wall's edge
+/// sees the black beyond it in its last frames, a hover over the wall sees tissue everywhere.
+#[test]
+fn a_path_past_the_scene_s_edge_is_reported_and_one_over_the_tissue_is_not() {
+    let base = std::env::temp_dir().join(format!("bdis-synth-past-{}", std::process::id()));
+    let small = RectifiedCamera { width: 64, height: 48, fx: 52.0, fy: 52.0, cx: 32.0, cy: 24.0, bf: 52.0 * 5.0 };
+    let request = |trajectory: &str, speed_mm_s: f64| bdis_synth::SceneRequest {
+        scene: "abdomen".into(),
+        trajectory: Some(trajectory.into()),
+        frames: 4,
+        fps: 10.0,
+        speed_mm_s,
+        ..Default::default()
+    };
+    // 40 mm/frame: from x = −40 to 80 mm, where the wall falls away out of the renderer's range on one side.
+    let far = bdis_synth::write_scene(&base.join("far"), &small, &request("sweep", 400.0), |_| {}).unwrap();
+    let past = far.past_the_scene.expect("the sweep's last frames see past the wall");
+    assert_eq!(past.last, 3, "{past:?}");
+    assert!(past.first > 0, "the first frame is over the wall: {past:?}");
+    assert!(past.worst_share > bdis_synth::render::VOID_SHARE_NOTED && past.worst_share < 1.0, "{past:?}");
+    let hover = bdis_synth::write_scene(&base.join("hover"), &small, &request("hover", 20.0), |_| {}).unwrap();
+    assert_eq!(hover.past_the_scene, None);
+    std::fs::remove_dir_all(&base).unwrap();
+}
