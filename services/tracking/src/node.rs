@@ -65,6 +65,7 @@ fn doubt_code(doubt: Option<Doubt>) -> u32 {
         Some(Doubt::IllConditioned) => doubt::ILL_CONDITIONED,
         Some(Doubt::AppearanceDisagrees) => doubt::APPEARANCE_DISAGREES,
         Some(Doubt::LowContrast) => doubt::LOW_CONTRAST,
+        Some(Doubt::MapMoving) => doubt::MAP_MOVING,
     }
 }
 

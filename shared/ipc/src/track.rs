@@ -12,7 +12,8 @@ pub mod tracking_state {
     /// The last record of a stream: no more poses will come.
     pub const END_OF_STREAM: u32 = 3;
     /// Tracked, but the images do not support the pose well enough to trust it (`PoseRecord::doubt` says
-    /// why): the pose is there, and no keyframe is made from it.
+    /// why): the pose is there, and no keyframe is made from it (unless the doubt is `MAP_MOVING`: the next
+    /// keyframe's adjustment is what settles the map).
     pub const UNCERTAIN: u32 = 4;
 }
 
@@ -24,6 +25,9 @@ pub mod doubt {
     pub const ILL_CONDITIONED: u32 = 3;
     pub const APPEARANCE_DISAGREES: u32 = 4;
     pub const LOW_CONTRAST: u32 = 5;
+    /// The map the frame was fitted to is still moving: the last local bundle adjustment moved its keyframe
+    /// by more than 1 % of that keyframe's depth.
+    pub const MAP_MOVING: u32 = 6;
 
     /// The doubt's name as the tracker's quality log writes it (`few-inliers`, …; "" for none or an unknown
     /// code), for consumers that report it without linking the tracker.
@@ -34,6 +38,7 @@ pub mod doubt {
             ILL_CONDITIONED => "ill-conditioned",
             APPEARANCE_DISAGREES => "appearance-disagrees",
             LOW_CONTRAST => "low-contrast",
+            MAP_MOVING => "map-moving",
             _ => "",
         }
     }

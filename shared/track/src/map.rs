@@ -506,4 +506,4 @@ fn median_depth(depth: &[f32]) -> f64 {
 }
 
 #[cfg(test)]
-mod tests;
+pub(crate) mod tests;

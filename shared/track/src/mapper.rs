@@ -29,6 +29,11 @@ pub struct MapperReport {
     pub ba_keyframes: usize,
     pub ba_points: usize,
     pub ba_iterations: usize,
+    /// How far the applied local bundle adjustment moved the camera centre of the keyframe it was made for,
+    /// over that keyframe's median depth: units-free (0.01 is 1 mm at 100 mm); `None` when none was applied.
+    /// Where the tracker is right this stays under half a percent; where the map it tracks against is wrong it
+    /// reaches several percent (BENCHMARKS.md, issue #17's ninth part), and the frames that follow are doubted.
+    pub ba_moved_rel: Option<f64>,
     /// Keyframes whose pose bundle adjustment changed.
     pub moved: Vec<KfId>,
     /// Wall time of the steps, ms: observations and point culling, new points, fusion, waiting for and applying

@@ -133,6 +133,9 @@ pub struct Tracker {
     new_point_anchors: Vec<Option<(Anchor, bool)>>,
     residual_scratch: Vec<f64>,
     appearance: appearance::AppearanceScratch,
+    /// How far the last applied local bundle adjustment moved its keyframe, over that keyframe's median depth
+    /// ([`MapperReport::ba_moved_rel`]): the map the frames are tracked against, still moving by that much.
+    map_moved_rel: f64,
 }
 
 impl Tracker {
@@ -201,6 +204,7 @@ impl Tracker {
             new_point_anchors: Vec::with_capacity(1 << 12),
             residual_scratch: Vec::with_capacity(1 << 12),
             appearance: appearance::AppearanceScratch::with_capacity(settings.orb.n_features as usize),
+            map_moved_rel: 0.0,
         })
     }
 
@@ -302,7 +306,9 @@ impl Tracker {
                 self.velocity = Some(pose * last_pose.inverse());
             }
             // A keyframe fixes map points and the dense map at its pose: only from a pose the images support.
-            if self.state == TrackingState::Ok && self.need_keyframe(result.inliers) {
+            // A map still settling is the exception: the next keyframe's adjustment is what settles it.
+            let supported = self.state == TrackingState::Ok || doubt == Some(Doubt::MapMoving);
+            if supported && self.need_keyframe(result.inliers) {
                 self.create_keyframe(&mut result);
             }
             // Outlier links go after the keyframe decision (§5.1 step 5).

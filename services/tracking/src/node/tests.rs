@@ -141,6 +141,7 @@ fn every_doubt_travels_under_the_trackers_name_for_it() {
         Doubt::IllConditioned,
         Doubt::AppearanceDisagrees,
         Doubt::LowContrast,
+        Doubt::MapMoving,
     ] {
         assert_eq!(doubt::name(doubt_code(Some(d))), d.name());
     }

@@ -1,6 +1,7 @@
 use super::*;
 
-fn keyframe(id: KfId, parent: Option<KfId>, bad: bool) -> KeyFrame {
+/// A keyframe with no features, at the world's origin (other tests of the crate build maps from it).
+pub(crate) fn keyframe(id: KfId, parent: Option<KfId>, bad: bool) -> KeyFrame {
     KeyFrame {
         id,
         frame_id: id as u64,

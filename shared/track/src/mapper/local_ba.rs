@@ -108,6 +108,12 @@ pub(super) fn apply_local_ba(map: &mut Map, job: &BaJob, scales: &Scales, report
     }
     for (i, &k) in job.pose_ids.iter().enumerate() {
         if !job.problem.fixed[i] && !map.keyframes[k].bad {
+            if k == job.kf {
+                let centre = |pose: &CameraFromWorld| pose.inverse_transform_point(&Point3::origin());
+                let moved = (centre(&job.problem.poses[i]) - centre(&map.keyframes[k].camera_from_world)).norm();
+                let depth = map.keyframes[k].median_depth;
+                report.ba_moved_rel = (depth.is_finite() && depth > 0.0).then(|| moved / depth);
+            }
             map.keyframes[k].camera_from_world = job.problem.poses[i];
             report.moved.push(k);
         }
@@ -241,5 +247,36 @@ impl GlobalBa {
         report.global_ba_points = job.point_ids.len();
         report.global_ba_ms = solve_ms;
         moved
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::map::tests::keyframe;
+
+    /// The report says how far the adjustment moved the keyframe it was made for, over that keyframe's median
+    /// depth (units-free), and nothing when the keyframe has no depth to compare with.
+    #[test]
+    fn the_report_gives_the_keyframe_s_move_relative_to_its_depth() {
+        let cam = RectifiedCamera { fx: 260.0, fy: 260.0, cx: 159.5, cy: 119.5, bf: 1300.0, width: 320, height: 240 };
+        let scales = Scales::new(1.2, 8, 0);
+        for (depth, expected) in [(50.0, Some(2.5 / 50.0)), (f64::NAN, None)] {
+            let mut made_for = keyframe(1, Some(0), false);
+            made_for.median_depth = depth;
+            let mut map = Map { keyframes: vec![keyframe(0, None, false), made_for], ..Default::default() };
+            let mut job = snapshot_local_ba(&map, 1, &cam, &scales);
+            let at = job.pose_ids.iter().position(|&k| k == 1).unwrap_or_else(|| panic!("keyframe 1 not in the job"));
+            // Its centre 2 mm along the view and 1.5 mm sideways: 2.5 mm.
+            job.problem.poses[at] = nalgebra::Isometry3::translation(-1.5, 0.0, -2.0);
+            let mut report = MapperReport::default();
+            apply_local_ba(&mut map, &job, &scales, &mut report);
+            assert_eq!(map.keyframes[1].camera_from_world, job.problem.poses[at]);
+            match (report.ba_moved_rel, expected) {
+                (Some(got), Some(want)) => assert!((got - want).abs() < 1e-12, "reported {got}, expected {want}"),
+                (None, None) => {}
+                (got, want) => panic!("depth {depth}: reported {got:?}, expected {want:?}"),
+            }
+        }
     }
 }

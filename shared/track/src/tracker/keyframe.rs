@@ -70,6 +70,9 @@ impl Tracker {
         self.reference_kf = Some(kf);
         self.last_kf_frame = self.current.id;
         let report = self.mapper.process(&mut self.map, kf, &self.cam, &self.scales, self.settings.th_depth);
+        if let Some(moved) = report.ba_moved_rel {
+            self.map_moved_rel = moved;
+        }
         // The keyframe's pose may have moved in bundle adjustment: the frame follows it.
         let kf_pose = self.map.keyframes[kf].camera_from_world;
         self.current.camera_from_world = Some(kf_pose);

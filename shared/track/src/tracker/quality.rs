@@ -50,6 +50,11 @@ pub enum Doubt {
     /// keyframe and its covisible neighbours): something veils the tissue (smoke, a fogged lens) and biases the
     /// measurements, however many of them agree.
     LowContrast,
+    /// The last local bundle adjustment moved the keyframe it was made for by more than
+    /// [`MAX_MAP_MOVE_REL`] of its depth: the map this frame was fitted to is still moving, so the fit (and
+    /// its σ) does not say where the camera is. Unlike the other doubts it does not stop keyframes: the next
+    /// keyframe's adjustment is what settles the map.
+    MapMoving,
 }
 
 impl Doubt {
@@ -60,6 +65,7 @@ impl Doubt {
             Self::IllConditioned => "ill-conditioned",
             Self::AppearanceDisagrees => "appearance-disagrees",
             Self::LowContrast => "low-contrast",
+            Self::MapMoving => "map-moving",
         }
     }
 }
@@ -123,6 +129,11 @@ pub const MIN_INLIER_RATIO: f64 = 0.25;
 pub const MIN_CONTRAST_KEPT: f32 = 0.5;
 /// The camera centre's σ may be at most this fraction of the inliers' median depth.
 pub const MAX_POSITION_SIGMA_REL: f64 = 0.01;
+/// The map may move under the frames by at most this fraction of the depth (the last local bundle adjustment's
+/// move of its keyframe, [`crate::mapper::MapperReport::ba_moved_rel`]): the same bound as a frame's own σ,
+/// since a map that moves by more makes that σ meaningless. Measured (BENCHMARKS.md): at most 0.5 % wherever
+/// the tracker holds (renders and `kitti-a`), 2.4 % at the 90th percentile where it fails.
+pub const MAX_MAP_MOVE_REL: f64 = 0.01;
 
 impl Tracker {
     /// Fills the measures of `quality` from the last pose optimisation (the local map's) and the appearance
@@ -198,8 +209,64 @@ impl Tracker {
             Some(Doubt::LowInlierRatio)
         } else if quality.position_sigma_rel.is_nan() || quality.position_sigma_rel > MAX_POSITION_SIGMA_REL {
             Some(Doubt::IllConditioned)
+        } else if self.map_moved_rel > MAX_MAP_MOVE_REL {
+            Some(Doubt::MapMoving)
         } else {
             None
+        }
+    }
+}
+
+// The integration tests' colon flight (shared/track/tests/common/flight.rs).
+#[cfg(test)]
+#[path = "../../tests/common/flight.rs"]
+mod test_flight;
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    use super::test_flight::colon_flight;
+
+    /// While the map under the frames is still moving by more than the bound, the frames are `Uncertain`
+    /// (`map-moving`) — yet keyframes still come, since the next adjustment is what settles the map, and once
+    /// one has moved its keyframe by less, the frames are `Ok` again.
+    #[test]
+    fn frames_on_a_map_still_moving_are_doubted_and_keyframes_go_on_until_it_settles() {
+        let cam = RectifiedCamera { fx: 260.0, fy: 260.0, cx: 159.5, cy: 119.5, bf: 1300.0, width: 320, height: 240 };
+        let orb = bdis_orb::OrbParams { n_features: 1000, ini_th_fast: 20, min_th_fast: 7, ..Default::default() };
+        let Ok(mut tracker) = Tracker::new(cam, TrackerSettings { th_depth: 20.0, fps: 30.0, orb }) else {
+            panic!("tracker")
+        };
+        let frames = colon_flight(28);
+        let mut results = Vec::new();
+        for (i, (l, r)) in frames.iter().enumerate() {
+            if i == 12 {
+                // What an adjustment that moved its keyframe by 2 % of the depth leaves behind.
+                tracker.map_moved_rel = 2.0 * MAX_MAP_MOVE_REL;
+            }
+            let Ok(result) = tracker.track(i as u64 * 33_333_333, l, r) else { panic!("frame {i}") };
+            results.push(result);
+        }
+        for (i, result) in results.iter().enumerate().take(12) {
+            assert_eq!(result.state, TrackingState::Ok, "frame {i}: {:?}", result.quality);
+        }
+        // From frame 12 until a keyframe's report brings a measured move (the adjustment made for the keyframe
+        // before it, applied then), every frame is doubted for the map; that keyframe is made all the same.
+        let settled = (12..results.len())
+            .find(|&i| results[i].mapper.as_ref().is_some_and(|m| m.ba_moved_rel.is_some()))
+            .unwrap_or_else(|| panic!("no adjustment applied in frames 12–27"));
+        for (i, result) in results.iter().enumerate().take(settled).skip(12) {
+            assert_eq!(result.state, TrackingState::Uncertain, "frame {i}");
+            assert_eq!(result.quality.doubt, Some(Doubt::MapMoving), "frame {i}");
+        }
+        let keyframes_while_doubted = (12..=settled).filter(|&i| results[i].new_keyframe.is_some()).count();
+        assert!(keyframes_while_doubted >= 1, "no keyframe while the map was doubted");
+        // This flight's adjustments move their keyframe by a fraction of the bound: the frames are Ok again.
+        let moved = results[settled].mapper.as_ref().and_then(|m| m.ba_moved_rel).unwrap_or(f64::NAN);
+        assert!(moved < MAX_MAP_MOVE_REL, "the adjustment moved its keyframe by {:.2} %", 100.0 * moved);
+        for (i, result) in results.iter().enumerate().skip(settled + 1) {
+            assert_eq!(result.state, TrackingState::Ok, "frame {i}: {:?}", result.quality);
         }
     }
 }

@@ -4,27 +4,11 @@
 
 use bdis_track::{RectifiedCamera, Tracker, TrackerSettings};
 
-/// `frames` stereo pairs of a 320×240 flight through the synthetic colon (f = 260, 5 mm baseline), greyed as
-/// acquisition does (BT.601).
-pub fn colon_flight(frames: usize) -> Vec<(Vec<u8>, Vec<u8>)> {
-    let rig = RectifiedCamera { width: 320, height: 240, fx: 260.0, fy: 260.0, cx: 160.0, cy: 120.0, bf: 260.0 * 5.0 };
-    let colon = bdis_synth::colon::Colon::default();
-    let shading = bdis_synth::render::Shading::default();
-    (0..frames)
-        .map(|i| {
-            let pose = colon.forward_pose(i as f64 / 30.0, 20.0);
-            let pair = bdis_synth::render::render(&colon, &rig, &shading, &pose, i as u64);
-            (grey(&pair.left), grey(&pair.right))
-        })
-        .collect()
-}
-
-/// A rendered image greyed as acquisition does (BT.601).
-pub fn grey(img: &image::RgbImage) -> Vec<u8> {
-    img.pixels()
-        .map(|p| ((u32::from(p[0]) * 4899 + u32::from(p[1]) * 9617 + u32::from(p[2]) * 1868 + 8192) >> 14) as u8)
-        .collect()
-}
+// The flight is rendered by a file the crate's own unit tests include too (`#[path]`): it names no crate but
+// the renderer's.
+mod flight;
+#[allow(unused_imports)] // each test binary uses its own part of this module
+pub use flight::{colon_flight, grey};
 
 /// A tracker for [`colon_flight`] and the other 320×240 renders with f = 260 (pixel centres at half-pixel offsets, as the settings the renderer writes).
 pub fn colon_tracker() -> Tracker {

@@ -1,0 +1,26 @@
+//! A short rendered colon flight, shared by the tracker's integration tests (`common/mod.rs`) and its unit
+//! tests (included by `#[path]`), so it names only the renderer's crate.
+
+use bdis_synth::RectifiedCamera;
+
+/// `frames` stereo pairs of a 320×240 flight through the synthetic colon (f = 260, 5 mm baseline), greyed as
+/// acquisition does (BT.601).
+pub fn colon_flight(frames: usize) -> Vec<(Vec<u8>, Vec<u8>)> {
+    let rig = RectifiedCamera { width: 320, height: 240, fx: 260.0, fy: 260.0, cx: 160.0, cy: 120.0, bf: 260.0 * 5.0 };
+    let colon = bdis_synth::colon::Colon::default();
+    let shading = bdis_synth::render::Shading::default();
+    (0..frames)
+        .map(|i| {
+            let pose = colon.forward_pose(i as f64 / 30.0, 20.0);
+            let pair = bdis_synth::render::render(&colon, &rig, &shading, &pose, i as u64);
+            (grey(&pair.left), grey(&pair.right))
+        })
+        .collect()
+}
+
+/// A rendered image greyed as acquisition does (BT.601).
+pub fn grey(img: &image::RgbImage) -> Vec<u8> {
+    img.pixels()
+        .map(|p| ((u32::from(p[0]) * 4899 + u32::from(p[1]) * 9617 + u32::from(p[2]) * 1868 + 8192) >> 14) as u8)
+        .collect()
+}
