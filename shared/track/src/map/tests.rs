@@ -48,7 +48,7 @@ fn a_culled_keyframe_moves_with_its_first_live_ancestor() {
 }
 
 /// A keyframe with `n` stereo keypoints at octave 0, each aligned (refined, spread 0.5) as if to a point.
-fn keyframe_with_aligned_keypoints(id: KfId, n: usize) -> KeyFrame {
+pub(crate) fn keyframe_with_aligned_keypoints(id: KfId, n: usize) -> KeyFrame {
     let mut k = keyframe(id, None, false);
     let kp = bdis_orb::KeyPoint { x: 100.0, y: 80.0, octave: 0, angle: 0.0, response: 1.0, size: 31.0 };
     k.keypoints = vec![kp; n];
