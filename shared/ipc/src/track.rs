@@ -28,6 +28,8 @@ pub mod doubt {
     /// The map the frame was fitted to is still moving: the last local bundle adjustment moved its keyframe
     /// by more than 1 % of that keyframe's depth.
     pub const MAP_MOVING: u32 = 6;
+    /// The highest code defined: what a consumer accepts (a new doubt moves it).
+    pub const LAST: u32 = MAP_MOVING;
 
     /// The doubt's name as the tracker's quality log writes it (`few-inliers`, …; "" for none or an unknown
     /// code), for consumers that report it without linking the tracker.
@@ -52,6 +54,8 @@ pub mod pose_method {
     pub const APPEARANCE: u32 = 3;
     pub const REFERENCE_PROJECTION: u32 = 4;
     pub const RELOCALISATION: u32 = 5;
+    /// The highest code defined: what a consumer accepts (a new method moves it).
+    pub const LAST: u32 = RELOCALISATION;
 }
 
 /// One frame's pose and how well the images support it (`bdis.v2.PoseRecord`; v2 added the quality fields

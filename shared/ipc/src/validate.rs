@@ -277,10 +277,7 @@ pub fn correction(c: &KeyframePose) -> Result<Isometry3<f64>, Rejection> {
 /// Returns the pose, if any.
 pub fn pose_record(r: &PoseRecord) -> Result<Option<Isometry3<f64>>, Rejection> {
     let id = r.frame_seq;
-    if r.doubt > crate::track::doubt::LOW_CONTRAST
-        || r.method > crate::track::pose_method::RELOCALISATION
-        || r.prior_rejected > 1
-    {
+    if r.doubt > crate::track::doubt::LAST || r.method > crate::track::pose_method::LAST || r.prior_rejected > 1 {
         let detail =
             format!("pose of frame {id}: doubt {}, method {}, prior_rejected {}", r.doubt, r.method, r.prior_rejected);
         return Err(Rejection::new(Reason::UnknownValue, id, detail));

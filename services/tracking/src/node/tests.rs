@@ -147,3 +147,40 @@ fn every_doubt_travels_under_the_trackers_name_for_it() {
     }
     assert_eq!(doubt::name(doubt_code(None)), "");
 }
+
+/// Every doubt and method the tracker can give passes the consumers' check of a pose record (the viewer, the
+/// OpenIGTLink output and the bridge drop a record that fails it): a new one must move the contract's bound.
+#[test]
+fn every_doubt_and_method_the_tracker_gives_is_accepted_by_consumers() {
+    let doubts = [
+        Doubt::FewInliers,
+        Doubt::LowInlierRatio,
+        Doubt::IllConditioned,
+        Doubt::AppearanceDisagrees,
+        Doubt::LowContrast,
+        Doubt::MapMoving,
+    ];
+    let methods = [
+        PoseMethod::None,
+        PoseMethod::Initialisation,
+        PoseMethod::MotionModel,
+        PoseMethod::Appearance,
+        PoseMethod::ReferenceProjection,
+        PoseMethod::Relocalisation,
+    ];
+    let record = |doubt: u32, method: u32| bdis_ipc::track::PoseRecord {
+        state: tracking_state::UNCERTAIN,
+        world_from_camera: bdis_ipc::track::pose_to_array(&nalgebra::Isometry3::identity()),
+        doubt,
+        method,
+        ..Default::default()
+    };
+    for d in doubts {
+        let r = record(doubt_code(Some(d)), pose_method::MOTION_MODEL);
+        assert!(bdis_ipc::validate::pose_record(&r).is_ok(), "doubt {}", d.name());
+    }
+    for m in methods {
+        let r = record(doubt::LOW_CONTRAST, method_code(m));
+        assert!(bdis_ipc::validate::pose_record(&r).is_ok(), "method {}", m.name());
+    }
+}
