@@ -77,6 +77,7 @@ fn method_code(method: PoseMethod) -> u32 {
         PoseMethod::Appearance => pose_method::APPEARANCE,
         PoseMethod::ReferenceProjection => pose_method::REFERENCE_PROJECTION,
         PoseMethod::Relocalisation => pose_method::RELOCALISATION,
+        PoseMethod::Prediction => pose_method::PREDICTION,
     }
 }
 

@@ -54,8 +54,11 @@ pub mod pose_method {
     pub const APPEARANCE: u32 = 3;
     pub const REFERENCE_PROJECTION: u32 = 4;
     pub const RELOCALISATION: u32 = 5;
+    /// The motion model's prediction alone (a frame coasted through a veil), or as the seed of the local
+    /// map's search in the frame after one.
+    pub const PREDICTION: u32 = 6;
     /// The highest code defined: what a consumer accepts (a new method moves it).
-    pub const LAST: u32 = RELOCALISATION;
+    pub const LAST: u32 = PREDICTION;
 }
 
 /// One frame's pose and how well the images support it (`bdis.v2.PoseRecord`; v2 added the quality fields

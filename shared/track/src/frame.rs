@@ -78,7 +78,8 @@ pub struct Frame {
 
 /// Mean absolute difference between neighbouring pixels over the mean brightness, on every fourth row, away from
 /// `keep_out`: the share of the image's light that is texture. A gain (exposure) leaves it unchanged; a veil
-/// (smoke: an added haze and the texture behind it dimmed) lowers it.
+/// (smoke: an added haze and the texture behind it dimmed) lowers it. NaN for an image without light (black:
+/// a covered lens, the light off): there is no share to tell, and darkness is no veil to track through.
 pub fn texture_contrast(image: &[u8], width: usize, height: usize, keep_out: Option<&[u8]>) -> f32 {
     let (mut difference, mut brightness) = (0u64, 0u64);
     for y in (0..height.saturating_sub(1)).step_by(4) {
@@ -103,7 +104,7 @@ pub fn texture_contrast(image: &[u8], width: usize, height: usize, keep_out: Opt
         difference += u64::from(row_difference);
         brightness += u64::from(row_brightness);
     }
-    if brightness == 0 { 0.0 } else { difference as f32 / brightness as f32 }
+    if brightness == 0 { f32::NAN } else { difference as f32 / brightness as f32 }
 }
 
 impl Frame {

@@ -5,6 +5,7 @@
 //! `relocalise` (§5.7).
 
 mod appearance;
+mod bridge;
 mod keyframe;
 mod local_map;
 mod measurements;
@@ -86,6 +87,10 @@ struct FrameRecord {
     reference: KfId,
     camera_from_reference: Isometry3<f64>,
     lost: bool,
+    /// Seen through a veil (doubted for low contrast): bridged in the written trajectory ([`bridge`]).
+    veiled: bool,
+    /// Its contrast was short of a clear view's ([`quality::CONTRAST_RESTORED`]): a haze coming or going.
+    hazy: bool,
 }
 
 #[derive(Debug)]
@@ -136,6 +141,12 @@ pub struct Tracker {
     /// How far the last applied local bundle adjustment moved its keyframe, over that keyframe's median depth
     /// ([`MapperReport::ba_moved_rel`]): the map the frames are tracked against, still moving by that much.
     map_moved_rel: f64,
+    /// Whether the current frame is seen through a veil ([`Self::judge_veil`]).
+    veil: quality::Veil,
+    /// The current frame's texture contrast over the clearest of its place's (NaN without a reference).
+    contrast_ratio: f32,
+    /// Frames in a row posed by the motion model alone through a veil ([`Self::coast`]).
+    coasted: u32,
 }
 
 impl Tracker {
@@ -205,6 +216,9 @@ impl Tracker {
             residual_scratch: Vec::with_capacity(1 << 12),
             appearance: appearance::AppearanceScratch::with_capacity(settings.orb.n_features as usize),
             map_moved_rel: 0.0,
+            veil: quality::Veil::Clear,
+            contrast_ratio: f32::NAN,
+            coasted: 0,
         })
     }
 
@@ -281,6 +295,7 @@ impl Tracker {
             self.finish_frame(&mut result);
             return Ok(result);
         }
+        self.judge_veil();
         let mut ok = if self.state.is_tracked() {
             self.track_from_last_frame(&mut result.quality)
         } else {
@@ -289,11 +304,30 @@ impl Tracker {
             result.quality.method = PoseMethod::Relocalisation;
             r
         };
+        // After frames coasted through a veil the last frame holds no matches to start from: the local map is
+        // searched from the prediction instead.
+        if !ok && self.coasted > 0 && self.state.is_tracked() {
+            ok = self.seed_from_prediction();
+            result.quality.method = PoseMethod::Prediction;
+        }
         if ok {
             ok = self.track_local_map(&mut result);
         }
+        let coasting = !ok && self.coast();
+        if coasting {
+            result.quality.method = PoseMethod::Prediction;
+            result.inliers = 0;
+        }
+        ok |= coasting;
+        self.coasted = if coasting { self.coasted + 1 } else { 0 };
         result.quality.inliers = result.inliers as u32;
-        let doubt = if ok { self.assess(&mut result.quality) } else { Some(Doubt::FewInliers) };
+        let doubt = if coasting {
+            Some(Doubt::LowContrast)
+        } else if ok {
+            self.assess(&mut result.quality)
+        } else {
+            Some(Doubt::FewInliers)
+        };
         result.quality.doubt = doubt;
         self.state = match (ok, doubt) {
             (false, _) => TrackingState::Lost,
@@ -374,13 +408,28 @@ impl Tracker {
         // The trajectory record: relative to the reference keyframe; when lost, the last relative pose again.
         if let (Some(r), Some(pose)) = (self.reference_kf, self.current.camera_from_world.filter(|_| tracked)) {
             let rel = pose * self.map.keyframes[r].camera_from_world.inverse();
-            self.records.push(FrameRecord { t_ns: result.t_ns, reference: r, camera_from_reference: rel, lost: false });
+            let veiled = result.quality.doubt == Some(Doubt::LowContrast);
+            self.records.push(FrameRecord {
+                t_ns: result.t_ns,
+                reference: r,
+                camera_from_reference: rel,
+                lost: false,
+                veiled,
+                hazy: self.contrast_ratio < quality::CONTRAST_RESTORED,
+            });
             self.last_from_reference = Some((r, rel));
         } else if let Some((r, rel)) = self.last_from_reference {
             // While lost, the best guess is the last motion continued (ORB-SLAM2 repeats the last pose); it also
             // puts the relocalisation's search near where the camera went.
             let rel = self.lost_velocity.map_or(rel, |v| v * rel);
-            self.records.push(FrameRecord { t_ns: result.t_ns, reference: r, camera_from_reference: rel, lost: true });
+            self.records.push(FrameRecord {
+                t_ns: result.t_ns,
+                reference: r,
+                camera_from_reference: rel,
+                lost: true,
+                veiled: false,
+                hazy: false,
+            });
             self.last_from_reference = Some((r, rel));
         }
         self.last.copy_from(&self.current);
@@ -437,15 +486,22 @@ impl Tracker {
     }
 
     /// The trajectory so far: (t_ns, world_from_camera, lost) per frame, from each frame's reference keyframe as
-    /// it is now (so bundle adjustment's corrections reach every frame).
+    /// it is now (so bundle adjustment's corrections reach every frame), with every veil that clear frames
+    /// enclose bridged from them ([`bridge`]).
     pub fn trajectory(&self) -> Vec<(u64, Isometry3<f64>, bool)> {
-        self.records
+        let mut poses: Vec<Isometry3<f64>> = self
+            .records
             .iter()
-            .map(|r| {
-                let camera_from_world = r.camera_from_reference * self.map.keyframe_pose(r.reference);
-                (r.t_ns, camera_from_world.inverse(), r.lost)
-            })
-            .collect()
+            .map(|r| (r.camera_from_reference * self.map.keyframe_pose(r.reference)).inverse())
+            .collect();
+        if self.records.iter().any(|r| r.veiled) {
+            let t_s: Vec<f64> = self.records.iter().map(|r| r.t_ns as f64 * 1e-9).collect();
+            let veiled: Vec<bool> = self.records.iter().map(|r| r.veiled).collect();
+            let hazy: Vec<bool> = self.records.iter().map(|r| r.hazy).collect();
+            let lost: Vec<bool> = self.records.iter().map(|r| r.lost).collect();
+            bridge::bridge_veils(&t_s, &mut poses, &veiled, &hazy, &lost);
+        }
+        self.records.iter().zip(poses).map(|(r, pose)| (r.t_ns, pose, r.lost)).collect()
     }
 
     /// (t_ns, world_from_camera) of every keyframe still in the map.

@@ -167,6 +167,7 @@ fn every_doubt_and_method_the_tracker_gives_is_accepted_by_consumers() {
         PoseMethod::Appearance,
         PoseMethod::ReferenceProjection,
         PoseMethod::Relocalisation,
+        PoseMethod::Prediction,
     ];
     let record = |doubt: u32, method: u32| bdis_ipc::track::PoseRecord {
         state: tracking_state::UNCERTAIN,

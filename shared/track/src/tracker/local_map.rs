@@ -32,9 +32,12 @@ impl Tracker {
             }
         }
         if to_match > 0 {
-            // After relocalisation, and when the pose came from appearance (the motion model could not predict
-            // the frame), the pose is coarser and the scale may have changed: search wider.
-            let th = if self.last_reloc_frame.is_some_and(|r| frame_id < r + 2) {
+            // After relocalisation, when the pose came from appearance (the motion model could not predict the
+            // frame) and when it is the prediction alone (after a veil), the pose is coarser and the scale may
+            // have changed: search wider.
+            let th = if self.last_reloc_frame.is_some_and(|r| frame_id < r + 2)
+                || result.quality.method == PoseMethod::Prediction
+            {
                 5.0
             } else if result.quality.method == PoseMethod::Appearance {
                 3.0
@@ -48,7 +51,11 @@ impl Tracker {
         self.anchor_new_inliers();
         // Both read the χ² of the optimisation, made with the σ before this frame's update.
         self.reclassify_refined();
-        self.update_refined_sigma();
+        // A veiled frame's residuals are the haze's shifts as much as the alignment's noise: they do not set
+        // the σ that clear frames are weighed by.
+        if !self.veil.is_down() {
+            self.update_refined_sigma();
+        }
         let mut inliers = 0;
         for i in 0..self.current.len() {
             let Some(p) = self.current.points[i] else { continue };

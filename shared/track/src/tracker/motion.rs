@@ -4,6 +4,32 @@
 use super::*;
 
 impl Tracker {
+    /// The motion model's prediction of the current frame's pose, if tracking has a velocity.
+    fn predicted_pose(&self) -> Option<CameraFromWorld> {
+        Some(self.velocity? * self.last.camera_from_world?)
+    }
+
+    /// A frame seen through a veil (smoke) that the images could not pose is posed by the motion model
+    /// instead, `Uncertain`, with no match kept: the haze takes the texture away for a second or two, and the
+    /// scope goes on moving as it was. Losing the frame instead would leave only relocalisation, which finds
+    /// known places only, while the scope may have moved on into new tissue by the time the veil lifts.
+    /// Returns whether the frame was coasted.
+    pub(super) fn coast(&mut self) -> bool {
+        // The veil lasts at most `MAX_VEIL_S`, and so does coasting.
+        self.veil.is_down() && self.state.is_tracked() && self.seed_from_prediction()
+    }
+
+    /// Seeds the current frame with the motion model's prediction when the frames before it were coasted
+    /// ([`Self::coast`]): they hold no matches for the motion model's search, so the local map (the keyframes
+    /// tracked before the veil) is searched from the prediction, and it decides.
+    pub(super) fn seed_from_prediction(&mut self) -> bool {
+        let Some(pose) = self.predicted_pose() else { return false };
+        self.current.camera_from_world = Some(pose);
+        self.current.points.iter_mut().for_each(|p| *p = None);
+        self.current.outlier.iter_mut().for_each(|o| *o = false);
+        true
+    }
+
     pub(super) fn replace_last_frame_points(&mut self) {
         for p in self.last.points.iter_mut() {
             if let Some(q) = *p {

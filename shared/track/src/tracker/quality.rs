@@ -20,6 +20,9 @@ pub enum PoseMethod {
     ReferenceProjection,
     /// Relocalisation (§5.7).
     Relocalisation,
+    /// The motion model's prediction alone, through a veil ([`Tracker::coast`](super::Tracker)), or as the
+    /// seed of the local map's search in the frame after one.
+    Prediction,
 }
 
 impl PoseMethod {
@@ -31,6 +34,7 @@ impl PoseMethod {
             Self::Appearance => "appearance",
             Self::ReferenceProjection => "reference-projection",
             Self::Relocalisation => "relocalisation",
+            Self::Prediction => "prediction",
         }
     }
 }
@@ -123,10 +127,17 @@ pub const PRIOR_AGREEMENT: f64 = 0.8;
 /// At least this fraction of the links in the final optimisation must be inliers.
 pub const MIN_INLIER_RATIO: f64 = 0.25;
 /// A frame whose texture contrast fell below this share of the clearest of its reference keyframe and that
-/// keyframe's covisible neighbours is doubted: a veil that
+/// keyframe's covisible neighbours brings a veil down ([`Tracker::judge_veil`](super::Tracker)): a veil that
 /// takes half the texture away also shifts every measurement it leaves (smoke blends a second, nearer layer
 /// into each patch), while moving over tissue changes the contrast far less (measured in BENCHMARKS.md).
 pub const MIN_CONTRAST_KEPT: f32 = 0.5;
+/// A veil lifts only when the contrast is back above this share of the clearest view: clear footage never
+/// fell below 0.756 of the best of its last 30 frames (BENCHMARKS.md), so above it the view is as clear as
+/// clear footage gets. Between the two the haze is thinning, and it still shifts every measurement it leaves.
+pub const CONTRAST_RESTORED: f32 = 0.75;
+/// The longest a veil is taken to last: surgical smoke clears in a second or two.
+pub const MAX_VEIL_S: f64 = 2.0;
+
 /// The camera centre's σ may be at most this fraction of the inliers' median depth.
 pub const MAX_POSITION_SIGMA_REL: f64 = 0.01;
 /// The map may move under the frames by at most this fraction of the depth (the last local bundle adjustment's
@@ -135,7 +146,52 @@ pub const MAX_POSITION_SIGMA_REL: f64 = 0.01;
 /// the tracker holds (renders and `kitti-a`), 2.4 % at the 90th percentile where it fails.
 pub const MAX_MAP_MOVE_REL: f64 = 0.01;
 
+/// Whether the view is seen through a veil ([`Tracker::judge_veil`](super::Tracker)).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(super) enum Veil {
+    Clear,
+    /// Down for this many frames so far.
+    Down {
+        frames: u32,
+    },
+    /// Dim for longer than a veil lasts: taken as the view until it is clear.
+    Accepted,
+}
+
+impl Veil {
+    pub(super) fn is_down(self) -> bool {
+        matches!(self, Self::Down { .. })
+    }
+}
+
 impl Tracker {
+    /// Decides whether the current frame is seen through a veil (smoke), before it is tracked, from its texture
+    /// contrast against the clearest view of its place: the reference keyframe and its covisible neighbours
+    /// (a veil that thickens slowly would otherwise lower the reference keyframe by keyframe). A veil comes
+    /// down below [`MIN_CONTRAST_KEPT`] and lifts above [`CONTRAST_RESTORED`], so a thinning haze is not taken
+    /// for a clear view. A view that stays dim for longer than [`MAX_VEIL_S`] is taken as it is until it is
+    /// clear again: smoke clears, so what stays is the tissue (less texture, another light), and doubting it
+    /// would stop the keyframes that let the reference move on.
+    pub(super) fn judge_veil(&mut self) {
+        let reference_contrast = self.reference_kf.and_then(|r| self.map.keyframes.get(r)).map_or(f32::NAN, |kf| {
+            kf.ordered
+                .iter()
+                .filter_map(|&(k, _)| self.map.keyframes.get(k).map(|n| n.contrast))
+                .fold(kf.contrast, f32::max)
+        });
+        // No reference (NaN): nothing to judge by, a clear view.
+        let ratio = self.current.contrast / reference_contrast;
+        self.contrast_ratio = ratio;
+        let longest = (MAX_VEIL_S * self.settings.fps).round() as u32;
+        self.veil = match self.veil {
+            _ if ratio.is_nan() || ratio >= CONTRAST_RESTORED => Veil::Clear,
+            Veil::Clear if ratio < MIN_CONTRAST_KEPT => Veil::Down { frames: 1 },
+            Veil::Down { frames } if frames >= longest => Veil::Accepted,
+            Veil::Down { frames } => Veil::Down { frames: frames + 1 },
+            other => other,
+        };
+    }
+
     /// Fills the measures of `quality` from the last pose optimisation (the local map's) and the appearance
     /// consensus, and returns the doubt about the pose, if any.
     pub(super) fn assess(&mut self, quality: &mut TrackingQuality) -> Option<Doubt> {
@@ -193,15 +249,7 @@ impl Tracker {
             quality.appearance_agreement = self.appearance_agreement(&pose);
         }
         let ratio = f64::from(quality.inliers) / f64::from(quality.matched.max(1));
-        // The clearest view of this place: the reference keyframe and its covisible neighbours (a veil that
-        // thickens slowly would otherwise lower the reference keyframe by keyframe).
-        let reference_contrast = self.reference_kf.and_then(|r| self.map.keyframes.get(r)).map_or(f32::NAN, |kf| {
-            kf.ordered
-                .iter()
-                .filter_map(|&(k, _)| self.map.keyframes.get(k).map(|n| n.contrast))
-                .fold(kf.contrast, f32::max)
-        });
-        if self.current.contrast < MIN_CONTRAST_KEPT * reference_contrast {
+        if self.veil.is_down() {
             Some(Doubt::LowContrast)
         } else if quality.appearance_agreement < MIN_APPEARANCE_AGREEMENT {
             Some(Doubt::AppearanceDisagrees)

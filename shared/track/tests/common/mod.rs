@@ -12,9 +12,14 @@ pub use flight::{colon_flight, grey};
 
 /// A tracker for [`colon_flight`] and the other 320×240 renders with f = 260 (pixel centres at half-pixel offsets, as the settings the renderer writes).
 pub fn colon_tracker() -> Tracker {
+    colon_tracker_at(30.0)
+}
+
+/// [`colon_tracker`] told the frames come at `fps` (what its time spans, a keyframe's or a veil's, count in).
+pub fn colon_tracker_at(fps: f64) -> Tracker {
     let cam = RectifiedCamera { fx: 260.0, fy: 260.0, cx: 159.5, cy: 119.5, bf: 1300.0, width: 320, height: 240 };
     let orb = bdis_orb::OrbParams { n_features: 1000, ini_th_fast: 20, min_th_fast: 7, ..Default::default() };
-    match Tracker::new(cam, TrackerSettings { th_depth: 20.0, fps: 30.0, orb }) {
+    match Tracker::new(cam, TrackerSettings { th_depth: 20.0, fps, orb }) {
         Ok(t) => t,
         Err(e) => panic!("tracker: {e}"),
     }
