@@ -98,8 +98,11 @@ fn corrections_poses_and_telemetry_have_defined_values() {
     assert!(pose_record(&PoseRecord { state: tracking_state::LOST, ..ok }).unwrap().is_none());
     assert_eq!(pose_record(&PoseRecord { state: 77, ..ok }).unwrap_err().reason, Reason::UnknownValue);
     assert!(pose_record(&PoseRecord { state: tracking_state::UNCERTAIN, ..ok }).unwrap().is_some());
-    assert_eq!(pose_record(&PoseRecord { doubt: 9, ..ok }).unwrap_err().reason, Reason::UnknownValue);
-    assert_eq!(pose_record(&PoseRecord { method: 6, ..ok }).unwrap_err().reason, Reason::UnknownValue);
+    let (doubt, method) = (crate::track::doubt::LAST + 1, crate::track::pose_method::LAST + 1);
+    assert_eq!(pose_record(&PoseRecord { doubt, ..ok }).unwrap_err().reason, Reason::UnknownValue);
+    assert_eq!(pose_record(&PoseRecord { method, ..ok }).unwrap_err().reason, Reason::UnknownValue);
+    let (doubt, method) = (crate::track::doubt::LAST, crate::track::pose_method::LAST);
+    assert!(pose_record(&PoseRecord { state: tracking_state::UNCERTAIN, doubt, method, ..ok }).is_ok());
     assert_eq!(pose_record(&PoseRecord { world_from_camera: [0.0; 7], ..ok }).unwrap_err().reason, Reason::Pose);
 }
 
