@@ -145,8 +145,8 @@ pub struct Tracker {
     veil: quality::Veil,
     /// The current frame's texture contrast over the clearest of its place's (NaN without a reference).
     contrast_ratio: f32,
-    /// Frames in a row posed by the motion model alone through a veil ([`Self::coast`]).
-    coasted: u32,
+    /// Whether the last frame was posed by the motion model alone through a veil ([`Self::coast`]).
+    last_coasted: bool,
 }
 
 impl Tracker {
@@ -218,7 +218,7 @@ impl Tracker {
             map_moved_rel: 0.0,
             veil: quality::Veil::Clear,
             contrast_ratio: f32::NAN,
-            coasted: 0,
+            last_coasted: false,
         })
     }
 
@@ -306,7 +306,7 @@ impl Tracker {
         };
         // After frames coasted through a veil the last frame holds no matches to start from: the local map is
         // searched from the prediction instead.
-        if !ok && self.coasted > 0 && self.state.is_tracked() {
+        if !ok && self.last_coasted && self.state.is_tracked() {
             ok = self.seed_from_prediction();
             result.quality.method = PoseMethod::Prediction;
         }
@@ -319,7 +319,7 @@ impl Tracker {
             result.inliers = 0;
         }
         ok |= coasting;
-        self.coasted = if coasting { self.coasted + 1 } else { 0 };
+        self.last_coasted = coasting;
         result.quality.inliers = result.inliers as u32;
         let doubt = if coasting {
             Some(Doubt::LowContrast)

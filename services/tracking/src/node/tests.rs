@@ -132,17 +132,20 @@ fn qos_poses_buffer() -> usize {
     bdis_ipc::qos::POSES_BUFFER
 }
 
+/// Every doubt the tracker can give.
+const DOUBTS: [Doubt; 6] = [
+    Doubt::FewInliers,
+    Doubt::LowInlierRatio,
+    Doubt::IllConditioned,
+    Doubt::AppearanceDisagrees,
+    Doubt::LowContrast,
+    Doubt::MapMoving,
+];
+
 /// The contract's doubt names (what consumers such as the OpenIGTLink output report) are the tracker's own.
 #[test]
 fn every_doubt_travels_under_the_trackers_name_for_it() {
-    for d in [
-        Doubt::FewInliers,
-        Doubt::LowInlierRatio,
-        Doubt::IllConditioned,
-        Doubt::AppearanceDisagrees,
-        Doubt::LowContrast,
-        Doubt::MapMoving,
-    ] {
+    for d in DOUBTS {
         assert_eq!(doubt::name(doubt_code(Some(d))), d.name());
     }
     assert_eq!(doubt::name(doubt_code(None)), "");
@@ -152,14 +155,6 @@ fn every_doubt_travels_under_the_trackers_name_for_it() {
 /// OpenIGTLink output and the bridge drop a record that fails it): a new one must move the contract's bound.
 #[test]
 fn every_doubt_and_method_the_tracker_gives_is_accepted_by_consumers() {
-    let doubts = [
-        Doubt::FewInliers,
-        Doubt::LowInlierRatio,
-        Doubt::IllConditioned,
-        Doubt::AppearanceDisagrees,
-        Doubt::LowContrast,
-        Doubt::MapMoving,
-    ];
     let methods = [
         PoseMethod::None,
         PoseMethod::Initialisation,
@@ -176,7 +171,7 @@ fn every_doubt_and_method_the_tracker_gives_is_accepted_by_consumers() {
         method,
         ..Default::default()
     };
-    for d in doubts {
+    for d in DOUBTS {
         let r = record(doubt_code(Some(d)), pose_method::MOTION_MODEL);
         assert!(bdis_ipc::validate::pose_record(&r).is_ok(), "doubt {}", d.name());
     }
