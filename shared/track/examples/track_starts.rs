@@ -29,17 +29,19 @@ fn main() {
     let gt = bdis_core::formats::trajectory::read_tum(&gt_path).unwrap();
     let seq = sequence::Sequence::open(dir, value(&a, "--settings").map(Path::new));
     let (mut ates, mut scales, mut sim3s) = (Vec::new(), Vec::new(), Vec::new());
-    println!("start  frames  keyframes  loops  ATE          scale error  ATE after Sim(3)");
+    println!("start  frames  keyframes  loops  ATE          scale error  ATE after Sim(3)  lost  uncertain");
     for &k in &starts {
         let mut tracker = seq.tracker();
         tracker.set_refinement(!a.iter().any(|x| x == "--whole-pixel"));
         tracker.set_loop_closing(!a.iter().any(|x| x == "--no-loop-closing"));
         let end = seq.times.len().min(k.saturating_add(frames));
-        let mut keyframes = 0;
+        let (mut keyframes, mut lost, mut uncertain) = (0, 0, 0);
         for i in k..end {
             let (l, r) = seq.pair(i);
             let res = tracker.track((seq.times[i] * 1e9).round() as u64, &l, &r).unwrap();
             keyframes += usize::from(res.new_keyframe.is_some());
+            lost += usize::from(res.state == bdis_track::TrackingState::Lost);
+            uncertain += usize::from(res.state == bdis_track::TrackingState::Uncertain);
         }
         tracker.finish();
         let est: Vec<StampedPose> = tracker
@@ -53,7 +55,7 @@ fn main() {
         let ate = bdis_eval::traj::ate(&gt, &est, 0.01).unwrap();
         let scale = 100.0 * (ate.sim3.est_over_gt - 1.0);
         println!(
-            "{k:>5}  {:>6}  {keyframes:>9}  {:>5}  {:<11.6}  {scale:>+10.3} %  {:.6}",
+            "{k:>5}  {:>6}  {keyframes:>9}  {:>5}  {:<11.6}  {scale:>+10.3} %  {:<16.6}  {lost:>4}  {uncertain:>9}",
             end - k,
             tracker.loops_closed().len(),
             ate.translation.rmse,

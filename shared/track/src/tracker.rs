@@ -86,11 +86,8 @@ struct FrameRecord {
     t_ns: u64,
     reference: KfId,
     camera_from_reference: Isometry3<f64>,
-    lost: bool,
-    /// Seen through a veil (doubted for low contrast): bridged in the written trajectory ([`bridge`]).
-    veiled: bool,
-    /// Its contrast was short of a clear view's ([`quality::CONTRAST_RESTORED`]): a haze coming or going.
-    hazy: bool,
+    /// How the frame was seen, for the veil's bridge ([`bridge::View`]).
+    view: bridge::View,
 }
 
 #[derive(Debug)]
@@ -408,15 +405,17 @@ impl Tracker {
         // The trajectory record: relative to the reference keyframe; when lost, the last relative pose again.
         if let (Some(r), Some(pose)) = (self.reference_kf, self.current.camera_from_world.filter(|_| tracked)) {
             let rel = pose * self.map.keyframes[r].camera_from_world.inverse();
-            let veiled = result.quality.doubt == Some(Doubt::LowContrast);
-            self.records.push(FrameRecord {
-                t_ns: result.t_ns,
-                reference: r,
-                camera_from_reference: rel,
-                lost: false,
-                veiled,
-                hazy: self.contrast_ratio < quality::CONTRAST_RESTORED,
-            });
+            let view = match result.quality.doubt {
+                Some(Doubt::LowContrast) => bridge::View::Veiled,
+                // A map still settling doubts the live pose, not the written one: the keyframes' final poses
+                // re-express it.
+                Some(Doubt::MapMoving) | None if self.contrast_ratio >= quality::CONTRAST_RESTORED => {
+                    bridge::View::Clear
+                }
+                Some(Doubt::MapMoving) | None => bridge::View::Hazy,
+                Some(_) => bridge::View::Doubted,
+            };
+            self.records.push(FrameRecord { t_ns: result.t_ns, reference: r, camera_from_reference: rel, view });
             self.last_from_reference = Some((r, rel));
         } else if let Some((r, rel)) = self.last_from_reference {
             // While lost, the best guess is the last motion continued (ORB-SLAM2 repeats the last pose); it also
@@ -426,9 +425,7 @@ impl Tracker {
                 t_ns: result.t_ns,
                 reference: r,
                 camera_from_reference: rel,
-                lost: true,
-                veiled: false,
-                hazy: false,
+                view: bridge::View::Lost,
             });
             self.last_from_reference = Some((r, rel));
         }
@@ -494,14 +491,12 @@ impl Tracker {
             .iter()
             .map(|r| (r.camera_from_reference * self.map.keyframe_pose(r.reference)).inverse())
             .collect();
-        if self.records.iter().any(|r| r.veiled) {
+        if self.records.iter().any(|r| r.view == bridge::View::Veiled) {
             let t_s: Vec<f64> = self.records.iter().map(|r| r.t_ns as f64 * 1e-9).collect();
-            let veiled: Vec<bool> = self.records.iter().map(|r| r.veiled).collect();
-            let hazy: Vec<bool> = self.records.iter().map(|r| r.hazy).collect();
-            let lost: Vec<bool> = self.records.iter().map(|r| r.lost).collect();
-            bridge::bridge_veils(&t_s, &mut poses, &veiled, &hazy, &lost);
+            let views: Vec<bridge::View> = self.records.iter().map(|r| r.view).collect();
+            bridge::bridge_veils(&t_s, &mut poses, &views);
         }
-        self.records.iter().zip(poses).map(|(r, pose)| (r.t_ns, pose, r.lost)).collect()
+        self.records.iter().zip(poses).map(|(r, pose)| (r.t_ns, pose, r.view == bridge::View::Lost)).collect()
     }
 
     /// (t_ns, world_from_camera) of every keyframe still in the map.

@@ -12,33 +12,51 @@ use nalgebra::{Isometry3, Translation3, Vector3};
 /// average a few frames' jitter, short enough to stay the motion of the moment.
 const VELOCITY_WINDOW_S: f64 = 0.2;
 
-/// Bridges every run of `veiled` frames, with the `hazy` frames just before it (the haze coming down, before
-/// it was thick enough to doubt), that has a clear frame (neither veiled, hazy nor `lost`) on both sides.
-/// The veil lifts only once the view is clear, so no hazy frame follows one. `t_s` are the frames' times (s),
-/// `world_from_camera` their poses, rewritten in place.
-pub(super) fn bridge_veils(
-    t_s: &[f64],
-    world_from_camera: &mut [Isometry3<f64>],
-    veiled: &[bool],
-    hazy: &[bool],
-    lost: &[bool],
-) {
+/// How a frame was seen, as far as the bridge is concerned.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(super) enum View {
+    /// Tracked, and trusted: the bridge may end here and take its velocity from here.
+    Clear,
+    /// Tracked with no doubt, but its contrast was short of a clear view's ([`super::quality::CONTRAST_RESTORED`]):
+    /// a haze coming or going.
+    Hazy,
+    /// Tracked but doubted for a reason other than a veil (`Uncertain`).
+    Doubted,
+    /// Seen through a veil (doubted for low contrast).
+    Veiled,
+    /// Lost: extrapolated, not tracked.
+    Lost,
+}
+
+/// Bridges every run of `Veiled` frames that has a `Clear` frame on both sides. The bridge also takes in the
+/// `Hazy` and `Doubted` frames just before the veil (the haze coming down, before it was thick enough to doubt)
+/// and the `Doubted` frames just after it (tracking picking up again: the first frames after a veil are often
+/// doubted, and a bridge that ended on one would take its end and its velocity from a pose nobody trusts), but
+/// no longer an aftermath than the veil itself: past that the doubted frames' own poses say more than a curve
+/// through the veil would. The veil lifts only once the view is clear, so no hazy frame follows one. `t_s` are
+/// the frames' times (s), `world_from_camera` their poses, rewritten in place.
+pub(super) fn bridge_veils(t_s: &[f64], world_from_camera: &mut [Isometry3<f64>], views: &[View]) {
     let n = t_s.len();
-    let clear = |k: usize| !veiled[k] && !hazy[k] && !lost[k];
+    let clear = |k: usize| views[k] == View::Clear;
     let mut k = 0;
     while k < n {
-        if !veiled[k] {
+        if views[k] != View::Veiled {
             k += 1;
             continue;
         }
         let mut start = k;
-        while start > 0 && hazy[start - 1] && !veiled[start - 1] && !lost[start - 1] {
+        while start > 0 && matches!(views[start - 1], View::Hazy | View::Doubted) {
             start -= 1;
         }
-        while k < n && veiled[k] {
+        while k < n && views[k] == View::Veiled {
             k += 1;
         }
-        // Frames start..k are veiled; the bridge runs from start − 1 to k.
+        // The aftermath: doubted frames, for no longer than the veil lasted.
+        let (veil_start_s, veil_end_s) = (t_s[start], t_s[k - 1]);
+        while k < n && views[k] == View::Doubted && t_s[k] - veil_end_s <= veil_end_s - veil_start_s {
+            k += 1;
+        }
+        // Frames start..k are bridged, from start − 1 to k.
         if start == 0 || k == n || !clear(start - 1) || !clear(k) {
             continue;
         }
@@ -107,41 +125,75 @@ mod tests {
         )
     }
 
+    fn views(n: usize, veiled: impl Fn(usize) -> bool, other: impl Fn(usize) -> Option<View>) -> Vec<View> {
+        (0..n).map(|k| if veiled(k) { View::Veiled } else { other(k).unwrap_or(View::Clear) }).collect()
+    }
+
+    /// The truth, with the frames `off` shifted by millimetres, alternately (a haze's shifts, a doubted pose).
+    fn shifted(n: usize, off: impl Fn(usize) -> bool) -> Vec<Isometry3<f64>> {
+        (0..n)
+            .map(|k| {
+                let mm = if off(k) { if k % 2 == 0 { 1.5 } else { -1.0 } } else { 0.0 };
+                Isometry3::from_parts(Translation3::new(mm, 0.5 * mm, 0.0), UnitQuaternion::identity()) * steady(k)
+            })
+            .collect()
+    }
+
+    fn on_the_motion(poses: &[Isometry3<f64>], frames: std::ops::Range<usize>) {
+        for k in frames {
+            let error = (poses[k].translation.vector - steady(k).translation.vector).norm();
+            assert!(error < 1e-9, "frame {k}: {error} mm off the steady motion");
+            assert!(poses[k].rotation.angle_to(&steady(k).rotation) < 1e-9, "frame {k}");
+        }
+    }
+
     #[test]
     fn a_veil_over_steady_motion_is_bridged_onto_the_motion_and_clear_frames_are_kept() {
         let n = 60;
         let t_s: Vec<f64> = (0..n).map(|k| k as f64 / 30.0).collect();
-        let truth: Vec<Isometry3<f64>> = (0..n).map(steady).collect();
-        let veiled: Vec<bool> = (0..n).map(|k| (20..35).contains(&k)).collect();
-        // The veiled frames' poses are off by millimetres, alternately (the haze's shifts).
-        let mut poses: Vec<Isometry3<f64>> = (0..n)
-            .map(|k| {
-                let off = if veiled[k] { if k % 2 == 0 { 1.5 } else { -1.0 } } else { 0.0 };
-                Isometry3::from_parts(Translation3::new(off, 0.5 * off, 0.0), UnitQuaternion::identity()) * truth[k]
-            })
-            .collect();
-        bridge_veils(&t_s, &mut poses, &veiled, &vec![false; n], &vec![false; n]);
-        for k in 0..n {
-            let error = (poses[k].translation.vector - truth[k].translation.vector).norm();
-            assert!(error < 1e-9, "frame {k}: {error} mm off the steady motion");
-            assert!(poses[k].rotation.angle_to(&truth[k].rotation) < 1e-9, "frame {k}");
-        }
+        let veiled = |k: usize| (20..35).contains(&k);
+        let mut poses = shifted(n, veiled);
+        bridge_veils(&t_s, &mut poses, &views(n, veiled, |_| None));
+        on_the_motion(&poses, 0..n);
+    }
+
+    #[test]
+    fn doubted_frames_around_a_veil_are_bridged_but_not_an_aftermath_longer_than_the_veil() {
+        let n = 80;
+        let t_s: Vec<f64> = (0..n).map(|k| k as f64 / 30.0).collect();
+        // Hazy and doubted frames before the veil, doubted ones after it: all off, all bridged.
+        let veiled = |k: usize| (20..35).contains(&k);
+        let other = |k: usize| match k {
+            17 => Some(View::Hazy),
+            18 | 19 | 35 | 36 => Some(View::Doubted),
+            _ => None,
+        };
+        let mut poses = shifted(n, |k| (17..37).contains(&k));
+        bridge_veils(&t_s, &mut poses, &views(n, veiled, other));
+        on_the_motion(&poses, 0..n);
+        // An aftermath twice as long as the veil: doubted frames' own poses are kept, and with no clear frame
+        // to end on the veil is not bridged.
+        let veiled = |k: usize| (20..25).contains(&k);
+        let other = |k: usize| (25..35).contains(&k).then_some(View::Doubted);
+        let original = shifted(n, |k| (20..35).contains(&k));
+        let mut poses = original.clone();
+        bridge_veils(&t_s, &mut poses, &views(n, veiled, other));
+        assert_eq!(poses, original);
     }
 
     #[test]
     fn a_veil_without_a_clear_frame_on_both_sides_is_left_as_it_was() {
         let n = 20;
         let t_s: Vec<f64> = (0..n).map(|k| k as f64 / 30.0).collect();
-        let original: Vec<Isometry3<f64>> =
-            (0..n).map(|k| Isometry3::translation(if k % 3 == 0 { 1.0 } else { 0.0 }, 0.0, 0.0) * steady(k)).collect();
-        // At the end of the sequence, and followed by a lost frame.
-        for (veiled, lost) in [
-            ((0..n).map(|k| k >= 15).collect::<Vec<_>>(), vec![false; n]),
-            ((0..n).map(|k| (5..9).contains(&k)).collect(), (0..n).map(|k| k == 9).collect()),
-            ((0..n).map(|k| k < 4).collect(), vec![false; n]),
+        let original = shifted(n, |k| k % 3 == 0);
+        // At the end of the sequence, followed by a lost frame, at the start.
+        for views in [
+            views(n, |k| k >= 15, |_| None),
+            views(n, |k| (5..9).contains(&k), |k| (k == 9).then_some(View::Lost)),
+            views(n, |k| k < 4, |_| None),
         ] {
             let mut poses = original.clone();
-            bridge_veils(&t_s, &mut poses, &veiled, &vec![false; n], &lost);
+            bridge_veils(&t_s, &mut poses, &views);
             assert_eq!(poses, original);
         }
     }
