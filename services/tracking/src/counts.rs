@@ -15,6 +15,7 @@ pub struct Counts {
     /// CPU of the frames posed by appearance, ms.
     pub appearance_ms: Vec<f64>,
     pub relocalised: u64,
+    pub segments_begun: u64,
     /// Per-frame CPU (frames without a new keyframe) and per-keyframe CPU (tracking plus local mapping), ms.
     pub frame_ms: Vec<f64>,
     pub keyframe_ms: Vec<f64>,

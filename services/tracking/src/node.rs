@@ -66,6 +66,7 @@ fn doubt_code(doubt: Option<Doubt>) -> u32 {
         Some(Doubt::AppearanceDisagrees) => doubt::APPEARANCE_DISAGREES,
         Some(Doubt::LowContrast) => doubt::LOW_CONTRAST,
         Some(Doubt::MapMoving) => doubt::MAP_MOVING,
+        Some(Doubt::Detached) => doubt::DETACHED,
     }
 }
 
@@ -379,6 +380,7 @@ pub fn run(config: Config) -> Result<()> {
             counts.priors_rejected += u64::from(result.quality.prior_rejected);
             quality_log.frame(header.frame_seq, &result, cpu_ns, result.new_keyframe.map(|k| out.world.kf_id(k)))?;
             counts.relocalised += u64::from(result.relocalised);
+            counts.segments_begun += u64::from(result.new_segment);
             if result.new_keyframe.is_some() {
                 counts.keyframe_ms.push(cpu_ns as f64 / 1e6);
             } else {
@@ -456,6 +458,7 @@ fn write_summary(
         appearance_frame_cpu_ms_p50: percentile(&mut counts.appearance_ms, 0.5),
         appearance_frame_cpu_ms_p99: percentile(&mut counts.appearance_ms, 0.99),
         relocalisations: counts.relocalised,
+        segments_begun: counts.segments_begun,
         keyframes_created: world.kf_offset + counts.keyframes,
         keyframes_in_map: tracker.map().n_good_keyframes() as u64,
         map_points: tracker.map().points.iter().filter(|p| !p.bad).count() as u64,

@@ -13,7 +13,8 @@ pub mod tracking_state {
     pub const END_OF_STREAM: u32 = 3;
     /// Tracked, but the images do not support the pose well enough to trust it (`PoseRecord::doubt` says
     /// why): the pose is there, and no keyframe is made from it (unless the doubt is `MAP_MOVING`: the next
-    /// keyframe's adjustment is what settles the map).
+    /// keyframe's adjustment is what settles the map; or `DETACHED`: its keyframes are what the new segment is
+    /// tracked with).
     pub const UNCERTAIN: u32 = 4;
 }
 
@@ -28,8 +29,11 @@ pub mod doubt {
     /// The map the frame was fitted to is still moving: the last local bundle adjustment moved its keyframe
     /// by more than 1 % of that keyframe's depth.
     pub const MAP_MOVING: u32 = 6;
+    /// Tracked on a map segment begun after a loss in tissue relocalisation did not know: right relative to the
+    /// segment, but the segment's place in the world is the motion before the loss carried on.
+    pub const DETACHED: u32 = 7;
     /// The highest code defined: what a consumer accepts (a new doubt moves it).
-    pub const LAST: u32 = MAP_MOVING;
+    pub const LAST: u32 = DETACHED;
 
     /// The doubt's name as the tracker's quality log writes it (`few-inliers`, …; "" for none or an unknown
     /// code), for consumers that report it without linking the tracker.
@@ -41,6 +45,7 @@ pub mod doubt {
             APPEARANCE_DISAGREES => "appearance-disagrees",
             LOW_CONTRAST => "low-contrast",
             MAP_MOVING => "map-moving",
+            DETACHED => "detached",
             _ => "",
         }
     }

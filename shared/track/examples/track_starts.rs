@@ -44,6 +44,9 @@ fn main() {
             uncertain += usize::from(res.state == bdis_track::TrackingState::Uncertain);
         }
         tracker.finish();
+        if a.iter().any(|x| x == "--loops") {
+            eprintln!("loops closed (keyframe, old keyframe): {:?}", tracker.loops_closed());
+        }
         let est: Vec<StampedPose> = tracker
             .trajectory()
             .into_iter()

@@ -17,5 +17,6 @@ pub mod workers;
 
 pub use geometry::{CameraFromWorld, RectifiedCamera};
 pub use tracker::{
-    Doubt, FrameResult, PoseMethod, TrackError, Tracker, TrackerSettings, TrackingQuality, TrackingState,
+    Doubt, FrameResult, PoseMethod, RESTART_AFTER_S, TrackError, Tracker, TrackerSettings, TrackingQuality,
+    TrackingState,
 };

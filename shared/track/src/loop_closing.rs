@@ -402,6 +402,15 @@ impl LoopCloser {
         candidates
     }
 
+    /// The tracker began a new map segment at keyframe `kf` (after a loss in unknown tissue): the segment's
+    /// neighbourhood starts there, so the next keyframe does not take its own segment's first keyframe for a
+    /// place revisited, while everything before the restart stays a candidate (a true revisit ties the segment
+    /// back).
+    pub fn segment_begun(&mut self, kf: KfId) {
+        self.previous_near = BTreeSet::from([kf]);
+        self.revisit_side.clear();
+    }
+
     /// A loop was closed at keyframe `kf` against `candidate`.
     pub fn closed(&mut self, kf: KfId, candidate: KfId) {
         self.revisit_side.clear();

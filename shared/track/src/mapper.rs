@@ -175,6 +175,13 @@ impl LocalMapper {
         self.loops.as_ref().map_or(&[], |l| l.loops.as_slice())
     }
 
+    /// The tracker began a new map segment at keyframe `kf` ([`LoopCloser::segment_begun`]).
+    pub fn segment_begun(&mut self, kf: KfId) {
+        if let Some(l) = self.loops.as_mut() {
+            l.segment_begun(kf);
+        }
+    }
+
     /// Hands a snapshot to the worker (spawned on first use), or solves and applies it here.
     fn submit_ba(&mut self, job: BaJob, map: &mut Map, scales: &Scales, report: &mut MapperReport) {
         if self.mode == BaMode::Worker {

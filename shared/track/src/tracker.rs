@@ -12,11 +12,13 @@ mod measurements;
 mod motion;
 mod quality;
 mod relocalise;
+mod segment;
 
 use crate::geometry::draw_three;
 pub use crate::geometry::rigid_fit;
 pub use appearance::AppearanceFix;
 pub use quality::{Doubt, PoseMethod, TrackingQuality};
+pub use segment::RESTART_AFTER_S;
 
 use crate::frame::{Frame, FrameBuilder, Scales};
 use crate::geometry::{CameraFromWorld, RectifiedCamera};
@@ -31,7 +33,6 @@ use std::collections::BTreeSet;
 
 /// Frames after a relocalisation during which no keyframe is made.
 pub const RELOCALISATION_HOLDOFF_FRAMES: u64 = 5;
-
 #[derive(Debug, thiserror::Error)]
 pub enum TrackError {
     #[error(transparent)]
@@ -76,6 +77,8 @@ pub struct FrameResult {
     pub mapper: Option<MapperReport>,
     /// The frame relocalised.
     pub relocalised: bool,
+    /// The frame began a new map segment ([`Tracker::restart`]).
+    pub new_segment: bool,
     pub quality: TrackingQuality,
 }
 
@@ -144,6 +147,10 @@ pub struct Tracker {
     contrast_ratio: f32,
     /// Whether the last frame was posed by the motion model alone through a veil ([`Self::coast`]).
     last_coasted: bool,
+    /// Frames in a row lost with enough features to start a map from, that relocalisation could not place.
+    unplaced_frames: u64,
+    /// Set while tracking on a segment begun by [`Self::restart`] that is not yet tied back.
+    detached: Option<segment::Detachment>,
 }
 
 impl Tracker {
@@ -216,6 +223,8 @@ impl Tracker {
             veil: quality::Veil::Clear,
             contrast_ratio: f32::NAN,
             last_coasted: false,
+            unplaced_frames: 0,
+            detached: None,
         })
     }
 
@@ -275,17 +284,11 @@ impl Tracker {
             new_keyframe: None,
             mapper: None,
             relocalised: false,
+            new_segment: false,
             quality: TrackingQuality::default(),
         };
         if self.state == TrackingState::NotInitialized {
-            // ORB-SLAM2 waits for 500 features; with fewer requested, for half of them; over the part of the
-            // image that may give features (a mask takes its share of the image away, not of the density).
-            let open = keep_out.map_or(1.0, |mask| {
-                let n = (self.cam.width * self.cam.height) as usize;
-                mask[..n.min(mask.len())].iter().filter(|&&m| m == 0).count() as f64 / n.max(1) as f64
-            });
-            let wanted = 500.min(self.settings.orb.n_features as usize / 2) as f64 * open;
-            if self.current.len() as f64 > wanted {
+            if self.enough_to_begin(keep_out) {
                 self.initialise(&mut result);
                 result.quality.method = PoseMethod::Initialisation;
             }
@@ -299,6 +302,14 @@ impl Tracker {
             let r = self.relocalise();
             result.relocalised = r;
             result.quality.method = PoseMethod::Relocalisation;
+            if !r && !self.veil.is_down() && self.enough_to_begin(keep_out) {
+                self.unplaced_frames += 1;
+                if self.unplaced_frames as f64 >= segment::RESTART_AFTER_S * self.settings.fps {
+                    self.restart(&mut result);
+                    self.finish_frame(&mut result);
+                    return Ok(result);
+                }
+            }
             r
         };
         // After frames coasted through a veil the last frame holds no matches to start from: the local map is
@@ -321,7 +332,10 @@ impl Tracker {
         let doubt = if coasting {
             Some(Doubt::LowContrast)
         } else if ok {
-            self.assess(&mut result.quality)
+            match self.assess(&mut result.quality) {
+                None | Some(Doubt::MapMoving) if self.still_detached() => Some(Doubt::Detached),
+                doubt => doubt,
+            }
         } else {
             Some(Doubt::FewInliers)
         };
@@ -338,10 +352,12 @@ impl Tracker {
             }
             // A keyframe fixes map points and the dense map at its pose: only from a pose the images support.
             // A map still settling is the exception: the next keyframe's adjustment is what settles it.
-            let supported = self.state == TrackingState::Ok || doubt == Some(Doubt::MapMoving);
+            let supported =
+                self.state == TrackingState::Ok || matches!(doubt, Some(Doubt::MapMoving | Doubt::Detached));
             if supported && self.need_keyframe(result.inliers) {
                 self.create_keyframe(&mut result);
             }
+            self.unplaced_frames = 0;
             // Outlier links go after the keyframe decision (§5.1 step 5).
             for i in 0..self.current.len() {
                 if self.current.outlier[i] {
@@ -409,10 +425,14 @@ impl Tracker {
                 Some(Doubt::LowContrast) => bridge::View::Veiled,
                 // A map still settling doubts the live pose, not the written one: the keyframes' final poses
                 // re-express it.
-                Some(Doubt::MapMoving) | None if self.contrast_ratio >= quality::CONTRAST_RESTORED => {
+                // A detached segment's frames are right relative to each other, which is what a bridge takes
+                // from its ends.
+                Some(Doubt::MapMoving | Doubt::Detached) | None
+                    if self.contrast_ratio >= quality::CONTRAST_RESTORED =>
+                {
                     bridge::View::Clear
                 }
-                Some(Doubt::MapMoving) | None => bridge::View::Hazy,
+                Some(Doubt::MapMoving | Doubt::Detached) | None => bridge::View::Hazy,
                 Some(_) => bridge::View::Doubted,
             };
             self.records.push(FrameRecord { t_ns: result.t_ns, reference: r, camera_from_reference: rel, view });
@@ -435,18 +455,39 @@ impl Tracker {
         }
     }
 
+    /// Whether the current frame has the features a map can begin from: ORB-SLAM2 waits for 500; with fewer
+    /// requested, for half of them; over the part of the image that may give features (a mask takes its share
+    /// of the image away, not of the density).
+    fn enough_to_begin(&self, keep_out: Option<&[u8]>) -> bool {
+        let open = keep_out.map_or(1.0, |mask| {
+            let n = (self.cam.width * self.cam.height) as usize;
+            mask[..n.min(mask.len())].iter().filter(|&&m| m == 0).count() as f64 / n.max(1) as f64
+        });
+        let wanted = 500.min(self.settings.orb.n_features as usize / 2) as f64 * open;
+        self.current.len() as f64 > wanted
+    }
+
     /// §5.2.
     fn initialise(&mut self, result: &mut FrameResult) {
+        let kf = self.begin_map_at(Isometry3::identity());
+        self.state = TrackingState::Ok;
+        result.new_keyframe = Some(kf);
+        result.inliers = self.local_points.len();
+    }
+
+    /// Makes the current frame a keyframe at `pose` with a point for every stereo keypoint, and the whole local
+    /// map: how a map begins, from one stereo frame.
+    fn begin_map_at(&mut self, pose: Isometry3<f64>) -> KfId {
         self.refine_new_disparities();
-        self.current.camera_from_world = Some(Isometry3::identity());
-        let kf = self.map.add_keyframe(KeyFrame::from_frame(0, &self.current, Isometry3::identity()));
+        self.current.camera_from_world = Some(pose);
+        let kf = self.map.add_keyframe(KeyFrame::from_frame(0, &self.current, pose));
         for i in 0..self.current.len() {
             if self.current.depth[i] > 0.0
                 && let Some(x) = self.current.unproject_world(&self.cam, i)
             {
                 let p = self.map.new_point(x, kf, i, &self.scales);
                 self.current.points[i] = Some(p);
-                self.anchor_new_point(p, i, kf, Isometry3::identity());
+                self.anchor_new_point(p, i, kf, pose);
             }
         }
         self.reference_kf = Some(kf);
@@ -455,9 +496,7 @@ impl Tracker {
         self.local_kfs.push(kf);
         self.local_points.clear();
         self.local_points.extend(self.map.keyframes[kf].points.iter().flatten().copied());
-        self.state = TrackingState::Ok;
-        result.new_keyframe = Some(kf);
-        result.inliers = self.local_points.len();
+        kf
     }
 
     /// Waits for the local bundle adjustment still running and applies it (call before reading the final map or

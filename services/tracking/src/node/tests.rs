@@ -133,13 +133,14 @@ fn qos_poses_buffer() -> usize {
 }
 
 /// Every doubt the tracker can give.
-const DOUBTS: [Doubt; 6] = [
+const DOUBTS: [Doubt; 7] = [
     Doubt::FewInliers,
     Doubt::LowInlierRatio,
     Doubt::IllConditioned,
     Doubt::AppearanceDisagrees,
     Doubt::LowContrast,
     Doubt::MapMoving,
+    Doubt::Detached,
 ];
 
 /// The contract's doubt names (what consumers such as the OpenIGTLink output report) are the tracker's own.

@@ -33,6 +33,10 @@ pub struct TrackingSummary {
     #[serde(default)]
     pub appearance_frame_cpu_ms_p99: Option<f64>,
     pub relocalisations: u64,
+    /// Map segments begun after a loss in tissue relocalisation did not know (their frames are doubted
+    /// `detached` until tied back).
+    #[serde(default)]
+    pub segments_begun: u64,
     /// Keyframe ids handed out (the next id is this number).
     pub keyframes_created: u64,
     /// Keyframes in the last instance's map after culling.

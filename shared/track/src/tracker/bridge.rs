@@ -10,7 +10,7 @@ use nalgebra::{Isometry3, Translation3, Vector3};
 
 /// The clear frames at each end of a veil whose motion gives the bridge its end velocities: long enough to
 /// average a few frames' jitter, short enough to stay the motion of the moment.
-const VELOCITY_WINDOW_S: f64 = 0.2;
+pub(super) const VELOCITY_WINDOW_S: f64 = 0.2;
 
 /// How a frame was seen, as far as the bridge is concerned.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -33,7 +33,7 @@ pub(super) enum View {
 /// and the `Doubted` frames just after it (tracking picking up again: the first frames after a veil are often
 /// doubted, and a bridge that ended on one would take its end and its velocity from a pose nobody trusts), but
 /// no longer an aftermath than the veil itself: past that the doubted frames' own poses say more than a curve
-/// through the veil would. The veil lifts only once the view is clear, so no hazy frame follows one. `t_s` are
+/// through the veil would. `Lost` frames after the veil are taken in too, when tracking resumes after them. The veil lifts only once the view is clear, so no hazy frame follows one. `t_s` are
 /// the frames' times (s), `world_from_camera` their poses, rewritten in place.
 pub(super) fn bridge_veils(t_s: &[f64], world_from_camera: &mut [Isometry3<f64>], views: &[View]) {
     let n = t_s.len();
@@ -51,9 +51,16 @@ pub(super) fn bridge_veils(t_s: &[f64], world_from_camera: &mut [Isometry3<f64>]
         while k < n && views[k] == View::Veiled {
             k += 1;
         }
-        // The aftermath: doubted frames, for no longer than the veil lasted.
+        // The aftermath: doubted frames, for no longer than the veil lasted; lost frames, however long (their
+        // poses are extrapolations, which the bridge is too, and a better one once tracking is back).
         let (veil_start_s, veil_end_s) = (t_s[start], t_s[k - 1]);
-        while k < n && views[k] == View::Doubted && t_s[k] - veil_end_s <= veil_end_s - veil_start_s {
+        while k < n
+            && match views[k] {
+                View::Lost => true,
+                View::Doubted => t_s[k] - veil_end_s <= veil_end_s - veil_start_s,
+                _ => false,
+            }
+        {
             k += 1;
         }
         // Frames start..k are bridged, from start − 1 to k.
@@ -62,39 +69,15 @@ pub(super) fn bridge_veils(t_s: &[f64], world_from_camera: &mut [Isometry3<f64>]
         }
         let (a, b) = (start - 1, k);
         let position = |i: usize| world_from_camera[i].translation.vector;
-        // The velocity on one side of the veil: the least-squares slope of position over time through the
-        // clear frames within the window there (a slope through many frames, not a difference of two, so
-        // the frames' own jitter does not bend the bridge).
-        let velocity = |from: usize, towards_past: bool| -> Option<Vector3<f64>> {
-            let mut far = from;
-            loop {
-                let next = if towards_past { far.checked_sub(1) } else { Some(far + 1).filter(|&j| j < n) };
-                match next {
-                    Some(j) if clear(j) && (t_s[j] - t_s[from]).abs() <= VELOCITY_WINDOW_S => far = j,
-                    _ => break,
-                }
-            }
-            let (lo, hi) = if towards_past { (far, from) } else { (from, far) };
-            if hi - lo < 2 {
-                return None;
-            }
-            let count = (hi - lo + 1) as f64;
-            let t_mean = t_s[lo..=hi].iter().sum::<f64>() / count;
-            let p_mean = (lo..=hi).map(position).sum::<Vector3<f64>>() / count;
-            let (mut num, mut den) = (Vector3::zeros(), 0.0);
-            for (j, &t) in (lo..=hi).zip(&t_s[lo..=hi]) {
-                let dt = t - t_mean;
-                num += (position(j) - p_mean) * dt;
-                den += dt * dt;
-            }
-            (den > 0.0).then(|| num / den)
-        };
         let span = t_s[b] - t_s[a];
         if span <= 0.0 {
             continue;
         }
         let chord = (position(b) - position(a)) / span;
-        let (v_a, v_b) = (velocity(a, true).unwrap_or(chord), velocity(b, false).unwrap_or(chord));
+        let velocity_at = |from: usize, towards_past: bool| {
+            motion_at(t_s, world_from_camera, views, from, towards_past).map_or(chord, |m| m.velocity)
+        };
+        let (v_a, v_b) = (velocity_at(a, true), velocity_at(b, false));
         let (p_a, p_b) = (position(a), position(b));
         let (r_a, r_b) = (world_from_camera[a].rotation, world_from_camera[b].rotation);
         for i in start..k {
@@ -109,6 +92,58 @@ pub(super) fn bridge_veils(t_s: &[f64], world_from_camera: &mut [Isometry3<f64>]
             world_from_camera[i] = Isometry3::from_parts(Translation3::from(p), rotation);
         }
     }
+}
+
+/// The motion at a clear frame, from the clear frames next to it on one side.
+#[derive(Debug, Clone, Copy)]
+pub(super) struct Motion {
+    /// World position per second.
+    pub velocity: Vector3<f64>,
+    /// World rotation per second (axis × angle).
+    pub angular: Vector3<f64>,
+}
+
+/// The motion at `Clear` frame `from`, from the clear frames within [`VELOCITY_WINDOW_S`] of it on one side
+/// (`towards_past`: before it): the least-squares slope of position over time through them (a slope through
+/// many frames, not a difference of two, so the frames' own jitter does not bend what is made of it), and the
+/// rotation across the window over its time. `None` with fewer than three such frames.
+pub(super) fn motion_at(
+    t_s: &[f64],
+    world_from_camera: &[Isometry3<f64>],
+    views: &[View],
+    from: usize,
+    towards_past: bool,
+) -> Option<Motion> {
+    let n = t_s.len();
+    let clear = |k: usize| views[k] == View::Clear;
+    let mut far = from;
+    loop {
+        let next = if towards_past { far.checked_sub(1) } else { Some(far + 1).filter(|&j| j < n) };
+        match next {
+            Some(j) if clear(j) && (t_s[j] - t_s[from]).abs() <= VELOCITY_WINDOW_S => far = j,
+            _ => break,
+        }
+    }
+    let (lo, hi) = if towards_past { (far, from) } else { (from, far) };
+    if hi - lo < 2 {
+        return None;
+    }
+    let position = |i: usize| world_from_camera[i].translation.vector;
+    let count = (hi - lo + 1) as f64;
+    let t_mean = t_s[lo..=hi].iter().sum::<f64>() / count;
+    let p_mean = (lo..=hi).map(position).sum::<Vector3<f64>>() / count;
+    let (mut num, mut den) = (Vector3::zeros(), 0.0);
+    for (j, &t) in (lo..=hi).zip(&t_s[lo..=hi]) {
+        let dt = t - t_mean;
+        num += (position(j) - p_mean) * dt;
+        den += dt * dt;
+    }
+    let span = t_s[hi] - t_s[lo];
+    if den <= 0.0 || span <= 0.0 {
+        return None;
+    }
+    let turn = world_from_camera[hi].rotation * world_from_camera[lo].rotation.inverse();
+    Some(Motion { velocity: num / den, angular: turn.scaled_axis() / span })
 }
 
 #[cfg(test)]
@@ -179,6 +214,12 @@ mod tests {
         let mut poses = original.clone();
         bridge_veils(&t_s, &mut poses, &views(n, veiled, other));
         assert_eq!(poses, original);
+        // Lost frames after a veil, then tracking again: bridged whatever their number.
+        let veiled = |k: usize| (20..25).contains(&k);
+        let other = |k: usize| (25..45).contains(&k).then_some(View::Lost);
+        let mut poses = shifted(n, |k| (20..45).contains(&k));
+        bridge_veils(&t_s, &mut poses, &views(n, veiled, other));
+        on_the_motion(&poses, 0..n);
     }
 
     #[test]
@@ -186,10 +227,10 @@ mod tests {
         let n = 20;
         let t_s: Vec<f64> = (0..n).map(|k| k as f64 / 30.0).collect();
         let original = shifted(n, |k| k % 3 == 0);
-        // At the end of the sequence, followed by a lost frame, at the start.
+        // At the end of the sequence, followed by lost frames to the end, at the start.
         for views in [
             views(n, |k| k >= 15, |_| None),
-            views(n, |k| (5..9).contains(&k), |k| (k == 9).then_some(View::Lost)),
+            views(n, |k| (5..9).contains(&k), |k| (k >= 9).then_some(View::Lost)),
             views(n, |k| k < 4, |_| None),
         ] {
             let mut poses = original.clone();

@@ -59,6 +59,12 @@ pub enum Doubt {
     /// its σ) does not say where the camera is. Unlike the other doubts it does not stop keyframes: the next
     /// keyframe's adjustment is what settles the map.
     MapMoving,
+    /// Tracked on a map segment begun after the tracker was lost where relocalisation found no known place
+    /// ([`Tracker::restart`](super::Tracker)): the pose is right relative to that segment, but where the
+    /// segment lies in the first map's world is the motion before the loss carried on, a guess. It lasts until
+    /// the segment is tied back (a loop closes, or the frame's pose rests on enough of the older points). Like
+    /// `MapMoving` it does not stop keyframes: they are what the segment is tracked with.
+    Detached,
 }
 
 impl Doubt {
@@ -70,6 +76,7 @@ impl Doubt {
             Self::AppearanceDisagrees => "appearance-disagrees",
             Self::LowContrast => "low-contrast",
             Self::MapMoving => "map-moving",
+            Self::Detached => "detached",
         }
     }
 }

@@ -8,7 +8,7 @@ use bdis_track::{RectifiedCamera, Tracker, TrackerSettings};
 // the renderer's.
 mod flight;
 #[allow(unused_imports)] // each test binary uses its own part of this module
-pub use flight::{colon_flight, grey};
+pub use flight::{colon_flight, colon_frame, grey};
 
 /// A tracker for [`colon_flight`] and the other 320×240 renders with f = 260 (pixel centres at half-pixel offsets, as the settings the renderer writes).
 pub fn colon_tracker() -> Tracker {

@@ -1,0 +1,108 @@
+//! A new map segment when the tracker is lost in tissue the map does not hold (ORB-SLAM2-STEREO.md §5.7 finds
+//! known places only): where it is placed, and when it is tied back.
+
+use super::{FrameResult, Tracker, TrackingState, bridge};
+use crate::map::{KfId, PointId};
+use crate::tracker::quality::{Doubt, PoseMethod};
+use nalgebra::{Isometry3, UnitQuaternion};
+
+/// How long relocalisation gets to find a known place in frames it could have started a map from, before the
+/// tracker begins a new map segment there ([`Tracker::restart`]). Relocalisation finds a place it knows in the
+/// first frame that shows it clearly; every frame waited beyond that is travel dead-reckoned into the new
+/// segment's place.
+pub const RESTART_AFTER_S: f64 = 0.3;
+/// Inliers on points made before a restart that tie the new segment back to the older map: relocalisation's
+/// bar for a pose found against a keyframe's points (§5.7).
+const TIED_BACK_INLIERS: usize = 50;
+
+#[derive(Debug, Clone, Copy)]
+pub(super) struct Detachment {
+    /// Points with ids from this one on were made on the new segment.
+    first_point: PointId,
+    /// The segment's first keyframe: keyframes from it on are the segment's.
+    first_keyframe: KfId,
+}
+
+impl Tracker {
+    /// Begins a new map segment at the current frame, lost for [`RESTART_AFTER_S`] in frames relocalisation could
+    /// not place: the scope has gone on into tissue the map does not hold (a fast flight through smoke, a jerk
+    /// into new tissue), where relocalisation, which looks for known places only, would never find it. The
+    /// segment is placed where the motion at the last clear frame, carried on, puts the camera (not the frames
+    /// since: through a veil they follow the smoke), and tied into the keyframe tree under the last reference
+    /// keyframe, so that loop closing can correct it like any other keyframe. Its frames are `Uncertain`,
+    /// [`Doubt::Detached`], until it is tied back to the older map.
+    pub(super) fn restart(&mut self, result: &mut FrameResult) {
+        let pose = self.dead_reckoned(result.t_ns);
+        let before = self.reference_kf.filter(|&r| !self.map.keyframes[r].bad);
+        // A failed relocalisation leaves its matches as links: they are to the old map, not to this frame.
+        self.current.points.iter_mut().for_each(|p| *p = None);
+        self.current.outlier.iter_mut().for_each(|o| *o = false);
+        let first_point = self.map.points.len();
+        let kf = self.begin_map_at(pose);
+        if let Some(parent) = before {
+            self.map.keyframes[kf].parent = Some(parent);
+            self.map.keyframes[parent].children.insert(kf);
+        }
+        self.detached = Some(Detachment { first_point, first_keyframe: kf });
+        self.mapper.segment_begun(kf);
+        self.velocity = None;
+        self.last_coasted = false;
+        self.unplaced_frames = 0;
+        self.state = TrackingState::Uncertain;
+        result.new_keyframe = Some(kf);
+        result.new_segment = true;
+        result.inliers = self.local_points.len();
+        result.quality.method = PoseMethod::Prediction;
+        result.quality.doubt = Some(Doubt::Detached);
+        result.quality.inliers = result.inliers as u32;
+    }
+
+    /// Where the camera is at `t_ns` if it kept the motion it had at the last clear frame (tracked without
+    /// doubt, not hazy): the motion over [`bridge::VELOCITY_WINDOW_S`] of clear frames, as a veil's bridge takes
+    /// it, not one frame's step, whose jitter a long gap would multiply. The last tracked pose when there is no
+    /// such motion; the identity before any.
+    fn dead_reckoned(&self, t_ns: u64) -> Isometry3<f64> {
+        let Some(last) = self.records.iter().rposition(|r| r.view == bridge::View::Clear) else {
+            return self
+                .last_from_reference
+                .map_or_else(Isometry3::identity, |(r, rel)| rel * self.map.keyframe_pose(r));
+        };
+        // The window and a frame more: enough records for the motion at the last clear one.
+        let t_last = self.records[last].t_ns;
+        let first = self.records[..last]
+            .iter()
+            .rposition(|r| (t_last - r.t_ns) as f64 * 1e-9 > bridge::VELOCITY_WINDOW_S)
+            .unwrap_or(0);
+        let tail = &self.records[first..=last];
+        let t_s: Vec<f64> = tail.iter().map(|r| r.t_ns as f64 * 1e-9).collect();
+        let poses: Vec<Isometry3<f64>> =
+            tail.iter().map(|r| (r.camera_from_reference * self.map.keyframe_pose(r.reference)).inverse()).collect();
+        let views: Vec<bridge::View> = tail.iter().map(|r| r.view).collect();
+        let end = tail.len() - 1;
+        let world_from_last = poses[end];
+        let Some(motion) = bridge::motion_at(&t_s, &poses, &views, end, true) else {
+            return world_from_last.inverse();
+        };
+        let dt = t_ns.saturating_sub(t_last) as f64 * 1e-9;
+        let world_from_camera = Isometry3::from_parts(
+            (world_from_last.translation.vector + motion.velocity * dt).into(),
+            UnitQuaternion::from_scaled_axis(motion.angular * dt) * world_from_last.rotation,
+        );
+        world_from_camera.inverse()
+    }
+
+    /// Whether the frame is still on a detached segment ([`Self::restart`]); ends the detachment when a loop has
+    /// closed between the segment and the older map, or the frame's pose rests on [`TIED_BACK_INLIERS`] points
+    /// made before the restart (map reuse found the older map).
+    pub(super) fn still_detached(&mut self) -> bool {
+        let Some(d) = self.detached else { return false };
+        let older = (0..self.current.len())
+            .filter(|&i| !self.current.outlier[i] && self.current.points[i].is_some_and(|p| p < d.first_point))
+            .count();
+        let across = |&(a, b): &(KfId, KfId)| a.min(b) < d.first_keyframe && a.max(b) >= d.first_keyframe;
+        if self.mapper.loops_closed().iter().any(across) || older >= TIED_BACK_INLIERS {
+            self.detached = None;
+        }
+        self.detached.is_some()
+    }
+}
