@@ -33,6 +33,7 @@ use std::collections::BTreeSet;
 
 /// Frames after a relocalisation during which no keyframe is made.
 pub const RELOCALISATION_HOLDOFF_FRAMES: u64 = 5;
+
 #[derive(Debug, thiserror::Error)]
 pub enum TrackError {
     #[error(transparent)]
@@ -147,7 +148,8 @@ pub struct Tracker {
     contrast_ratio: f32,
     /// Whether the last frame was posed by the motion model alone through a veil ([`Self::coast`]).
     last_coasted: bool,
-    /// Frames in a row lost with enough features to start a map from, that relocalisation could not place.
+    /// Frames since the last tracked one that had the features to begin a map from and that relocalisation
+    /// could not place.
     unplaced_frames: u64,
     /// Set while tracking on a segment begun by [`Self::restart`] that is not yet tied back.
     detached: Option<segment::Detachment>,
@@ -423,10 +425,9 @@ impl Tracker {
             let rel = pose * self.map.keyframes[r].camera_from_world.inverse();
             let view = match result.quality.doubt {
                 Some(Doubt::LowContrast) => bridge::View::Veiled,
-                // A map still settling doubts the live pose, not the written one: the keyframes' final poses
-                // re-express it.
-                // A detached segment's frames are right relative to each other, which is what a bridge takes
-                // from its ends.
+                // A map still settling doubts the live pose, not the written one (the keyframes' final poses
+                // re-express it); a detached segment's frames are right relative to each other, which is what a
+                // bridge takes from its ends.
                 Some(Doubt::MapMoving | Doubt::Detached) | None
                     if self.contrast_ratio >= quality::CONTRAST_RESTORED =>
                 {

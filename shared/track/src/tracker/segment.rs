@@ -45,6 +45,8 @@ impl Tracker {
         }
         self.detached = Some(Detachment { first_point, first_keyframe: kf });
         self.mapper.segment_begun(kf);
+        // The segment's first keyframe is the clearest view of its place so far.
+        self.contrast_ratio = 1.0;
         self.velocity = None;
         self.last_coasted = false;
         self.unplaced_frames = 0;
@@ -71,7 +73,7 @@ impl Tracker {
         let t_last = self.records[last].t_ns;
         let first = self.records[..last]
             .iter()
-            .rposition(|r| (t_last - r.t_ns) as f64 * 1e-9 > bridge::VELOCITY_WINDOW_S)
+            .rposition(|r| t_last.saturating_sub(r.t_ns) as f64 * 1e-9 > bridge::VELOCITY_WINDOW_S)
             .unwrap_or(0);
         let tail = &self.records[first..=last];
         let t_s: Vec<f64> = tail.iter().map(|r| r.t_ns as f64 * 1e-9).collect();
