@@ -2,7 +2,8 @@
 //! burst of smoke no contrast survives) while the scope flies on 40 mm into new tissue. Relocalisation looks for
 //! known places only, so before this change the tracker stayed lost to the end. Now, once relocalisation has had
 //! its chance, a new map segment begins where the motion before the loss puts the scope: tracked from there on,
-//! right relative to itself, and flagged `Detached` (never `Ok`) while it is not tied back to the first map.
+//! right relative to itself, and flagged `Detached` (never `Ok`) while it is not tied back to the first map; when
+//! the scope comes back to tissue of the first map, it is found again and the frames there are `Ok`.
 
 mod common;
 
@@ -18,7 +19,7 @@ const DARK: usize = 60;
 const AFTER: usize = 24;
 
 #[test]
-fn a_scope_lost_in_new_tissue_goes_on_in_a_detached_segment_placed_where_it_was_heading() {
+fn a_scope_lost_in_new_tissue_goes_on_detached_where_it_was_heading_until_it_finds_the_first_map() {
     let colon = bdis_synth::colon::Colon::default();
     let truth = |i: usize| colon.forward_pose(i as f64 / FPS, 20.0);
     let mut tracker = colon_tracker();
@@ -86,4 +87,29 @@ fn a_scope_lost_in_new_tissue_goes_on_in_a_detached_segment_placed_where_it_was_
         assert!(error < 0.2 + 0.01 * flown, "frame {i}: {error:.3} mm off over {flown:.1} mm in the segment");
         assert!(moved.rotation.angle_to(&truly.rotation).to_degrees() < 0.5, "frame {i}");
     }
+
+    // The scope is pulled back to where the flight began (frames 5–14 again): relocalisation finds the first map,
+    // and the frames on it are no longer detached.
+    let t_back = results.len();
+    let mut again = Vec::new();
+    for (k, i) in (5..15).enumerate() {
+        let t_ns = ((t_back + k) as f64 / FPS * 1e9).round() as u64;
+        let (left, right) = colon_frame(i);
+        match tracker.track(t_ns, &left, &right) {
+            Ok(r) => again.push((i, r)),
+            Err(e) => panic!("frame {i} again: {e}"),
+        }
+    }
+    let Some(found) = again.iter().position(|(_, r)| r.relocalised) else {
+        panic!("the first map was not found again: {:?}", again.iter().map(|(_, r)| r.state).collect::<Vec<_>>())
+    };
+    for (i, r) in &again[found..] {
+        assert_eq!(r.state, TrackingState::Ok, "frame {i} again: {:?}", r.quality);
+        let (Some(now), Some(then)) = (r.camera_from_world, results[*i].camera_from_world) else {
+            panic!("frame {i}: no pose")
+        };
+        let moved = (now.inverse().translation.vector - then.inverse().translation.vector).norm();
+        assert!(moved < 0.5, "frame {i} again: {moved:.3} mm from where it was tracked the first time");
+    }
+    tracker.finish();
 }
