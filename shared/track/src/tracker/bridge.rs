@@ -15,7 +15,9 @@ pub(super) const VELOCITY_WINDOW_S: f64 = 0.2;
 /// How a frame was seen, as far as the bridge is concerned.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub(super) enum View {
-    /// Tracked, and trusted: the bridge may end here and take its velocity from here.
+    /// Tracked without doubt, or doubted only for a moving map or a detached segment (both doubt where the
+    /// frame is in the world, not its motion), in a clear view: the bridge may end here and take its velocity
+    /// from here.
     Clear,
     /// Tracked with no doubt, but its contrast was short of a clear view's ([`super::quality::CONTRAST_RESTORED`]):
     /// a haze coming or going.
@@ -33,8 +35,9 @@ pub(super) enum View {
 /// and the `Doubted` frames just after it (tracking picking up again: the first frames after a veil are often
 /// doubted, and a bridge that ended on one would take its end and its velocity from a pose nobody trusts), but
 /// no longer an aftermath than the veil itself: past that the doubted frames' own poses say more than a curve
-/// through the veil would. `Lost` frames after the veil are taken in too, when tracking resumes after them. The veil lifts only once the view is clear, so no hazy frame follows one. `t_s` are
-/// the frames' times (s), `world_from_camera` their poses, rewritten in place.
+/// through the veil would. `Lost` frames after the veil are taken in too, when tracking resumes after them. The
+/// veil lifts only once the view is clear, so no hazy frame follows one. `t_s` are the frames' times (s),
+/// `world_from_camera` their poses, rewritten in place.
 pub(super) fn bridge_veils(t_s: &[f64], world_from_camera: &mut [Isometry3<f64>], views: &[View]) {
     let n = t_s.len();
     let clear = |k: usize| views[k] == View::Clear;
