@@ -4,8 +4,9 @@
 //! A development tool; for one run with diagnostics use `track_sequence`.
 //!
 //! cargo run --release -p bdis-track --example track_starts -- <dir> --starts 0,3,7,11 [--frames N]
-//!     [--gt F] [--settings F] [--whole-pixel] [--no-loop-closing] [--out PREFIX]
+//!     [--gt F] [--settings F] [--whole-pixel] [--no-loop-closing] [--out PREFIX] [--loops]
 //!
+//! Per start it also counts the frames `Lost` and `Uncertain`; `--loops` lists the loops closed (on stderr).
 //! Start K tracks frames K … K + N − 1 (N: all that are left); `--gt` defaults to `<dir>/gt/poses.tum`;
 //! `--out PREFIX` writes each start's trajectory to PREFIX-K.tum.
 #![allow(clippy::unwrap_used, clippy::expect_used)]
