@@ -67,6 +67,7 @@ fn doubt_code(doubt: Option<Doubt>) -> u32 {
         Some(Doubt::LowContrast) => doubt::LOW_CONTRAST,
         Some(Doubt::MapMoving) => doubt::MAP_MOVING,
         Some(Doubt::Detached) => doubt::DETACHED,
+        Some(Doubt::PriorlessFewInliers) => doubt::PRIORLESS_FEW_INLIERS,
     }
 }
 

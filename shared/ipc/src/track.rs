@@ -13,8 +13,8 @@ pub mod tracking_state {
     pub const END_OF_STREAM: u32 = 3;
     /// Tracked, but the images do not support the pose well enough to trust it (`PoseRecord::doubt` says
     /// why): the pose is there, and no keyframe is made from it (unless the doubt is `MAP_MOVING`: the next
-    /// keyframe's adjustment is what settles the map; or `DETACHED`: its keyframes are what the new segment is
-    /// tracked with).
+    /// keyframe's adjustment is what settles the map; `DETACHED`: its keyframes are what the new segment is
+    /// tracked with; or `PRIORLESS_FEW_INLIERS`: in a jerk the keyframe is what the next frames hold on to).
     pub const UNCERTAIN: u32 = 4;
 }
 
@@ -32,8 +32,11 @@ pub mod doubt {
     /// Tracked on a map segment begun after a loss in tissue relocalisation did not know: right relative to the
     /// segment, but the segment's place in the world is the motion before the loss carried on.
     pub const DETACHED: u32 = 7;
+    /// Posed by appearance alone (no motion prior held: a jerk, a stop) on fewer than 50 inliers, the bar
+    /// for a pose found without a prior.
+    pub const PRIORLESS_FEW_INLIERS: u32 = 8;
     /// The highest code defined: what a consumer accepts (a new doubt moves it).
-    pub const LAST: u32 = DETACHED;
+    pub const LAST: u32 = PRIORLESS_FEW_INLIERS;
 
     /// The doubt's name as the tracker's quality log writes it (`few-inliers`, …; "" for none or an unknown
     /// code), for consumers that report it without linking the tracker.
@@ -46,6 +49,7 @@ pub mod doubt {
             LOW_CONTRAST => "low-contrast",
             MAP_MOVING => "map-moving",
             DETACHED => "detached",
+            PRIORLESS_FEW_INLIERS => "priorless-few-inliers",
             _ => "",
         }
     }

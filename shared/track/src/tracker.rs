@@ -353,9 +353,10 @@ impl Tracker {
                 self.velocity = Some(pose * last_pose.inverse());
             }
             // A keyframe fixes map points and the dense map at its pose: only from a pose the images support.
-            // A map still settling is the exception: the next keyframe's adjustment is what settles it.
-            let supported =
-                self.state == TrackingState::Ok || matches!(doubt, Some(Doubt::MapMoving | Doubt::Detached));
+            // A map still settling is the exception: the next keyframe's adjustment is what settles it. So is a
+            // jerk's priorless pose: the view has run ahead of the map, and the keyframe is what holds it.
+            let supported = self.state == TrackingState::Ok
+                || matches!(doubt, Some(Doubt::MapMoving | Doubt::Detached | Doubt::PriorlessFewInliers));
             if supported && self.need_keyframe(result.inliers) {
                 self.create_keyframe(&mut result);
             }

@@ -133,7 +133,7 @@ fn qos_poses_buffer() -> usize {
 }
 
 /// Every doubt the tracker can give.
-const DOUBTS: [Doubt; 7] = [
+const DOUBTS: [Doubt; 8] = [
     Doubt::FewInliers,
     Doubt::LowInlierRatio,
     Doubt::IllConditioned,
@@ -141,6 +141,7 @@ const DOUBTS: [Doubt; 7] = [
     Doubt::LowContrast,
     Doubt::MapMoving,
     Doubt::Detached,
+    Doubt::PriorlessFewInliers,
 ];
 
 /// The contract's doubt names (what consumers such as the OpenIGTLink output report) are the tracker's own.

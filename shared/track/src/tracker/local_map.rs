@@ -70,7 +70,11 @@ impl Tracker {
             }
         }
         result.inliers = inliers;
-        let needed = if self.last_reloc_frame.is_some_and(|r| frame_id < r + self.max_frames()) { 50 } else { 30 };
+        let needed = if self.last_reloc_frame.is_some_and(|r| frame_id < r + self.max_frames()) {
+            relocalise::PRIORLESS_INLIERS
+        } else {
+            30
+        };
         inliers >= needed
     }
 

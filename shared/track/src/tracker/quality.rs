@@ -65,6 +65,13 @@ pub enum Doubt {
     /// the segment is tied back (a loop closes, or the frame's pose rests on enough of the older points). Like
     /// `MapMoving` it does not stop keyframes: they are what the segment is tracked with.
     Detached,
+    /// Posed by appearance alone (the motion model failed or disagreed: a jerk, a stop) and held by fewer
+    /// inliers than a pose found without a prior needs ([`PRIORLESS_INLIERS`](super::relocalise::PRIORLESS_INLIERS),
+    /// ORB-SLAM2's bar after relocalisation). On renders of a tenfold jerk such frames were off by up to a
+    /// tenth of the step while their few inliers fitted well. Like `MapMoving` it does not stop keyframes: in
+    /// a jerk the view runs ahead of the map, and the keyframe is what the next frames are tracked against
+    /// (withholding it lost more than it saved, BENCHMARKS.md).
+    PriorlessFewInliers,
 }
 
 impl Doubt {
@@ -77,6 +84,7 @@ impl Doubt {
             Self::LowContrast => "low-contrast",
             Self::MapMoving => "map-moving",
             Self::Detached => "detached",
+            Self::PriorlessFewInliers => "priorless-few-inliers",
         }
     }
 }
@@ -264,6 +272,10 @@ impl Tracker {
             Some(Doubt::LowInlierRatio)
         } else if quality.position_sigma_rel.is_nan() || quality.position_sigma_rel > MAX_POSITION_SIGMA_REL {
             Some(Doubt::IllConditioned)
+        } else if quality.method == PoseMethod::Appearance
+            && (quality.inliers as usize) < super::relocalise::PRIORLESS_INLIERS
+        {
+            Some(Doubt::PriorlessFewInliers)
         } else if self.map_moved_rel > MAX_MAP_MOVE_REL {
             Some(Doubt::MapMoving)
         } else {

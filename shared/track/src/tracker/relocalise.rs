@@ -4,6 +4,11 @@
 
 use super::*;
 
+/// Inliers a pose found without a prior must have to be trusted (§5.7: ORB-SLAM2's bar after relocalisation,
+/// and for the frames that follow it). A pose from few matches and no prior can fit them well and still be off
+/// by a tenth of a step: the search that found them was centred on it.
+pub const PRIORLESS_INLIERS: usize = 50;
+
 impl Tracker {
     /// §5.7 without a vocabulary (§7.3 B): candidate keyframes by brute-force descriptor votes, a 3-point
     /// RANSAC on the frame's stereo points (each keypoint with a depth is a 3-D point, so absolute orientation
@@ -146,7 +151,7 @@ impl Tracker {
             return false;
         }
         self.drop_outliers();
-        if good < 50 {
+        if good < PRIORLESS_INLIERS {
             let found: BTreeSet<PointId> = self.current.points.iter().flatten().copied().collect();
             let added = self.searcher.from_keyframe(
                 &self.cam,
@@ -158,11 +163,11 @@ impl Tracker {
                 10.0,
                 100,
             );
-            if good + added >= 50 {
+            if good + added >= PRIORLESS_INLIERS {
                 good = self.optimise_current();
                 self.drop_outliers();
             }
         }
-        good >= 50
+        good >= PRIORLESS_INLIERS
     }
 }

@@ -1,7 +1,7 @@
 //! A new map segment when the tracker is lost in tissue the map does not hold (ORB-SLAM2-STEREO.md §5.7 finds
 //! known places only): where it is placed, and when it is tied back.
 
-use super::{FrameResult, Tracker, TrackingState, bridge};
+use super::{FrameResult, Tracker, TrackingState, bridge, relocalise};
 use crate::map::{KfId, PointId};
 use crate::tracker::quality::{Doubt, PoseMethod};
 use nalgebra::{Isometry3, UnitQuaternion};
@@ -13,7 +13,7 @@ use nalgebra::{Isometry3, UnitQuaternion};
 pub const RESTART_AFTER_S: f64 = 0.3;
 /// Inliers on points made before a restart that tie the new segment back to the older map: relocalisation's
 /// bar for a pose found against a keyframe's points (§5.7).
-const TIED_BACK_INLIERS: usize = 50;
+const TIED_BACK_INLIERS: usize = relocalise::PRIORLESS_INLIERS;
 
 #[derive(Debug, Clone, Copy)]
 pub(super) struct Detachment {
