@@ -111,6 +111,9 @@ pub struct Tracker {
     reference_kf: Option<KfId>,
     last_kf_frame: u64,
     last_reloc_frame: Option<u64>,
+    /// Where relocalisation's scan of the whole map goes on from on the next lost frame
+    /// ([`relocalise::SCAN_PER_FRAME`] keyframes a frame).
+    reloc_scan_next: KfId,
     local_kfs: Vec<KfId>,
     local_points: Vec<PointId>,
     /// Per keyframe id: votes of the current frame's points, and the frame that last included it locally.
@@ -197,6 +200,7 @@ impl Tracker {
             reference_kf: None,
             last_kf_frame: 0,
             last_reloc_frame: None,
+            reloc_scan_next: 0,
             // Capacities of a large local map, so that a warmed-up frame does not grow them (they still grow,
             // amortised, past these sizes).
             local_kfs: Vec::with_capacity(128),

@@ -4,6 +4,14 @@
 
 use super::*;
 
+/// Keyframes away from the last pose whose points each lost frame also tries, in turn over the whole map: a
+/// scope taken out (to clean the lens) and put back, or moved while the view was lost, can come back to any
+/// place it has mapped. At least this many a frame, and more in a large map, so that one pass over it ends
+/// before a new segment would begin ([`segment::RESTART_AFTER_S`](super::segment::RESTART_AFTER_S)): a
+/// segment is begun only where no keyframe knows the place. Each costs a descriptor vote (every keypoint
+/// against the keyframe's points, ≈ 0.4 ms at 1000 features).
+pub const SCAN_PER_FRAME: usize = 6;
+
 /// Inliers a pose found without a prior must have to be trusted (§5.7: ORB-SLAM2's bar after relocalisation,
 /// and for the frames that follow it). A pose from few matches and no prior can fit them well and still be off
 /// by a tenth of a step: the search that found them was centred on it.
@@ -12,16 +20,17 @@ pub const PRIORLESS_INLIERS: usize = 50;
 impl Tracker {
     /// §5.7 without a vocabulary (§7.3 B): candidate keyframes by brute-force descriptor votes, a 3-point
     /// RANSAC on the frame's stereo points (each keypoint with a depth is a 3-D point, so absolute orientation
-    /// replaces PnP), then pose optimisation and guided search as in ORB-SLAM2.
+    /// replaces PnP), then pose optimisation and guided search as in ORB-SLAM2. The candidates are the places
+    /// near the last pose, and the next [`SCAN_PER_FRAME`] keyframes of a scan over the whole map.
     pub(super) fn relocalise(&mut self) -> bool {
         let n = self.current.len();
         if n == 0 {
             return false;
         }
         // Candidates (§7.3 B): the camera is most likely near where it was last seen, so the last reference
-        // keyframe, its covisibles and the keyframes nearest to the last pose; when the last pose is unknown or
-        // those fail, every keyframe. Each is ranked by descriptor votes (a frame keypoint whose best match among
-        // the keyframe's points passes TH_LOW and the ratio test).
+        // keyframe, its covisibles and the keyframes nearest to the last pose; then, in turn over the lost
+        // frames, every other keyframe (`scan_candidates`). Each is ranked by descriptor votes (a frame keypoint
+        // whose best match among the keyframe's points passes TH_LOW and the ratio test).
         let mut near: Vec<KfId> = Vec::new();
         if let Some(r) = self.reference_kf.filter(|&r| !self.map.keyframes[r].bad) {
             near.push(r);
@@ -36,6 +45,7 @@ impl Tracker {
         }
         let mut seen = BTreeSet::new();
         near.retain(|k| seen.insert(*k) && !self.map.keyframes[*k].bad);
+        self.scan_candidates(&mut near);
         let mut scored: Vec<(usize, KfId)> =
             near.iter().map(|&k| (self.votes(k), k)).filter(|(v, _)| *v >= 15).collect();
         scored.sort_by(|a, b| b.0.cmp(&a.0).then(a.1.cmp(&b.1)));
@@ -47,6 +57,27 @@ impl Tracker {
             }
         }
         false
+    }
+
+    /// Appends to `candidates` the next good keyframes of the scan over the whole map that are not among them
+    /// already ([`SCAN_PER_FRAME`], or the map's share of a pass within the restart's wait), and moves the scan
+    /// on (back to the oldest after the newest).
+    fn scan_candidates(&mut self, candidates: &mut Vec<KfId>) {
+        let n = self.map.keyframes.len();
+        let wait_frames = (super::segment::RESTART_AFTER_S * self.settings.fps).floor().max(1.0) as usize;
+        let quota = SCAN_PER_FRAME.max(self.map.n_good_keyframes().div_ceil(wait_frames));
+        let mut added = 0;
+        for _ in 0..n {
+            if added == quota {
+                break;
+            }
+            let k = self.reloc_scan_next % n;
+            self.reloc_scan_next = (k + 1) % n;
+            if !self.map.keyframes[k].bad && !candidates.contains(&k) {
+                candidates.push(k);
+                added += 1;
+            }
+        }
     }
 
     /// Frame keypoints whose best match among keyframe `kf`'s points is ≤ TH_LOW and < 0.75 of the second best.
