@@ -111,8 +111,8 @@ pub struct Tracker {
     reference_kf: Option<KfId>,
     last_kf_frame: u64,
     last_reloc_frame: Option<u64>,
-    /// Where relocalisation's scan of the whole map goes on from on the next lost frame
-    /// ([`relocalise::SCAN_PER_FRAME`] keyframes a frame).
+    /// Where relocalisation's scan of the whole map goes on from on the next lost frame (at least
+    /// [`relocalise::SCAN_PER_FRAME`] keyframes a frame).
     reloc_scan_next: KfId,
     local_kfs: Vec<KfId>,
     local_points: Vec<PointId>,

@@ -8,6 +8,8 @@ use bdis_track::{PoseMethod, TrackingState};
 use nalgebra::{Isometry3, Vector3};
 
 const STEP_NS: u64 = 33_333_333;
+/// The flight's step: 20 mm/s at 30 frames a second.
+const STEP_MM: f64 = 20.0 / 30.0;
 
 /// The renderer's camera at frame `i` relative to frame 0 (the tracker's world), as `world_from_camera`.
 fn truth(i: usize) -> Isometry3<f64> {
@@ -131,7 +133,7 @@ fn a_jerk_s_priorless_poses_are_right_or_do_not_claim_to_be() {
         eprintln!("{line}");
         // Judged from four steps of travel on: below that, 1 % of it is under this size's floor (clear frames
         // of this flight are 0.01–0.04 mm off their keyframe).
-        if result.state == TrackingState::Ok && travelled > 4.0 * 0.67 && error > 0.01 * travelled {
+        if result.state == TrackingState::Ok && travelled > 4.0 * STEP_MM && error > 0.01 * travelled {
             claimed_wrong.push(line);
         } else if result.state == TrackingState::Uncertain {
             doubted.push(line);
