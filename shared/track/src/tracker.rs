@@ -310,7 +310,7 @@ impl Tracker {
             result.quality.method = PoseMethod::Relocalisation;
             if !r && !self.veil.is_down() && self.enough_to_begin(keep_out) {
                 self.unplaced_frames += 1;
-                if self.unplaced_frames as f64 >= segment::RESTART_AFTER_S * self.settings.fps {
+                if self.unplaced_frames >= self.restart_after_frames() {
                     self.restart(&mut result);
                     self.finish_frame(&mut result);
                     return Ok(result);

@@ -21,7 +21,7 @@ impl Tracker {
     /// §5.7 without a vocabulary (§7.3 B): candidate keyframes by brute-force descriptor votes, a 3-point
     /// RANSAC on the frame's stereo points (each keypoint with a depth is a 3-D point, so absolute orientation
     /// replaces PnP), then pose optimisation and guided search as in ORB-SLAM2. The candidates are the places
-    /// near the last pose, and the next [`SCAN_PER_FRAME`] keyframes of a scan over the whole map.
+    /// near the last pose, and the next keyframes (at least [`SCAN_PER_FRAME`]) of a scan over the whole map.
     pub(super) fn relocalise(&mut self) -> bool {
         let n = self.current.len();
         if n == 0 {
@@ -64,8 +64,7 @@ impl Tracker {
     /// on (back to the oldest after the newest).
     fn scan_candidates(&mut self, candidates: &mut Vec<KfId>) {
         let n = self.map.keyframes.len();
-        let wait_frames = (super::segment::RESTART_AFTER_S * self.settings.fps).floor().max(1.0) as usize;
-        let quota = SCAN_PER_FRAME.max(self.map.n_good_keyframes().div_ceil(wait_frames));
+        let quota = SCAN_PER_FRAME.max(self.map.n_good_keyframes().div_ceil(self.restart_after_frames() as usize));
         let mut added = 0;
         for _ in 0..n {
             if added == quota {

@@ -24,6 +24,11 @@ pub(super) struct Detachment {
 }
 
 impl Tracker {
+    /// [`RESTART_AFTER_S`] in frames at this footage's rate: the unplaced frames after which a segment begins.
+    pub(super) fn restart_after_frames(&self) -> u64 {
+        (RESTART_AFTER_S * self.settings.fps).ceil().max(1.0) as u64
+    }
+
     /// Begins a new map segment at the current frame, lost for [`RESTART_AFTER_S`] in frames relocalisation could
     /// not place: the scope has gone on into tissue the map does not hold (a fast flight through smoke, a jerk
     /// into new tissue), where relocalisation, which looks for known places only, would never find it. The
