@@ -6,7 +6,6 @@ use crate::geometry::{CameraFromWorld, RectifiedCamera};
 use crate::map::{KfId, Map, PointId};
 use crate::optim::CHI2_MONO;
 use bdis_orb::{RotationBins, RotationHistogram, hamming};
-use std::collections::BTreeSet;
 
 pub const TH_HIGH: u32 = 100;
 pub const TH_LOW: u32 = 45;
@@ -119,7 +118,7 @@ impl Searcher {
 
     /// Projects keyframe `kf`'s points into `frame` (posed) and links matches to keypoints without a point:
     /// radius `th·s_pred`, octaves pred ± 1, best ≤ `max_distance`, rotation filter. Points in `skip` are left
-    /// out. For relocalisation (§5.7) and reference-keyframe tracking (our replacement for its BoW search).
+    /// out (sorted). For relocalisation (§5.7) and reference-keyframe tracking (our replacement for its BoW search).
     #[allow(clippy::too_many_arguments)]
     pub fn from_keyframe(
         &mut self,
@@ -128,7 +127,7 @@ impl Searcher {
         map: &Map,
         frame: &mut Frame,
         kf: KfId,
-        skip: &BTreeSet<PointId>,
+        skip: &[PointId],
         th: f64,
         max_distance: u32,
     ) -> usize {
@@ -140,7 +139,7 @@ impl Searcher {
         for (i, p) in map.keyframes[kf].points.iter().enumerate() {
             let Some(p) = *p else { continue };
             let point = &map.points[p];
-            if point.bad || skip.contains(&p) {
+            if point.bad || skip.binary_search(&p).is_ok() {
                 continue;
             }
             let pc = pose * point.position;

@@ -29,7 +29,6 @@ use crate::refine::{Aligner, Anchor, Unrefined};
 use crate::search::{Searcher, TH_HIGH, TH_LOW, frustum_check};
 use bdis_orb::{OrbError, OrbParams, hamming};
 use nalgebra::{Isometry3, Point3};
-use std::collections::BTreeSet;
 
 /// Frames after a relocalisation during which no keyframe is made.
 pub const RELOCALISATION_HOLDOFF_FRAMES: u64 = 5;
@@ -142,6 +141,7 @@ pub struct Tracker {
     new_point_anchors: Vec<Option<(Anchor, bool)>>,
     residual_scratch: Vec<f64>,
     appearance: appearance::AppearanceScratch,
+    reloc: relocalise::RelocScratch,
     /// How far the last applied local bundle adjustment moved its keyframe, over that keyframe's median depth
     /// ([`MapperReport::ba_moved_rel`]): the map the frames are tracked against, still moving by that much.
     map_moved_rel: f64,
@@ -225,6 +225,7 @@ impl Tracker {
             new_point_anchors: Vec::with_capacity(1 << 12),
             residual_scratch: Vec::with_capacity(1 << 12),
             appearance: appearance::AppearanceScratch::with_capacity(settings.orb.n_features as usize),
+            reloc: relocalise::RelocScratch::with_capacity(settings.orb.n_features as usize),
             map_moved_rel: 0.0,
             veil: quality::Veil::Clear,
             contrast_ratio: f32::NAN,

@@ -53,3 +53,38 @@ fn a_warmed_up_instrument_estimate_allocates_nothing() {
         assert_eq!(found.regions, 1);
     }
 }
+
+#[test]
+fn a_warmed_up_lost_frame_allocates_nothing() {
+    // The flight is tracked, then the scope is 60 mm further on, in tissue the map does not hold: every frame is
+    // lost and relocalisation votes, and may try RANSAC, over the keyframes until a segment begins. A scope lost
+    // in smoke or put down spends many frames there; they must cost no more than tracked ones.
+    const SEEN: usize = 20;
+    /// 60 mm on (90 frames of 0.67 mm).
+    const AHEAD: usize = 90;
+    let mut tracker = common::colon_tracker();
+    // Frames relocalisation has before a segment begins (the tracker's own count at 30 fps).
+    let restart_after = (bdis_track::RESTART_AFTER_S * 30.0).ceil() as usize;
+    let (mut checked, mut worst) = (0, 0);
+    for k in 0..SEEN + restart_after - 1 {
+        let i = if k < SEEN { k } else { k + AHEAD };
+        let (left, right) = common::colon_frame(i);
+        let before = bdis_testkit::allocations();
+        let result = tracker.track(k as u64 * 33_333_333, &left, &right).unwrap();
+        let allocations = bdis_testkit::allocations() - before;
+        if k < SEEN {
+            assert_eq!(result.state, bdis_track::TrackingState::Ok, "frame {k}");
+        } else {
+            assert_eq!(result.state, bdis_track::TrackingState::Lost, "frame {k}: new tissue, {:?}", result.quality);
+            // Warm-up: the first two lost frames size the relocalisation's buffers.
+            if k >= SEEN + 2 {
+                checked += 1;
+                worst = worst.max(allocations);
+            }
+            eprintln!("lost frame {k}: {allocations} allocations");
+        }
+    }
+    tracker.finish();
+    assert!(checked >= 3, "only {checked} lost frames to check");
+    assert_eq!(worst, 0, "a warmed-up lost frame allocated {worst} times");
+}

@@ -124,16 +124,8 @@ impl Tracker {
         let Some(last_pose) = self.last.camera_from_world else { return false };
         self.current.camera_from_world = Some(last_pose);
         self.current.points.fill(None);
-        let n = self.searcher.from_keyframe(
-            &self.cam,
-            &self.scales,
-            &self.map,
-            &mut self.current,
-            r,
-            &BTreeSet::new(),
-            15.0,
-            TH_HIGH,
-        );
+        let n =
+            self.searcher.from_keyframe(&self.cam, &self.scales, &self.map, &mut self.current, r, &[], 15.0, TH_HIGH);
         if n < 15 {
             return false;
         }

@@ -17,40 +17,98 @@ pub const SCAN_PER_FRAME: usize = 6;
 /// by a tenth of a step: the search that found them was centred on it.
 pub const PRIORLESS_INLIERS: usize = 50;
 
+/// Reusable buffers of relocalisation (owned by the tracker): a lost frame allocates nothing once the first one
+/// has sized the lists that grow with the map (candidates by distance).
+#[derive(Debug, Default)]
+pub(super) struct RelocScratch {
+    /// The keyframes this frame tries, then the ones that passed the vote with their votes.
+    candidates: Vec<KfId>,
+    by_distance: Vec<(f64, KfId)>,
+    scored: Vec<(usize, KfId)>,
+    /// One keyframe's usable points and their descriptors (beside them, in the same order).
+    points: Vec<PointId>,
+    descriptors: Vec<[u8; 32]>,
+    /// Per keyframe point: already matched to a frame keypoint.
+    used: Vec<bool>,
+    pairs: Vec<(usize, PointId)>,
+    /// (frame keypoint, point, its stereo point in the camera).
+    stereo: Vec<(usize, PointId, Point3<f64>)>,
+    /// The points the frame is linked to, sorted: what the guided search leaves out.
+    linked: Vec<PointId>,
+}
+
+impl RelocScratch {
+    /// Room for keyframes and frames of `features` keypoints (twice, as the extractor may return a few more
+    /// than asked).
+    pub(super) fn with_capacity(features: usize) -> Self {
+        let n = 2 * features.max(1);
+        Self {
+            points: Vec::with_capacity(n),
+            descriptors: Vec::with_capacity(n),
+            used: Vec::with_capacity(n),
+            pairs: Vec::with_capacity(n),
+            stereo: Vec::with_capacity(n),
+            linked: Vec::with_capacity(n),
+            ..Self::default()
+        }
+    }
+}
+
 impl Tracker {
     /// §5.7 without a vocabulary (§7.3 B): candidate keyframes by brute-force descriptor votes, a 3-point
     /// RANSAC on the frame's stereo points (each keypoint with a depth is a 3-D point, so absolute orientation
     /// replaces PnP), then pose optimisation and guided search as in ORB-SLAM2. The candidates are the places
     /// near the last pose, and the next keyframes (at least [`SCAN_PER_FRAME`]) of a scan over the whole map.
     pub(super) fn relocalise(&mut self) -> bool {
-        let n = self.current.len();
-        if n == 0 {
+        if self.current.is_empty() {
             return false;
         }
+        let mut scratch = std::mem::take(&mut self.reloc);
+        let placed = self.relocalise_with(&mut scratch);
+        self.reloc = scratch;
+        placed
+    }
+
+    fn relocalise_with(&mut self, s: &mut RelocScratch) -> bool {
         // Candidates (§7.3 B): the camera is most likely near where it was last seen, so the last reference
         // keyframe, its covisibles and the keyframes nearest to the last pose; then, in turn over the lost
         // frames, every other keyframe (`scan_candidates`). Each is ranked by descriptor votes (a frame keypoint
         // whose best match among the keyframe's points passes TH_LOW and the ratio test).
-        let mut near: Vec<KfId> = Vec::new();
+        s.candidates.clear();
         if let Some(r) = self.reference_kf.filter(|&r| !self.map.keyframes[r].bad) {
-            near.push(r);
-            near.extend(self.map.keyframes[r].best_covisibles(5));
+            s.candidates.push(r);
+            s.candidates.extend(self.map.keyframes[r].best_covisibles(5));
         }
         if let Some((r, rel)) = self.last_from_reference {
             let last_centre = (rel * self.map.keyframe_pose(r)).inverse() * Point3::origin();
-            let mut by_distance: Vec<(f64, KfId)> =
-                self.map.good_keyframes().map(|k| ((k.centre() - last_centre).norm(), k.id)).collect();
-            by_distance.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
-            near.extend(by_distance.iter().take(5).map(|(_, k)| *k));
+            s.by_distance.clear();
+            s.by_distance.extend(self.map.good_keyframes().map(|k| ((k.centre() - last_centre).norm(), k.id)));
+            s.by_distance.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+            s.candidates.extend(s.by_distance.iter().take(5).map(|(_, k)| *k));
         }
-        let mut seen = BTreeSet::new();
-        near.retain(|k| seen.insert(*k) && !self.map.keyframes[*k].bad);
-        self.scan_candidates(&mut near);
-        let mut scored: Vec<(usize, KfId)> =
-            near.iter().map(|&k| (self.votes(k), k)).filter(|(v, _)| *v >= 15).collect();
-        scored.sort_by(|a, b| b.0.cmp(&a.0).then(a.1.cmp(&b.1)));
-        for &(_, kf) in scored.iter().take(5) {
-            if self.relocalise_against(kf) {
+        // Each once, in the order first named (a handful: a scan of the kept ones is cheaper than a set).
+        let mut kept = 0;
+        for j in 0..s.candidates.len() {
+            let k = s.candidates[j];
+            if !s.candidates[..kept].contains(&k) && !self.map.keyframes[k].bad {
+                s.candidates[kept] = k;
+                kept += 1;
+            }
+        }
+        s.candidates.truncate(kept);
+        self.scan_candidates(&mut s.candidates);
+        s.scored.clear();
+        for j in 0..s.candidates.len() {
+            let k = s.candidates[j];
+            let votes = self.votes(k, s);
+            if votes >= 15 {
+                s.scored.push((votes, k));
+            }
+        }
+        s.scored.sort_by(|a, b| b.0.cmp(&a.0).then(a.1.cmp(&b.1)));
+        for j in 0..s.scored.len().min(5) {
+            let kf = s.scored[j].1;
+            if self.relocalise_against(kf, s) {
                 self.last_reloc_frame = Some(self.current.id);
                 self.reference_kf = Some(kf);
                 return true;
@@ -79,76 +137,72 @@ impl Tracker {
         }
     }
 
-    /// Frame keypoints whose best match among keyframe `kf`'s points is ≤ TH_LOW and < 0.75 of the second best.
-    pub(super) fn votes(&self, kf: KfId) -> usize {
-        let descs: Vec<&[u8; 32]> = self.map.keyframes[kf]
-            .points
-            .iter()
-            .flatten()
-            .filter(|&&p| !self.map.points[p].bad)
-            .map(|&p| &self.map.points[p].descriptor)
-            .collect();
-        self.current
-            .descriptors
-            .iter()
-            .filter(|d| {
-                let (mut best, mut second) = (u32::MAX, u32::MAX);
-                for p in &descs {
-                    let h = hamming(d, p);
-                    if h < best {
-                        second = best;
-                        best = h;
-                    } else if h < second {
-                        second = h;
-                    }
-                }
-                best <= TH_LOW && f64::from(best) < 0.75 * f64::from(second)
-            })
-            .count()
-    }
-
-    pub(super) fn relocalise_against(&mut self, kf: KfId) -> bool {
-        // Matches: best descriptor (≤ TH_LOW, ratio 0.75) among the keyframe's points for each frame keypoint.
-        let mut pairs: Vec<(usize, PointId)> = Vec::new();
-        let points: Vec<PointId> =
-            self.map.keyframes[kf].points.iter().flatten().copied().filter(|&p| !self.map.points[p].bad).collect();
-        let mut used = BTreeSet::new();
-        for i in 0..self.current.len() {
-            let (mut best, mut second) = ((u32::MAX, usize::MAX), u32::MAX);
-            for &p in &points {
-                let d = hamming(&self.current.descriptors[i], &self.map.points[p].descriptor);
-                if d < best.0 {
-                    second = best.0;
-                    best = (d, p);
-                } else if d < second {
-                    second = d;
-                }
-            }
-            if best.0 <= TH_LOW && f64::from(best.0) < 0.75 * f64::from(second) && used.insert(best.1) {
-                pairs.push((i, best.1));
+    /// Keyframe `kf`'s usable points into `s.points`, their descriptors into `s.descriptors`.
+    fn keyframe_points(&self, kf: KfId, s: &mut RelocScratch) {
+        s.points.clear();
+        s.descriptors.clear();
+        for &p in self.map.keyframes[kf].points.iter().flatten() {
+            let point = &self.map.points[p];
+            if !point.bad {
+                s.points.push(p);
+                s.descriptors.push(point.descriptor);
             }
         }
-        let stereo: Vec<(usize, PointId, Point3<f64>)> = pairs
-            .iter()
-            .filter_map(|&(i, p)| {
-                let z = self.current.depth[i];
-                (z > 0.0).then(|| {
-                    let k = &self.current.keypoints[i];
-                    (i, p, self.cam.unproject(f64::from(k.x), f64::from(k.y), f64::from(z)))
-                })
-            })
-            .collect();
-        if stereo.len() < 15 {
+    }
+
+    /// Frame keypoints whose best match among keyframe `kf`'s points is ≤ TH_LOW and < 0.75 of the second best.
+    fn votes(&self, kf: KfId, s: &mut RelocScratch) -> usize {
+        self.keyframe_points(kf, s);
+        self.current.descriptors.iter().filter(|d| best_two(d, &s.descriptors).is_some()).count()
+    }
+
+    fn relocalise_against(&mut self, kf: KfId, s: &mut RelocScratch) -> bool {
+        // Matches: best descriptor (≤ TH_LOW, ratio 0.75) among the keyframe's points for each frame keypoint,
+        // each point to one keypoint (the first that names it).
+        self.keyframe_points(kf, s);
+        s.used.clear();
+        s.used.resize(s.points.len(), false);
+        // A keyframe can hold one point at two keypoints (after a fusion): a point is used once, whichever of
+        // its keypoints matched.
+        s.linked.clear();
+        s.linked.extend_from_slice(&s.points);
+        s.linked.sort_unstable();
+        let repeats = s.linked.windows(2).any(|w| w[0] == w[1]);
+        s.pairs.clear();
+        for (i, d) in self.current.descriptors.iter().enumerate() {
+            let Some(j) = best_two(d, &s.descriptors) else { continue };
+            if s.used[j] {
+                continue;
+            }
+            let p = s.points[j];
+            if repeats {
+                for (used, _) in s.used.iter_mut().zip(&s.points).filter(|(_, q)| **q == p) {
+                    *used = true;
+                }
+            }
+            s.used[j] = true;
+            s.pairs.push((i, p));
+        }
+        s.stereo.clear();
+        for &(i, p) in &s.pairs {
+            let z = self.current.depth[i];
+            if z > 0.0 {
+                let k = &self.current.keypoints[i];
+                s.stereo.push((i, p, self.cam.unproject(f64::from(k.x), f64::from(k.y), f64::from(z))));
+            }
+        }
+        if s.stereo.len() < 15 {
             return false;
         }
         // RANSAC: 3 correspondences → camera_from_world by absolute orientation; inliers by reprojection.
         let mut best: (usize, Option<CameraFromWorld>) = (0, None);
         for _ in 0..300 {
-            let Some(pick) = draw_three(&mut self.ransac_state, stereo.len()) else { continue };
-            let src: Vec<Point3<f64>> = pick.iter().map(|&k| self.map.points[stereo[k].1].position).collect();
-            let dst: Vec<Point3<f64>> = pick.iter().map(|&k| stereo[k].2).collect();
+            let Some(pick) = draw_three(&mut self.ransac_state, s.stereo.len()) else { continue };
+            let src = pick.map(|k| self.map.points[s.stereo[k].1].position);
+            let dst = pick.map(|k| s.stereo[k].2);
             let Some(t) = rigid_fit(&src, &dst) else { continue };
-            let inliers = stereo
+            let inliers = s
+                .stereo
                 .iter()
                 .filter(|(i, p, _)| {
                     let pc = t * self.map.points[*p].position;
@@ -173,7 +227,7 @@ impl Tracker {
         self.current.camera_from_world = Some(pose);
         self.current.points.fill(None);
         self.current.outlier.fill(false);
-        for &(i, p) in &pairs {
+        for &(i, p) in &s.pairs {
             self.current.points[i] = Some(p);
         }
         let mut good = self.optimise_current();
@@ -182,14 +236,16 @@ impl Tracker {
         }
         self.drop_outliers();
         if good < PRIORLESS_INLIERS {
-            let found: BTreeSet<PointId> = self.current.points.iter().flatten().copied().collect();
+            s.linked.clear();
+            s.linked.extend(self.current.points.iter().flatten().copied());
+            s.linked.sort_unstable();
             let added = self.searcher.from_keyframe(
                 &self.cam,
                 &self.scales,
                 &self.map,
                 &mut self.current,
                 kf,
-                &found,
+                &s.linked,
                 10.0,
                 100,
             );
@@ -200,4 +256,19 @@ impl Tracker {
         }
         good >= PRIORLESS_INLIERS
     }
+}
+
+/// The index of `d`'s best match among `descriptors` when it is ≤ TH_LOW and < 0.75 of the second best.
+fn best_two(d: &[u8; 32], descriptors: &[[u8; 32]]) -> Option<usize> {
+    let ((mut best, mut at), mut second) = ((u32::MAX, usize::MAX), u32::MAX);
+    for (j, p) in descriptors.iter().enumerate() {
+        let h = hamming(d, p);
+        if h < best {
+            second = best;
+            (best, at) = (h, j);
+        } else if h < second {
+            second = h;
+        }
+    }
+    (best <= TH_LOW && f64::from(best) < 0.75 * f64::from(second)).then_some(at)
 }
