@@ -246,7 +246,7 @@ pub fn run(config: Config) -> Result<()> {
     let mut stream: StreamGuard = StreamGuard::resuming_after(earlier.last_frame_seq());
     let mut counts =
         Counts { frame_ms: Vec::with_capacity(4096), keyframe_ms: Vec::with_capacity(1024), ..Default::default() };
-    let mut quality_log = crate::quality_log::QualityLog::open(&out_dir)?;
+    let mut quality_log = crate::quality_log::QualityLog::open(&out_dir, earlier.last_frame_seq().is_some())?;
     // Frames acquisition published that this instance never saw (overwritten while it was busy); the stream's
     // frames are numbered from 0, so a first frame numbered later says how many were missed before it.
     let (mut missed_frames, mut last_tracked): (u64, Option<u64>) = (0, earlier.last_frame_seq());

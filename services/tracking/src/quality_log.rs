@@ -1,6 +1,7 @@
 //! `tracking-quality.csv`: one line per frame on how well the images supported its pose (see
 //! `bdis_track::TrackingQuality`), so a user can see where tracking was weak and why. Appended as frames are
-//! tracked (a restarted tracker continues the file); buffered, flushed at the end of the stream.
+//! tracked (a tracker restarted after a crash continues the file; a new run in the same folder starts it
+//! anew); buffered, flushed at the end of the stream.
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -29,14 +30,18 @@ pub fn state_name(state: TrackingState) -> &'static str {
 }
 
 impl QualityLog {
-    pub fn open(dir: &Path) -> Result<Self> {
+    /// Opens the log in run folder `dir`: continued when `continuing` an earlier instance of the same run (its
+    /// frames are already there), else started anew, so that a run in a folder an earlier run used does not
+    /// carry that run's frames.
+    pub fn open(dir: &Path, continuing: bool) -> Result<Self> {
         let path = dir.join(FILE_NAME);
-        let fresh = std::fs::metadata(&path).map_or(true, |m| m.len() == 0);
-        let file = std::fs::OpenOptions::new()
-            .create(true)
-            .append(true)
-            .open(&path)
-            .with_context(|| format!("{}: cannot open", path.display()))?;
+        let fresh = !continuing || std::fs::metadata(&path).map_or(true, |m| m.len() == 0);
+        let file = if continuing {
+            std::fs::OpenOptions::new().create(true).append(true).open(&path)
+        } else {
+            std::fs::File::create(&path)
+        }
+        .with_context(|| format!("{}: cannot open", path.display()))?;
         let mut out = std::io::BufWriter::new(file);
         if fresh {
             writeln!(out, "{HEADER}").with_context(|| format!("{}: cannot write", path.display()))?;
@@ -76,5 +81,57 @@ impl QualityLog {
 
     pub fn finish(&mut self) -> Result<()> {
         self.out.flush().with_context(|| format!("{}: cannot write", self.path.display()))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used)] // test code: a panic is the failure report
+    use super::*;
+
+    fn lines(dir: &Path) -> Vec<String> {
+        std::fs::read_to_string(dir.join(FILE_NAME)).unwrap().lines().map(str::to_owned).collect()
+    }
+
+    #[test]
+    fn a_new_run_starts_the_log_anew_and_a_restarted_tracker_continues_it() {
+        let dir = std::env::temp_dir().join(format!("bdis-quality-log-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let result = FrameResult {
+            frame_id: 0,
+            t_ns: 0,
+            state: TrackingState::Lost,
+            camera_from_world: None,
+            inliers: 0,
+            new_keyframe: None,
+            mapper: None,
+            relocalised: false,
+            new_segment: false,
+            quality: bdis_track::TrackingQuality::default(),
+        };
+        let mut log = QualityLog::open(&dir, false).unwrap();
+        log.frame(0, &result, 1_000_000, None).unwrap();
+        log.frame(1, &result, 1_000_000, Some(1)).unwrap();
+        log.finish().unwrap();
+        drop(log);
+        assert_eq!(lines(&dir).len(), 3);
+        // The same run's tracker restarted after frame 1 adds its frames after the earlier ones.
+        let mut log = QualityLog::open(&dir, true).unwrap();
+        log.frame(2, &result, 1_000_000, None).unwrap();
+        log.finish().unwrap();
+        drop(log);
+        let continued = lines(&dir);
+        assert_eq!(continued.len(), 4, "{continued:?}");
+        assert_eq!(continued[0], HEADER);
+        assert!(continued[3].starts_with("2,"));
+        // A new run in the same folder: its frames only.
+        let mut log = QualityLog::open(&dir, false).unwrap();
+        log.frame(0, &result, 1_000_000, None).unwrap();
+        log.finish().unwrap();
+        drop(log);
+        let anew = lines(&dir);
+        assert_eq!(anew.len(), 2, "{anew:?}");
+        assert_eq!(anew[0], HEADER);
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 }
