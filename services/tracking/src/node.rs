@@ -68,6 +68,7 @@ fn doubt_code(doubt: Option<Doubt>) -> u32 {
         Some(Doubt::MapMoving) => doubt::MAP_MOVING,
         Some(Doubt::Detached) => doubt::DETACHED,
         Some(Doubt::PriorlessFewInliers) => doubt::PRIORLESS_FEW_INLIERS,
+        Some(Doubt::Unconfirmed) => doubt::UNCONFIRMED,
     }
 }
 

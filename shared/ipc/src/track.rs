@@ -35,8 +35,11 @@ pub mod doubt {
     /// Posed by appearance alone (no motion prior held: a jerk, a stop) on fewer than 50 inliers, the bar
     /// for a pose found without a prior.
     pub const PRIORLESS_FEW_INLIERS: u32 = 8;
+    /// A frame lost because its motion-model pose kept under half the last frame's inliers and matching by
+    /// appearance found nothing to confirm it: the view changed wholesale (frames dropped, a cut).
+    pub const UNCONFIRMED: u32 = 9;
     /// The highest code defined: what a consumer accepts (a new doubt moves it).
-    pub const LAST: u32 = PRIORLESS_FEW_INLIERS;
+    pub const LAST: u32 = UNCONFIRMED;
 
     /// The doubt's name as the tracker's quality log writes it (`few-inliers`, …; "" for none or an unknown
     /// code), for consumers that report it without linking the tracker.
@@ -50,6 +53,7 @@ pub mod doubt {
             MAP_MOVING => "map-moving",
             DETACHED => "detached",
             PRIORLESS_FEW_INLIERS => "priorless-few-inliers",
+            UNCONFIRMED => "unconfirmed",
             _ => "",
         }
     }

@@ -156,6 +156,8 @@ pub struct Tracker {
     unplaced_frames: u64,
     /// Set while tracking on a segment begun by [`Self::restart`] that is not yet tied back.
     detached: Option<segment::Detachment>,
+    /// Inliers of the last tracked frame (not coasted): what a frame of the same view keeps most of.
+    confirmed_inliers: usize,
 }
 
 impl Tracker {
@@ -232,6 +234,7 @@ impl Tracker {
             last_coasted: false,
             unplaced_frames: 0,
             detached: None,
+            confirmed_inliers: 0,
         })
     }
 
@@ -347,6 +350,11 @@ impl Tracker {
             Some(Doubt::FewInliers)
         };
         result.quality.doubt = doubt;
+        // A pose nothing confirms, on a view that lost most of the last one's points, is no pose.
+        ok &= doubt != Some(Doubt::Unconfirmed);
+        if ok && !coasting {
+            self.confirmed_inliers = result.inliers;
+        }
         self.state = match (ok, doubt) {
             (false, _) => TrackingState::Lost,
             (true, None) => TrackingState::Ok,

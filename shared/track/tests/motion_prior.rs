@@ -144,3 +144,41 @@ fn a_jerk_s_priorless_poses_are_right_or_do_not_claim_to_be() {
     // The jerk is a real test of the doubt: some priorless pose in it needed it.
     assert!(!doubted.is_empty(), "no frame of the jerk was doubted");
 }
+
+/// A view that changes wholesale between two frames (frames dropped, a cut in a recording): the flight jumps
+/// 40 mm on, into tissue the map does not hold, with nothing between. The motion model's search, centred on
+/// its prediction, found 45 chance inliers there (the frame before had 215), and the frame was `Ok` 41 mm off,
+/// then made a keyframe at that pose, and every frame after it rested on that keyframe's points: `Ok` and
+/// 41 mm off to the end. Now a motion-model pose that appearance cannot confirm and that kept under half the
+/// last frame's support is no pose: the frame is lost, relocalisation looks for the place, and a detached
+/// segment begins where it finds none. No frame after the cut may claim to be where it is not.
+#[test]
+fn a_view_that_changes_wholesale_is_never_claimed_ok_where_it_is_not() {
+    const SEEN: usize = 20;
+    /// 60 frames at 0.67 mm: 40 mm on, the cut the motion model fell for.
+    const SKIPPED: usize = 60;
+    let mut tracker = common::colon_tracker();
+    let mut after = Vec::new();
+    for k in 0..SEEN + 20 {
+        let i = if k < SEEN { k } else { k + SKIPPED };
+        let (left, right) = common::colon_frame(i);
+        let result = tracker.track(k as u64 * STEP_NS, &left, &right).unwrap();
+        if k < SEEN {
+            assert_eq!(result.state, TrackingState::Ok, "frame {k}");
+            continue;
+        }
+        if result.state == TrackingState::Ok {
+            let pose = result.camera_from_world.unwrap();
+            // Whatever the tracker's frame now is, Ok must be right: within a tenth of the jump of the truth.
+            let error = position_error_mm(&pose, i);
+            assert!(error < 0.1 * SKIPPED as f64 * STEP_MM, "frame {k} (flight frame {i}) Ok {error:.1} mm off");
+        }
+        after.push((k, result.state, result.quality.doubt, result.new_keyframe.is_some()));
+    }
+    tracker.finish();
+    eprintln!("{after:?}");
+    // The first frame after the cut is lost for it, and makes no keyframe.
+    let (_, state, doubt, keyframe) = after[0];
+    assert_eq!((state, doubt), (TrackingState::Lost, Some(bdis_track::Doubt::Unconfirmed)), "{:?}", after[0]);
+    assert!(!keyframe, "a keyframe at the cut: {:?}", after[0]);
+}

@@ -133,7 +133,7 @@ fn qos_poses_buffer() -> usize {
 }
 
 /// Every doubt the tracker can give.
-const DOUBTS: [Doubt; 8] = [
+const DOUBTS: [Doubt; 9] = [
     Doubt::FewInliers,
     Doubt::LowInlierRatio,
     Doubt::IllConditioned,
@@ -142,6 +142,7 @@ const DOUBTS: [Doubt; 8] = [
     Doubt::MapMoving,
     Doubt::Detached,
     Doubt::PriorlessFewInliers,
+    Doubt::Unconfirmed,
 ];
 
 /// The contract's doubt names (what consumers such as the OpenIGTLink output report) are the tracker's own.
