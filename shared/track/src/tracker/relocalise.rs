@@ -21,7 +21,8 @@ pub const PRIORLESS_INLIERS: usize = 50;
 /// has sized the lists that grow with the map (candidates by distance).
 #[derive(Debug, Default)]
 pub(super) struct RelocScratch {
-    /// The keyframes this frame tries, then the ones that passed the vote with their votes.
+    /// The keyframes this frame tries; the good ones by distance from the last pose; those that passed the
+    /// vote, with their votes.
     candidates: Vec<KfId>,
     by_distance: Vec<(f64, KfId)>,
     scored: Vec<(usize, KfId)>,
