@@ -8,6 +8,7 @@ pub struct Counts {
     pub frames: u64,
     pub keyframes: u64,
     pub lost: u64,
+    pub lost_reasons: std::collections::BTreeMap<&'static str, u64>,
     pub uncertain: u64,
     pub doubts: std::collections::BTreeMap<&'static str, u64>,
     pub appearance_frames: u64,

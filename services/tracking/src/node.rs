@@ -368,7 +368,12 @@ pub fn run(config: Config) -> Result<()> {
             // not released, and one released before its journal line would be lost with a crash in between.
             bdis_ipc::notify(&credits, event_id::CONSUMED)?;
             counts.frames += 1;
-            counts.lost += u64::from(result.state == TrackingState::Lost);
+            if result.state == TrackingState::Lost {
+                counts.lost += 1;
+                if let Some(d) = result.quality.doubt {
+                    *counts.lost_reasons.entry(d.name()).or_default() += 1;
+                }
+            }
             if result.state == TrackingState::Uncertain {
                 counts.uncertain += 1;
                 if let Some(d) = result.quality.doubt {
@@ -453,6 +458,7 @@ fn write_summary(
         frames: earlier.frames.len() as u64 + counts.frames,
         frames_of_earlier_instances: earlier.frames.len() as u64,
         lost: counts.lost,
+        lost_reasons: counts.lost_reasons.iter().map(|(k, v)| ((*k).to_string(), *v)).collect(),
         uncertain: counts.uncertain,
         doubts: counts.doubts.iter().map(|(k, v)| ((*k).to_string(), *v)).collect(),
         appearance_frames: counts.appearance_frames,

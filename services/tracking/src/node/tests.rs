@@ -117,6 +117,7 @@ fn frames_in_poses_and_keyframes_out_over_shared_memory() {
     }
     let summary = TrackingSummary::read(&out_dir.join("tracking.json")).unwrap();
     assert_eq!((summary.frames, summary.lost), (n as u64, 0));
+    assert!(summary.lost_reasons.is_empty(), "{:?}", summary.lost_reasons);
     assert_eq!(summary.keyframes_created, received_keyframes.len() as u64);
     let trajectory = bdis_core::formats::trajectory::read_tum(&out_dir.join("trajectory.tum")).unwrap();
     assert_eq!(trajectory.len(), n);

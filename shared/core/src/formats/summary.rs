@@ -16,6 +16,9 @@ pub struct TrackingSummary {
     /// Of those, the frames of instances that crashed (from the journal).
     pub frames_of_earlier_instances: u64,
     pub lost: u64,
+    /// Of the lost frames, why, by reason (`few-inliers`, `unconfirmed`: a view that changed wholesale).
+    #[serde(default)]
+    pub lost_reasons: std::collections::BTreeMap<String, u64>,
     /// Frames tracked whose pose the tracker did not trust (`Uncertain`), and why, by reason.
     #[serde(default)]
     pub uncertain: u64,
