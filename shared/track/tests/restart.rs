@@ -113,3 +113,45 @@ fn a_scope_lost_in_new_tissue_goes_on_detached_where_it_was_heading_until_it_fin
     }
     tracker.finish();
 }
+
+/// A cut, then the flight back: the colon flight's frames 0–29, then 75–90 (the view jumps 30 mm on: a stall or
+/// a cut in a recording), then back from 90 to 0 over the tissue of both. The cut is lost and a detached
+/// segment begins where the motion before it leads, 30 mm short of the truth, so on the way back the segment's
+/// guessed place lies over the first map's tissue. Map reuse searched the first map's points from that guess
+/// and matched some by chance; with them a "loop" was closed across the seam, the segment was taken for tied
+/// back, and the frames flown back were `Ok` 30 mm off (29 of them). Now the first map's points are not searched
+/// from a detached segment's guess: it stays `detached` until the loop's 3-D check, which matches by
+/// appearance, finds the first map, and the correction puts it where it is.
+#[test]
+fn a_segment_flown_back_over_the_first_map_is_tied_back_by_appearance_not_by_chance() {
+    const SEEN: usize = 30;
+    const CUT_FROM: usize = 75;
+    const CUT_TO: usize = 90;
+    let order: Vec<usize> = (0..SEEN).chain(CUT_FROM..=CUT_TO).chain((0..=CUT_TO).rev()).collect();
+    let mut frames: Vec<Option<(Vec<u8>, Vec<u8>)>> = vec![None; CUT_TO + 1];
+    let mut tracker = colon_tracker();
+    let colon = bdis_synth::colon::Colon::default();
+    let truth = |i: usize| colon.forward_pose(i as f64 / FPS, 20.0);
+    let world_from_truth = truth(0).inverse();
+    let mut results = Vec::new();
+    for (k, &i) in order.iter().enumerate() {
+        let (left, right) = frames[i].get_or_insert_with(|| colon_frame(i));
+        let t_ns = (k as f64 / FPS * 1e9).round() as u64;
+        let r = tracker.track(t_ns, left, right).unwrap_or_else(|e| panic!("frame {i}: {e}"));
+        let error = r
+            .camera_from_world
+            .map(|p| (p.inverse().translation.vector - (world_from_truth * truth(i)).translation.vector).norm());
+        results.push((i, r.state, r.quality.doubt, error));
+    }
+    tracker.finish();
+    for &(i, state, doubt, error) in &results[SEEN..] {
+        if state == TrackingState::Ok {
+            let error = error.unwrap_or(f64::INFINITY);
+            assert!(error < 0.5, "flight frame {i}: Ok {error:.1} mm off ({doubt:?})");
+        }
+    }
+    assert!(results[SEEN..].iter().any(|r| r.2 == Some(Doubt::Detached)), "the cut begins a segment");
+    // Back over the first map's tissue, the segment is tied back and right.
+    let last = &results[results.len() - 10..];
+    assert!(last.iter().all(|r| r.1 == TrackingState::Ok), "not tied back at the end: {last:?}");
+}

@@ -113,13 +113,16 @@ impl Tracker {
             }
         }
         // Neighbours of the voters (the intended behaviour: adding a parent does not end the walk, §10.1 #7).
+        // On a detached segment, not the keyframes before it: the segment's first keyframe hangs under the last
+        // one before the loss, and from the segment's guessed place their points match only by chance.
+        let segment = self.detached.map_or(0, |d| d.first_keyframe);
         let voters = local.len();
         for idx in 0..voters {
             if local.len() > MAX_LOCAL_KEYFRAMES {
                 break;
             }
             let kf = &map.keyframes[local[idx]];
-            let fresh = |k: &KfId| marks[*k] != stamp && !map.keyframes[*k].bad;
+            let fresh = |k: &KfId| marks[*k] != stamp && !map.keyframes[*k].bad && *k >= segment;
             let covisible = kf.best_covisibles(10).find(|k| fresh(k));
             let child = kf.children.iter().copied().find(|k| fresh(k));
             let parent = kf.parent.filter(|k| fresh(k));
@@ -155,7 +158,11 @@ impl Tracker {
         let Some(pose) = self.current.camera_from_world else { return };
         let centre = pose.inverse() * Point3::origin();
         self.in_view.clear();
-        for kf in &self.map.keyframes {
+        // A detached segment's place is a guess: what the older map shows there is no evidence (a segment 30 mm
+        // off was tied back on 43 chance matches this way). It is tied back by a loop's 3-D check or by
+        // relocalisation, both by appearance.
+        let segment = self.detached.map_or(0, |d| d.first_keyframe);
+        for kf in &self.map.keyframes[segment..] {
             if kf.bad || self.kf_stamp[kf.id] == stamp || !kf.median_depth.is_finite() {
                 continue;
             }

@@ -20,7 +20,7 @@ pub(super) struct Detachment {
     /// Points with ids from this one on were made on the new segment.
     first_point: PointId,
     /// The segment's first keyframe: keyframes from it on are the segment's.
-    first_keyframe: KfId,
+    pub(super) first_keyframe: KfId,
 }
 
 impl Tracker {
