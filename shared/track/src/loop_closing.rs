@@ -27,6 +27,14 @@
 //!
 //! After a loop, a global bundle adjustment (§8.5) re-solves every keyframe and point from both passes'
 //! observations on a thread of its own, applied a fixed number of keyframes later (`mapper`).
+//!
+//! A detached map segment (the tracker lost in tissue it did not know, `tracker::segment`) is placed by dead
+//! reckoning, possibly far from where the scope is, so the places its pose names may not be the ones it sees.
+//! While it is detached, each of its keyframes is also checked against the older map's keyframes most like it
+//! by appearance (the seam scan: [`PlaceStore::votes`], then the 3-D check), and a place the scan finds ties
+//! the segment back once the next keyframe puts it in the same place ([`SEAM_CONFIRMATIONS`]). A loop across
+//! the seam moves the whole segment rigidly onto the older map, with no pose graph: the link across the seam
+//! is a guess, not a measurement.
 
 mod correct;
 pub mod place;
@@ -52,6 +60,23 @@ pub const MAX_CANDIDATES: usize = 5;
 pub const MIN_KEYFRAMES_BETWEEN_LOOPS: usize = 10;
 /// Levenberg–Marquardt iterations of the pose graph (ORB-SLAM2's 20, §8.4).
 pub const POSE_GRAPH_ITERATIONS: usize = 20;
+/// Keyframes of the older map each keyframe of a detached segment is checked against in 3-D (beside those its
+/// guessed pose names): the ones most like it by [`PlaceStore::votes`], as many as relocalisation scans per lost
+/// frame. Each check costs a descriptor matching of two keyframes (≈ 1 ms at 1000 features), on the loop worker.
+pub const SEAM_SCAN_PER_KEYFRAME: usize = 6;
+/// Keypoints of the query the votes are counted over: enough to tell a place seen again (a fifth to a third of
+/// them match) from tissue merely alike (one in twenty) by several standard deviations of a binomial count, at a
+/// tenth of a full matching's cost per keyframe of the older map.
+pub const SEAM_VOTE_SAMPLE: usize = 100;
+/// Consecutive keyframes of a segment whose places found by the scan must agree before the segment is tied
+/// back. Each place has passed the 3-D check already; the second keyframe, seen from elsewhere, must put the
+/// segment in the same place in the older map, which tissue that merely looks alike does not do twice. (ORB-SLAM2
+/// asks 3 consecutive keyframes of its appearance candidates, §8.1, but before any geometric check.)
+pub const SEAM_CONFIRMATIONS: usize = 2;
+/// How closely two such places must agree on where the segment lies in the older map: the query's camera
+/// placed by each within this share of its median depth, and turned by no more than this many radians (the
+/// angle that moves the view by that share).
+pub const SEAM_AGREEMENT: f64 = 0.1;
 
 /// The keyframes within `hops` strong-covisibility links of `kf` (itself included), good ones only.
 pub fn neighbourhood(map: &Map, kf: KfId, hops: usize) -> BTreeSet<KfId> {
@@ -136,6 +161,11 @@ pub struct LoopQuery {
     pub detect: bool,
     /// A candidate map reuse already tied the keyframe to ([`tied_in`]): the loop, without the 3-D check.
     pub tied: Option<PlaceMatch>,
+    /// While the keyframe is on a detached segment, the seam scan when no candidate holds (a place found by it
+    /// is only a hypothesis until [`SEAM_CONFIRMATIONS`] agree): the places of the hypothesis so far, checked
+    /// first, and the older map's keyframes, ranked by appearance.
+    pub scan_first: Vec<KfId>,
+    pub scan: Vec<KfId>,
 }
 
 /// One job: a keyframe to recognise and index, and perhaps a pose graph to solve.
@@ -150,6 +180,8 @@ pub struct LoopJob {
 pub struct LoopOutcome {
     /// (query keyframe, verified match).
     pub found: Option<(KfId, PlaceMatch)>,
+    /// The seam scan's place, when the query had a scan and no candidate held: (query keyframe, match or none).
+    pub scanned: Option<(KfId, Option<PlaceMatch>)>,
     pub graph: Option<GraphJob>,
     pub detect_ms: f64,
     pub graph_ms: f64,
@@ -168,6 +200,23 @@ impl LoopDetector {
         Self { cam, scales, index: PlaceStore::new() }
     }
 
+    /// The seam scan of a detached segment's keyframe: the hypothesis's places first, then the older map's
+    /// keyframes most like the query ([`PlaceStore::votes`] over [`SEAM_VOTE_SAMPLE`] of its keypoints), the
+    /// best [`SEAM_SCAN_PER_KEYFRAME`] of them checked in 3-D; the first that passes.
+    fn scan(&mut self, query: &LoopQuery) -> Option<PlaceMatch> {
+        let mut ranked: Vec<(usize, KfId)> = query
+            .scan
+            .iter()
+            .filter(|k| !query.scan_first.contains(k) && !query.candidates.contains(k))
+            .map(|&k| (self.index.votes(&query.entry, k, SEAM_VOTE_SAMPLE), k))
+            .collect();
+        // Most votes first; among equals the newer keyframe (ids are unique: a total order, so runs agree).
+        ranked.sort_unstable_by(|a, b| b.cmp(a));
+        let best = ranked.into_iter().take(SEAM_SCAN_PER_KEYFRAME).map(|(_, k)| k);
+        let order: Vec<KfId> = query.scan_first.iter().copied().chain(best).collect();
+        order.into_iter().find_map(|c| self.index.verify(&self.cam, &self.scales, &query.entry, c))
+    }
+
     /// Runs a job: the query first (recognition before indexing, so a keyframe never finds itself), then the
     /// pose graph.
     pub fn run(&mut self, job: LoopJob) -> LoopOutcome {
@@ -175,6 +224,9 @@ impl LoopDetector {
         if let Some(query) = job.query {
             let start = std::time::Instant::now();
             outcome.found = self.detect(&query).map(|m| (query.kf, m));
+            if outcome.found.is_none() && query.detect && !(query.scan_first.is_empty() && query.scan.is_empty()) {
+                outcome.scanned = Some((query.kf, self.scan(&query)));
+            }
             self.insert(query);
             outcome.detect_ms = start.elapsed().as_secs_f64() * 1e3;
         }
@@ -282,6 +334,26 @@ pub struct LoopCloser {
     /// The old side of a revisit in progress: the first candidates' neighbourhoods, beyond the horizon when
     /// the revisit began. Its keyframes stay candidates while they are looked at.
     revisit_side: BTreeSet<KfId>,
+    /// The detached segment's search for the older map, while it is not tied back.
+    seam: Option<SeamSearch>,
+}
+
+/// A detached segment looking for the older map by appearance ([`SEAM_SCAN_PER_KEYFRAME`]): its guessed pose
+/// can be far off, so the places it names ([`revisited`]) need not be where the scope is.
+#[derive(Debug, Clone)]
+struct SeamSearch {
+    /// The segment's first keyframe: the older map is the keyframes before it.
+    first: KfId,
+    hypothesis: Option<SeamHypothesis>,
+}
+
+/// Where a scan put the segment in the older map, and how many consecutive keyframes agreed.
+#[derive(Debug, Clone)]
+struct SeamHypothesis {
+    /// The older map's world from the segment's (the correction that ties it back).
+    older_from_segment: nalgebra::Isometry3<f64>,
+    candidate: KfId,
+    agreed: usize,
 }
 
 impl LoopCloser {
@@ -298,6 +370,7 @@ impl LoopCloser {
             worker_start: None,
             previous_near: BTreeSet::new(),
             revisit_side: BTreeSet::new(),
+            seam: None,
         }
     }
 
@@ -372,7 +445,9 @@ impl LoopCloser {
         near.insert(kf);
         let candidates = if detect { self.candidates(map, cam, kf, &near) } else { Vec::new() };
         let tied = candidates.iter().find_map(|&c| tied_in(map, kf, c, &near));
-        let query = LoopQuery { kf, entry, candidates, culled, detect, tied };
+        let (scan_first, scan) =
+            if detect && tied.is_none() { self.seam_scan(map, kf) } else { (Vec::new(), Vec::new()) };
+        let query = LoopQuery { kf, entry, candidates, culled, detect, tied, scan_first, scan };
         self.submit(LoopJob { query: Some(query), graph }, cam, scales);
     }
 
@@ -409,10 +484,67 @@ impl LoopCloser {
     pub fn segment_begun(&mut self, kf: KfId) {
         self.previous_near = BTreeSet::from([kf]);
         self.revisit_side.clear();
+        self.seam = Some(SeamSearch { first: kf, hypothesis: None });
+    }
+
+    /// The first keyframe of the detached segment keyframe `kf` is on, when `candidate` is older than it: a loop
+    /// between them ties the segment back ([`close_loop`]'s `seam`).
+    pub fn seam_between(&self, kf: KfId, candidate: KfId) -> Option<KfId> {
+        self.seam.as_ref().map(|s| s.first).filter(|&first| candidate < first && kf >= first)
+    }
+
+    /// The seam scan of keyframe `kf` on a detached segment ([`LoopQuery::scan`]): the hypothesis's place and
+    /// its best covisibles, and every good keyframe of the older map. Empty off a segment.
+    fn seam_scan(&self, map: &Map, kf: KfId) -> (Vec<KfId>, Vec<KfId>) {
+        let Some(seam) = self.seam.as_ref().filter(|s| kf >= s.first) else { return (Vec::new(), Vec::new()) };
+        let older: Vec<KfId> = map.good_keyframes().map(|k| k.id).filter(|&k| k < seam.first).collect();
+        let first = seam.hypothesis.as_ref().map_or_else(Vec::new, |h| {
+            let c = &map.keyframes[h.candidate];
+            let mut around: Vec<(u32, KfId)> = c
+                .ordered
+                .iter()
+                .filter(|&&(k, _)| k < seam.first && !map.keyframes[k].bad)
+                .map(|&(k, w)| (w, k))
+                .collect();
+            around.sort_unstable_by(|a, b| b.cmp(a));
+            let best = around.into_iter().take(MAX_CANDIDATES - 1).map(|(_, k)| k);
+            std::iter::once(h.candidate).filter(|_| !c.bad).chain(best).collect()
+        });
+        (first, older)
+    }
+
+    /// A place the seam scan found for keyframe `kf` (or none): the loop to close once
+    /// [`SEAM_CONFIRMATIONS`] consecutive keyframes have placed the segment alike ([`SEAM_AGREEMENT`]).
+    pub fn seam_place(&mut self, map: &Map, kf: KfId, place: Option<PlaceMatch>) -> Option<PlaceMatch> {
+        let seam = self.seam.as_mut()?;
+        let Some(place) = place else {
+            seam.hypothesis = None;
+            return None;
+        };
+        let (query, candidate) = (&map.keyframes[kf], &map.keyframes[place.candidate]);
+        if query.bad || candidate.bad {
+            seam.hypothesis = None;
+            return None;
+        }
+        // camera_from_world of the query as the place puts it, against its own (segment) pose.
+        let placed = place.query_from_candidate * candidate.camera_from_world;
+        let older_from_segment = placed.inverse() * query.camera_from_world;
+        let agrees = seam.hypothesis.as_ref().is_some_and(|h| {
+            let by_hypothesis = query.camera_from_world * h.older_from_segment.inverse();
+            let apart = by_hypothesis * placed.inverse();
+            let depth = if query.median_depth.is_finite() { query.median_depth } else { return false };
+            apart.translation.vector.norm() <= SEAM_AGREEMENT * depth && apart.rotation.angle() <= SEAM_AGREEMENT
+        });
+        let agreed = if agrees { seam.hypothesis.as_ref().map_or(1, |h| h.agreed + 1) } else { 1 };
+        seam.hypothesis = Some(SeamHypothesis { older_from_segment, candidate: place.candidate, agreed });
+        (agreed >= SEAM_CONFIRMATIONS).then_some(place)
     }
 
     /// A loop was closed at keyframe `kf` against `candidate`.
     pub fn closed(&mut self, kf: KfId, candidate: KfId) {
+        if self.seam_between(kf, candidate).is_some() {
+            self.seam = None;
+        }
         self.revisit_side.clear();
         self.last_loop_kf = Some(kf);
         self.loops.push((kf, candidate));

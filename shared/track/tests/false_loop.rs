@@ -14,20 +14,13 @@ use nalgebra::{Isometry3, Translation3, UnitQuaternion};
 /// The sweep's speed in the test, mm/s: the twin 2 s after the place, 60 frames at 30 fps.
 const SPEED_MM_S: f64 = 40.0;
 
-fn rig() -> RectifiedCamera {
-    RectifiedCamera { width: 320, height: 240, fx: 260.0, fy: 260.0, cx: 160.0, cy: 120.0, bf: 260.0 * 5.0 }
-}
-
 fn wall() -> Abdomen {
     Abdomen { repeat_mm: Some(TWIN_SPACING_MM), ..Abdomen::default() }
 }
 
 /// A grey stereo pair of the wall seen from `world_from_camera`, as acquisition delivers it.
 fn pair(world_from_camera: &Isometry3<f64>, noise_seed: u64) -> (Vec<u8>, Vec<u8>) {
-    // A laparoscope's light, as `bdis-slam synth --scene abdomen` renders it.
-    let shading = bdis_synth::render::Shading { exposure_distance_mm: 65.0, ..Default::default() };
-    let pair = bdis_synth::render::render(&wall(), &rig(), &shading, world_from_camera, noise_seed);
-    (common::grey(&pair.left), common::grey(&pair.right))
+    common::abdomen_pair(&wall(), world_from_camera, noise_seed)
 }
 
 /// The first keyframe a fresh tracker makes of the view from `world_from_camera`, as the loop worker keeps it.

@@ -21,23 +21,12 @@ type Frame = (Vec<u8>, Vec<u8>, Isometry3<f64>);
 fn lap() -> &'static [Frame] {
     static LAP: OnceLock<Vec<Frame>> = OnceLock::new();
     LAP.get_or_init(|| {
-        let rig = bdis_track::RectifiedCamera {
-            width: 320,
-            height: 240,
-            fx: 260.0,
-            fy: 260.0,
-            cx: 160.0,
-            cy: 120.0,
-            bf: 260.0 * 5.0,
-        };
         let abdomen = bdis_synth::abdomen::Abdomen::default();
-        // A laparoscope's light and stand-off, as `bdis-slam synth --scene abdomen` renders it.
-        let shading = bdis_synth::render::Shading { exposure_distance_mm: 65.0, ..Default::default() };
         (0..FRAMES)
             .map(|i| {
                 let pose = abdomen.circle_pose(i as f64 / 30.0, 40.0);
-                let pair = bdis_synth::render::render(&abdomen, &rig, &shading, &pose, i as u64);
-                (common::grey(&pair.left), common::grey(&pair.right), pose)
+                let (left, right) = common::abdomen_pair(&abdomen, &pose, i as u64);
+                (left, right, pose)
             })
             .collect()
     })

@@ -48,12 +48,19 @@ pub struct ClosedLoop {
 
 /// Steps §8.2 (end) to §8.4 for query keyframe `kf` and its verified match. `None` when the loop does not hold
 /// up against the map (then nothing has changed).
+///
+/// `seam`: the first keyframe of the detached map segment `kf` is on, when the candidate is older than it (the
+/// loop ties the segment back). The whole segment then moves rigidly onto the old map and no pose graph is
+/// solved: the segment was placed by dead reckoning, so the link across its seam is a guess, not a measurement,
+/// and a graph would spread the guess's error over both maps. The global adjustment that follows weighs the
+/// fused observations.
 pub fn close_loop(
     map: &mut Map,
     cam: &RectifiedCamera,
     scales: &Scales,
     kf: KfId,
     found: &PlaceMatch,
+    seam: Option<KfId>,
 ) -> Option<ClosedLoop> {
     let candidate = found.candidate;
     if map.keyframes[kf].bad || map.keyframes[candidate].bad {
@@ -69,7 +76,7 @@ pub fn close_loop(
     // drifted frame too); what is on both sides is already tied and stays where it is.
     let mut group: BTreeSet<KfId> = map.keyframes[kf].connections.keys().copied().collect();
     group.insert(kf);
-    group.extend(kf..map.keyframes.len());
+    group.extend(seam.unwrap_or(kf).min(kf)..map.keyframes.len());
     group.retain(|&k| !map.keyframes[k].bad && !loop_kfs.contains(&k));
     if !group.contains(&kf) {
         return None;
@@ -186,6 +193,9 @@ pub fn close_loop(
     loop_edges.insert((candidate.min(kf), candidate.max(kf)));
     if !significant {
         return Some(ClosedLoop { graph: None, fused, moved: Vec::new(), drift_chi2 });
+    }
+    if seam.is_some() {
+        return Some(ClosedLoop { graph: None, fused, moved: group.into_iter().collect(), drift_chi2 });
     }
     Some(ClosedLoop {
         graph: Some(essential_graph(map, &before, &loop_edges)),

@@ -7,7 +7,10 @@
 //! on the rendered tissue a descriptor finds a match within `TH_LOW` in almost every keyframe, so the true place
 //! scored barely above the rest (60 against ≈ 45), and the search cost grew with the map (≈ 100 ms per keyframe
 //! after 200 keyframes). A pose prior finds a loop as long as the drift is smaller than the view, which is what
-//! map reuse relies on too; a vocabulary trained on tissue is the way past that (BENCHMARKS.md).
+//! map reuse relies on too; a vocabulary trained on tissue is the way past that (BENCHMARKS.md). The exception
+//! is a detached segment, whose pose prior is a guess: its keyframes rank the older map's keyframes by
+//! [`PlaceStore::votes`] (a ratio-tested match of a sample of its keypoints, not the hashed votes above) and
+//! check the best few in 3-D.
 //!
 //! The check: the two keyframes' stereo keypoints matched by descriptor, then a 3-point RANSAC of their 3-D
 //! points (both are stereo, so the loop is a rigid motion, SE(3), not Sim(3)).
@@ -101,6 +104,35 @@ impl PlaceStore {
         if let Some(e) = self.entries.get_mut(kf) {
             *e = None;
         }
+    }
+
+    /// How much of `query` looks like `candidate`: of up to `sample` of the query's stereo keypoints (spread
+    /// evenly over its list), those whose best match among the candidate's stereo keypoints is within `TH_LOW`
+    /// and passes Lowe's ratio. A cheap ranking of many candidates before [`Self::verify`] checks the best.
+    pub fn votes(&self, query: &PlaceEntry, candidate: KfId, sample: usize) -> usize {
+        let Some(cand) = self.entries.get(candidate).and_then(Option::as_ref) else { return 0 };
+        let stereo = query.camera_points.iter().filter(|p| p.is_some()).count();
+        let stride = stereo.div_ceil(sample.max(1)).max(1);
+        query
+            .descriptors
+            .iter()
+            .zip(&query.camera_points)
+            .filter(|(_, p)| p.is_some())
+            .step_by(stride)
+            .filter(|(d, _)| {
+                let (mut best, mut second) = (u32::MAX, u32::MAX);
+                for (c, _) in cand.descriptors.iter().zip(&cand.camera_points).filter(|(_, p)| p.is_some()) {
+                    let h = hamming(d, c);
+                    if h < best {
+                        second = best;
+                        best = h;
+                    } else if h < second {
+                        second = h;
+                    }
+                }
+                best <= TH_LOW && f64::from(best) < VERIFY_RATIO * f64::from(second)
+            })
+            .count()
     }
 
     /// The geometric check of a candidate (§8.2): the query's stereo keypoints matched to the candidate's by

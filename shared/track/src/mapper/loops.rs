@@ -27,8 +27,11 @@ impl LocalMapper {
             // The loop's correction is in: now the whole map, from its observations (§8.5).
             self.global = Some(GlobalBa::start(map, kf, cam, scales, inline, self.worker_start));
         }
-        let (query, found) = outcome.found?;
-        let closed = close_loop(map, cam, scales, query, &found)?;
+        // A place the seam scan found counts only once consecutive keyframes agree on it.
+        let scanned = outcome.scanned.and_then(|(q, place)| loops.seam_place(map, q, place).map(|m| (q, m)));
+        let (query, found) = outcome.found.or(scanned)?;
+        let seam = loops.seam_between(query, found.candidate);
+        let closed = close_loop(map, cam, scales, query, &found, seam)?;
         report.fused += closed.fused;
         report.moved.extend(closed.moved);
         loops.closed(query, found.candidate);

@@ -8,7 +8,7 @@ use bdis_track::{RectifiedCamera, Tracker, TrackerSettings};
 // the renderer's.
 mod flight;
 #[allow(unused_imports)] // each test binary uses its own part of this module
-pub use flight::{colon_flight, colon_frame, grey};
+pub use flight::{colon_flight, colon_frame, grey, render_rig};
 
 /// A tracker for [`colon_flight`] and the other 320×240 renders with f = 260 (pixel centres at half-pixel offsets, as the settings the renderer writes).
 pub fn colon_tracker() -> Tracker {
@@ -23,4 +23,16 @@ pub fn colon_tracker_at(fps: f64) -> Tracker {
         Ok(t) => t,
         Err(e) => panic!("tracker: {e}"),
     }
+}
+
+/// A grey stereo pair of the abdominal wall `abdomen` seen from `world_from_camera` with [`render_rig`], lit by a
+/// laparoscope's light as `bdis-slam synth --scene abdomen` renders it.
+pub fn abdomen_pair(
+    abdomen: &bdis_synth::abdomen::Abdomen,
+    world_from_camera: &nalgebra::Isometry3<f64>,
+    noise_seed: u64,
+) -> (Vec<u8>, Vec<u8>) {
+    let shading = bdis_synth::render::Shading { exposure_distance_mm: 65.0, ..Default::default() };
+    let pair = bdis_synth::render::render(abdomen, &render_rig(), &shading, world_from_camera, noise_seed);
+    (grey(&pair.left), grey(&pair.right))
 }
