@@ -537,18 +537,19 @@ impl Tracker {
     }
 
     /// The trajectory so far: (t_ns, world_from_camera, lost) per frame, from each frame's reference keyframe as
-    /// it is now (so bundle adjustment's corrections reach every frame), with every veil that clear frames
-    /// enclose bridged from them ([`bridge`]).
+    /// it is now (so bundle adjustment's corrections reach every frame), with every veil and every run of lost
+    /// frames that clear frames enclose bridged from them ([`bridge`]).
     pub fn trajectory(&self) -> Vec<(u64, Isometry3<f64>, bool)> {
         let mut poses: Vec<Isometry3<f64>> = self
             .records
             .iter()
             .map(|r| (r.camera_from_reference * self.map.keyframe_pose(r.reference)).inverse())
             .collect();
-        if self.records.iter().any(|r| r.view == bridge::View::Veiled) {
+        if self.records.iter().any(|r| matches!(r.view, bridge::View::Veiled | bridge::View::Lost)) {
             let t_s: Vec<f64> = self.records.iter().map(|r| r.t_ns as f64 * 1e-9).collect();
             let views: Vec<bridge::View> = self.records.iter().map(|r| r.view).collect();
             bridge::bridge_veils(&t_s, &mut poses, &views);
+            bridge::bridge_losses(&t_s, &mut poses, &views);
         }
         self.records.iter().zip(poses).map(|(r, pose)| (r.t_ns, pose, r.view == bridge::View::Lost)).collect()
     }

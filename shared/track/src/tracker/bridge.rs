@@ -70,30 +70,58 @@ pub(super) fn bridge_veils(t_s: &[f64], world_from_camera: &mut [Isometry3<f64>]
         if start == 0 || k == n || !clear(start - 1) || !clear(k) {
             continue;
         }
-        let (a, b) = (start - 1, k);
-        let position = |i: usize| world_from_camera[i].translation.vector;
-        let span = t_s[b] - t_s[a];
-        if span <= 0.0 {
+        bridge_span(t_s, world_from_camera, views, start - 1, k);
+    }
+}
+
+/// Bridges every run of `Lost` frames that has a `Clear` frame on both sides and no veil before it (a veil's
+/// bridge takes in the lost frames after it): frames dropped, a cut in the footage, a scope taken out and put
+/// back. Live, a lost frame's pose is the motion model's extrapolation; once tracking is back, the frames on
+/// both sides say more, above all when a loop has since moved one side (a segment tied back after the loss).
+pub(super) fn bridge_losses(t_s: &[f64], world_from_camera: &mut [Isometry3<f64>], views: &[View]) {
+    let n = t_s.len();
+    let mut k = 0;
+    while k < n {
+        if views[k] != View::Lost {
+            k += 1;
             continue;
         }
-        let chord = (position(b) - position(a)) / span;
-        let velocity_at = |from: usize, towards_past: bool| {
-            motion_at(t_s, world_from_camera, views, from, towards_past).map_or(chord, |m| m.velocity)
-        };
-        let (v_a, v_b) = (velocity_at(a, true), velocity_at(b, false));
-        let (p_a, p_b) = (position(a), position(b));
-        let (r_a, r_b) = (world_from_camera[a].rotation, world_from_camera[b].rotation);
-        for i in start..k {
-            let u = ((t_s[i] - t_s[a]) / span).clamp(0.0, 1.0);
-            // Cubic Hermite: positions and velocities of both ends met.
-            let (u2, u3) = (u * u, u * u * u);
-            let p = p_a * (2.0 * u3 - 3.0 * u2 + 1.0)
-                + v_a * (span * (u3 - 2.0 * u2 + u))
-                + p_b * (3.0 * u2 - 2.0 * u3)
-                + v_b * (span * (u3 - u2));
-            let rotation = r_a.try_slerp(&r_b, u, 1e-9).unwrap_or(if u < 0.5 { r_a } else { r_b });
-            world_from_camera[i] = Isometry3::from_parts(Translation3::from(p), rotation);
+        let start = k;
+        while k < n && views[k] == View::Lost {
+            k += 1;
         }
+        if start > 0 && k < n && views[start - 1] == View::Clear && views[k] == View::Clear {
+            bridge_span(t_s, world_from_camera, views, start - 1, k);
+        }
+    }
+}
+
+/// Rewrites the frames strictly between `Clear` frames `a` and `b` as the smoothest path between them: a cubic
+/// Hermite curve meeting both ends' positions and their velocities ([`motion_at`], the chord where there is
+/// none), the rotation slerped.
+fn bridge_span(t_s: &[f64], world_from_camera: &mut [Isometry3<f64>], views: &[View], a: usize, b: usize) {
+    let position = |i: usize| world_from_camera[i].translation.vector;
+    let span = t_s[b] - t_s[a];
+    if span <= 0.0 {
+        return;
+    }
+    let chord = (position(b) - position(a)) / span;
+    let velocity_at = |from: usize, towards_past: bool| {
+        motion_at(t_s, world_from_camera, views, from, towards_past).map_or(chord, |m| m.velocity)
+    };
+    let (v_a, v_b) = (velocity_at(a, true), velocity_at(b, false));
+    let (p_a, p_b) = (position(a), position(b));
+    let (r_a, r_b) = (world_from_camera[a].rotation, world_from_camera[b].rotation);
+    for i in a + 1..b {
+        let u = ((t_s[i] - t_s[a]) / span).clamp(0.0, 1.0);
+        // Cubic Hermite: positions and velocities of both ends met.
+        let (u2, u3) = (u * u, u * u * u);
+        let p = p_a * (2.0 * u3 - 3.0 * u2 + 1.0)
+            + v_a * (span * (u3 - 2.0 * u2 + u))
+            + p_b * (3.0 * u2 - 2.0 * u3)
+            + v_b * (span * (u3 - u2));
+        let rotation = r_a.try_slerp(&r_b, u, 1e-9).unwrap_or(if u < 0.5 { r_a } else { r_b });
+        world_from_camera[i] = Isometry3::from_parts(Translation3::from(p), rotation);
     }
 }
 
@@ -240,5 +268,40 @@ mod tests {
             bridge_veils(&t_s, &mut poses, &views);
             assert_eq!(poses, original);
         }
+    }
+
+    /// A run of lost frames between tracked ones, after a loop moved the later side (a detached segment tied
+    /// back): the lost frames were written where the motion model extrapolated them, 40 mm from where tracking
+    /// resumed; bridged, they lie on the motion between the two sides. Lost frames at the end, or after a
+    /// veil's own bridge, are left to it.
+    #[test]
+    fn lost_frames_between_tracked_ones_are_bridged_and_others_left_as_they_were() {
+        let n = 60;
+        let t_s: Vec<f64> = (0..n).map(|k| k as f64 / 30.0).collect();
+        let lost = |k: usize| (20..30).contains(&k);
+        let extrapolated =
+            Isometry3::from_parts(Translation3::new(40.0, 0.0, 0.0), UnitQuaternion::identity()) * steady(19);
+        let mut poses: Vec<Isometry3<f64>> = (0..n).map(|k| if lost(k) { extrapolated } else { steady(k) }).collect();
+        let views: Vec<View> = (0..n).map(|k| if lost(k) { View::Lost } else { View::Clear }).collect();
+        bridge_losses(&t_s, &mut poses, &views);
+        on_the_motion(&poses, 0..n);
+        // Lost to the end: nothing to bridge to.
+        let views: Vec<View> = (0..n).map(|k| if k >= 40 { View::Lost } else { View::Clear }).collect();
+        let original = shifted(n, |k| k >= 40);
+        let mut poses = original.clone();
+        bridge_losses(&t_s, &mut poses, &views);
+        assert_eq!(poses, original);
+        // After a veil: the veil's bridge takes the lost frames in, and the bridge of losses leaves them.
+        let views: Vec<View> = (0..n)
+            .map(|k| match k {
+                20..30 => View::Veiled,
+                30..35 => View::Lost,
+                _ => View::Clear,
+            })
+            .collect();
+        let original = shifted(n, |k| (20..35).contains(&k));
+        let mut poses = original.clone();
+        bridge_losses(&t_s, &mut poses, &views);
+        assert_eq!(poses, original);
     }
 }
