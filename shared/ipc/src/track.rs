@@ -38,8 +38,11 @@ pub mod doubt {
     /// A frame lost because its motion-model pose kept under half the last frame's inliers and matching by
     /// appearance found nothing to confirm it: the view changed wholesale (frames dropped, a cut).
     pub const UNCONFIRMED: u32 = 9;
+    /// The motion model's pose predicted from a frame doubted for its own estimate, with nothing by appearance
+    /// to confirm it: the doubt carried over.
+    pub const UNCONFIRMED_PRIOR: u32 = 10;
     /// The highest code defined: what a consumer accepts (a new doubt moves it).
-    pub const LAST: u32 = UNCONFIRMED;
+    pub const LAST: u32 = UNCONFIRMED_PRIOR;
 
     /// The doubt's name as the tracker's quality log writes it (`few-inliers`, …; "" for none or an unknown
     /// code), for consumers that report it without linking the tracker.
@@ -54,6 +57,7 @@ pub mod doubt {
             DETACHED => "detached",
             PRIORLESS_FEW_INLIERS => "priorless-few-inliers",
             UNCONFIRMED => "unconfirmed",
+            UNCONFIRMED_PRIOR => "unconfirmed-prior",
             _ => "",
         }
     }

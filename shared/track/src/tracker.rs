@@ -158,6 +158,8 @@ pub struct Tracker {
     detached: Option<segment::Detachment>,
     /// Inliers of the last tracked frame (not coasted): what a frame of the same view keeps most of.
     confirmed_inliers: usize,
+    /// The last frame's doubt: what a pose predicted from it may inherit ([`Doubt::UnconfirmedPrior`]).
+    last_doubt: Option<Doubt>,
 }
 
 impl Tracker {
@@ -235,6 +237,7 @@ impl Tracker {
             unplaced_frames: 0,
             detached: None,
             confirmed_inliers: 0,
+            last_doubt: None,
         })
     }
 
@@ -350,6 +353,7 @@ impl Tracker {
             Some(Doubt::FewInliers)
         };
         result.quality.doubt = doubt;
+        self.last_doubt = doubt;
         // A pose nothing confirms, on a view that lost most of the last one's points, is no pose.
         ok &= doubt != Some(Doubt::Unconfirmed);
         if ok && !coasting {
@@ -367,9 +371,13 @@ impl Tracker {
             }
             // A keyframe fixes map points and the dense map at its pose: only from a pose the images support.
             // A map still settling is the exception: the next keyframe's adjustment is what settles it. So is a
-            // jerk's priorless pose: the view has run ahead of the map, and the keyframe is what holds it.
+            // jerk's priorless pose: the view has run ahead of the map, and the keyframe is what holds it. And an
+            // unconfirmed prior: the keyframe is what appearance can confirm the next frames against.
             let supported = self.state == TrackingState::Ok
-                || matches!(doubt, Some(Doubt::MapMoving | Doubt::Detached | Doubt::PriorlessFewInliers));
+                || matches!(
+                    doubt,
+                    Some(Doubt::MapMoving | Doubt::Detached | Doubt::PriorlessFewInliers | Doubt::UnconfirmedPrior)
+                );
             if supported && self.need_keyframe(result.inliers) {
                 self.create_keyframe(&mut result);
             }
@@ -486,6 +494,7 @@ impl Tracker {
     fn initialise(&mut self, result: &mut FrameResult) {
         let kf = self.begin_map_at(Isometry3::identity());
         self.state = TrackingState::Ok;
+        self.last_doubt = None;
         result.new_keyframe = Some(kf);
         result.inliers = self.local_points.len();
     }

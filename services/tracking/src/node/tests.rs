@@ -134,7 +134,7 @@ fn qos_poses_buffer() -> usize {
 }
 
 /// Every doubt the tracker can give.
-const DOUBTS: [Doubt; 9] = [
+const DOUBTS: [Doubt; 10] = [
     Doubt::FewInliers,
     Doubt::LowInlierRatio,
     Doubt::IllConditioned,
@@ -144,6 +144,7 @@ const DOUBTS: [Doubt; 9] = [
     Doubt::Detached,
     Doubt::PriorlessFewInliers,
     Doubt::Unconfirmed,
+    Doubt::UnconfirmedPrior,
 ];
 
 /// The contract's doubt names (what consumers such as the OpenIGTLink output report) are the tracker's own.

@@ -82,9 +82,39 @@ pub enum Doubt {
     /// dim views included). Such a frame is `Lost` (this is its reason): relocalisation looks for the place
     /// from the next frame on, and a new segment begins where it finds none.
     Unconfirmed,
+    /// The motion model's pose, predicted from a frame that was itself doubted for its own estimate
+    /// ([`Doubt::carries_over`]), and with no consensus by appearance to check it against. The prediction is
+    /// the doubted pose carried on by a velocity that ends on it, and the projection search centred on it
+    /// returns matches it explains: on a cut relocalised three frames later, the frame after a doubted one
+    /// (4.9 mm off) was `Ok` 1.2 mm off. The doubt lasts until something independent of the doubted frame
+    /// confirms a pose: appearance, a relocalisation, or a frame predicted from an undoubted one. Like
+    /// `MapMoving` it does not stop keyframes: a keyframe is what appearance confirms the next frames against
+    /// (tried without: the doubt ran on for 47 frames after a smoke render's veil, each unconfirmed for want of
+    /// a newer keyframe).
+    UnconfirmedPrior,
 }
 
 impl Doubt {
+    /// Whether the next frame's motion-model pose, unconfirmed by appearance, inherits this doubt
+    /// ([`Doubt::UnconfirmedPrior`]): doubts about this frame's own estimate do; those about the map it was
+    /// fitted to (`MapMoving`: the next frame is judged by the same rule) or where a segment lies (`Detached`:
+    /// its motion is right) do not, nor a loss (the next frame is relocalised, not predicted). Nor a veil
+    /// (`LowContrast`): it lifts only once the contrast is back, and the frame that lifts it is judged on its
+    /// own. Carried over a veil, the doubt fell on the first clear frame of all seven smoke renders where
+    /// appearance found nothing there (the view had moved on from the reference keyframe under the veil), and
+    /// those frames were right: bridged over as doubted, the written trajectories came out worse on five
+    /// (BENCHMARKS.md).
+    pub fn carries_over(self) -> bool {
+        matches!(
+            self,
+            Self::LowInlierRatio
+                | Self::IllConditioned
+                | Self::AppearanceDisagrees
+                | Self::PriorlessFewInliers
+                | Self::UnconfirmedPrior
+        )
+    }
+
     pub fn name(self) -> &'static str {
         match self {
             Self::FewInliers => "few-inliers",
@@ -96,6 +126,7 @@ impl Doubt {
             Self::Detached => "detached",
             Self::PriorlessFewInliers => "priorless-few-inliers",
             Self::Unconfirmed => "unconfirmed",
+            Self::UnconfirmedPrior => "unconfirmed-prior",
         }
     }
 }
@@ -283,6 +314,11 @@ impl Tracker {
             Some(Doubt::Unconfirmed)
         } else if self.veil.is_down() {
             Some(Doubt::LowContrast)
+        } else if quality.method == PoseMethod::MotionModel
+            && quality.appearance_consensus == 0
+            && self.last_doubt.is_some_and(Doubt::carries_over)
+        {
+            Some(Doubt::UnconfirmedPrior)
         } else if quality.appearance_agreement < MIN_APPEARANCE_AGREEMENT {
             Some(Doubt::AppearanceDisagrees)
         } else if ratio < MIN_INLIER_RATIO {

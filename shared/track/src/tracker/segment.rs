@@ -56,6 +56,7 @@ impl Tracker {
         self.last_coasted = false;
         self.unplaced_frames = 0;
         self.state = TrackingState::Uncertain;
+        self.last_doubt = Some(Doubt::Detached);
         result.new_keyframe = Some(kf);
         result.new_segment = true;
         result.inliers = self.local_points.len();
