@@ -342,8 +342,11 @@ pub struct LoopCloser {
 /// can be far off, so the places it names ([`revisited`]) need not be where the scope is.
 #[derive(Debug, Clone)]
 struct SeamSearch {
-    /// The segment's first keyframe: the older map is the keyframes before it.
+    /// The segment's first keyframe: what a loop across the seam moves is the keyframes from it on.
     first: KfId,
+    /// The older map is the keyframes before this one: the segment's first, or, when the segment began while an
+    /// earlier one was still detached, that one's bound (a segment is never tied to another one's guess).
+    older_than: KfId,
     hypothesis: Option<SeamHypothesis>,
 }
 
@@ -484,26 +487,27 @@ impl LoopCloser {
     pub fn segment_begun(&mut self, kf: KfId) {
         self.previous_near = BTreeSet::from([kf]);
         self.revisit_side.clear();
-        self.seam = Some(SeamSearch { first: kf, hypothesis: None });
+        let older_than = self.seam.as_ref().map_or(kf, |earlier| earlier.older_than);
+        self.seam = Some(SeamSearch { first: kf, older_than, hypothesis: None });
     }
 
     /// The first keyframe of the detached segment keyframe `kf` is on, when `candidate` is older than it: a loop
     /// between them ties the segment back ([`close_loop`]'s `seam`).
     pub fn seam_between(&self, kf: KfId, candidate: KfId) -> Option<KfId> {
-        self.seam.as_ref().map(|s| s.first).filter(|&first| candidate < first && kf >= first)
+        self.seam.as_ref().filter(|s| candidate < s.older_than && kf >= s.first).map(|s| s.first)
     }
 
     /// The seam scan of keyframe `kf` on a detached segment ([`LoopQuery::scan`]): the hypothesis's place and
     /// its best covisibles, and every good keyframe of the older map. Empty off a segment.
     fn seam_scan(&self, map: &Map, kf: KfId) -> (Vec<KfId>, Vec<KfId>) {
         let Some(seam) = self.seam.as_ref().filter(|s| kf >= s.first) else { return (Vec::new(), Vec::new()) };
-        let older: Vec<KfId> = map.good_keyframes().map(|k| k.id).filter(|&k| k < seam.first).collect();
+        let older: Vec<KfId> = map.good_keyframes().map(|k| k.id).filter(|&k| k < seam.older_than).collect();
         let first = seam.hypothesis.as_ref().map_or_else(Vec::new, |h| {
             let c = &map.keyframes[h.candidate];
             let mut around: Vec<(u32, KfId)> = c
                 .ordered
                 .iter()
-                .filter(|&&(k, _)| k < seam.first && !map.keyframes[k].bad)
+                .filter(|&&(k, _)| k < seam.older_than && !map.keyframes[k].bad)
                 .map(|&(k, w)| (w, k))
                 .collect();
             around.sort_unstable_by(|a, b| b.cmp(a));

@@ -104,6 +104,7 @@ impl Tracker {
         }
         self.voters.sort_unstable();
         let stamp = self.current.id;
+        let segment = self.segment_start();
         let (map, local, marks) = (&self.map, &mut self.local_kfs, &mut self.kf_stamp);
         local.clear();
         for &k in &self.voters {
@@ -113,9 +114,9 @@ impl Tracker {
             }
         }
         // Neighbours of the voters (the intended behaviour: adding a parent does not end the walk, §10.1 #7).
-        // On a detached segment, not the keyframes before it: the segment's first keyframe hangs under the last
-        // one before the loss, and from the segment's guessed place their points match only by chance.
-        let segment = self.detached.map_or(0, |d| d.first_keyframe);
+        // On a detached segment, not the keyframes before it (`segment`, above): the segment's first keyframe
+        // hangs under the last one before the loss, and from the segment's guessed place their points match
+        // only by chance.
         let voters = local.len();
         for idx in 0..voters {
             if local.len() > MAX_LOCAL_KEYFRAMES {
@@ -161,7 +162,7 @@ impl Tracker {
         // A detached segment's place is a guess: what the older map shows there is no evidence (a segment 30 mm
         // off was tied back on 43 chance matches this way). It is tied back by a loop's 3-D check or by
         // relocalisation, both by appearance.
-        let segment = self.detached.map_or(0, |d| d.first_keyframe);
+        let segment = self.segment_start();
         for kf in &self.map.keyframes[segment..] {
             if kf.bad || self.kf_stamp[kf.id] == stamp || !kf.median_depth.is_finite() {
                 continue;

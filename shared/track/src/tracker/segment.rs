@@ -17,10 +17,13 @@ const TIED_BACK_INLIERS: usize = relocalise::PRIORLESS_INLIERS;
 
 #[derive(Debug, Clone, Copy)]
 pub(super) struct Detachment {
-    /// Points with ids from this one on were made on the new segment.
-    first_point: PointId,
     /// The segment's first keyframe: keyframes from it on are the segment's.
-    pub(super) first_keyframe: KfId,
+    first_keyframe: KfId,
+    /// The older map the segment is tied back to: the points and keyframes with ids below these. The map before
+    /// the segment, or, when the segment began while an earlier one was still detached, the map before that
+    /// one (a segment is never tied to another one's guessed place).
+    older_than_point: PointId,
+    older_than_keyframe: KfId,
 }
 
 impl Tracker {
@@ -48,7 +51,9 @@ impl Tracker {
             self.map.keyframes[kf].parent = Some(parent);
             self.map.keyframes[parent].children.insert(kf);
         }
-        self.detached = Some(Detachment { first_point, first_keyframe: kf });
+        let (older_than_point, older_than_keyframe) =
+            self.detached.map_or((first_point, kf), |earlier| (earlier.older_than_point, earlier.older_than_keyframe));
+        self.detached = Some(Detachment { first_keyframe: kf, older_than_point, older_than_keyframe });
         self.mapper.segment_begun(kf);
         // The segment's first keyframe is the clearest view of its place so far.
         self.contrast_ratio = 1.0;
@@ -99,15 +104,22 @@ impl Tracker {
         world_from_camera.inverse()
     }
 
+    /// The first keyframe of the detached segment the tracker is on (0 when it is not detached): the local map
+    /// holds only keyframes from it on, since from the segment's guessed place what older keyframes show
+    /// matches only by chance.
+    pub(super) fn segment_start(&self) -> KfId {
+        self.detached.map_or(0, |d| d.first_keyframe)
+    }
+
     /// Whether the frame is still on a detached segment ([`Self::restart`]); ends the detachment when a loop has
     /// closed between the segment and the older map, or the frame's pose rests on [`TIED_BACK_INLIERS`] points
     /// made before the restart (map reuse found the older map).
     pub(super) fn still_detached(&mut self) -> bool {
         let Some(d) = self.detached else { return false };
         let older = (0..self.current.len())
-            .filter(|&i| !self.current.outlier[i] && self.current.points[i].is_some_and(|p| p < d.first_point))
+            .filter(|&i| !self.current.outlier[i] && self.current.points[i].is_some_and(|p| p < d.older_than_point))
             .count();
-        let across = |&(a, b): &(KfId, KfId)| a.min(b) < d.first_keyframe && a.max(b) >= d.first_keyframe;
+        let across = |&(a, b): &(KfId, KfId)| a.min(b) < d.older_than_keyframe && a.max(b) >= d.first_keyframe;
         if self.mapper.loops_closed().iter().any(across) || older >= TIED_BACK_INLIERS {
             self.detached = None;
         }
