@@ -477,6 +477,7 @@ fn write_summary(
         keyframe_cpu_ms_p99: percentile(&mut counts.keyframe_ms, 0.99),
         loops_closed: tracker.loops_closed().iter().map(|&(a, b)| (world.kf_id(a), world.kf_id(b))).collect(),
         loop_detection_ms_p50: percentile(&mut counts.loop_detection_ms, 0.5),
+        loop_detection_ms_max: percentile(&mut counts.loop_detection_ms, 1.0),
         pose_graph_ms: counts.pose_graph_ms.clone(),
         global_ba_ms: counts.global_ba_ms.clone(),
     };

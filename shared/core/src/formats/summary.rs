@@ -57,6 +57,10 @@ pub struct TrackingSummary {
     /// Worker time of place recognition per keyframe and of each pose-graph solve, ms.
     #[serde(default)]
     pub loop_detection_ms_p50: Option<f64>,
+    /// The keyframe whose place recognition took longest, ms: most keyframes have no candidate and cost
+    /// nothing, so the median hides the keyframes that search (a detached segment's scan of the older map).
+    #[serde(default)]
+    pub loop_detection_ms_max: Option<f64>,
     #[serde(default)]
     pub pose_graph_ms: Vec<f64>,
     /// Each global bundle adjustment after a loop, its own thread's wall time, ms (it runs beside tracking).
