@@ -9,6 +9,28 @@ use bdis_orb::{RotationBins, RotationHistogram, hamming};
 
 pub const TH_HIGH: u32 = 100;
 pub const TH_LOW: u32 = 45;
+/// Lowe's ratio of descriptor matching without a pose prior (relocalisation, the loop's check; ORB-SLAM2's 0.75).
+pub const PRIORLESS_RATIO: f64 = 0.75;
+
+/// The best match of descriptor `d` among `candidates` (index, descriptor) when it is within [`TH_LOW`] and
+/// under [`PRIORLESS_RATIO`] of the second best: (index, Hamming distance). The matching of relocalisation and
+/// of the loop's place check and votes, where no prior narrows the candidates.
+pub fn ratio_match<'a>(
+    d: &[u8; 32],
+    candidates: impl IntoIterator<Item = (usize, &'a [u8; 32])>,
+) -> Option<(usize, u32)> {
+    let ((mut best, mut at), mut second) = ((u32::MAX, usize::MAX), u32::MAX);
+    for (j, c) in candidates {
+        let h = hamming(d, c);
+        if h < best {
+            second = best;
+            (best, at) = (h, j);
+        } else if h < second {
+            second = h;
+        }
+    }
+    (best <= TH_LOW && f64::from(best) < PRIORLESS_RATIO * f64::from(second)).then_some((at, best))
+}
 
 /// Reusable buffers of the searches.
 #[derive(Debug)]

@@ -26,8 +26,8 @@ use crate::map::{KeyFrame, KfId, Map, PointId};
 use crate::mapper::{LocalMapper, MapperReport};
 use crate::optim::{Observation, PoseOptimizer};
 use crate::refine::{Aligner, Anchor, Unrefined};
-use crate::search::{Searcher, TH_HIGH, TH_LOW, frustum_check};
-use bdis_orb::{OrbError, OrbParams, hamming};
+use crate::search::{Searcher, TH_HIGH, frustum_check};
+use bdis_orb::{OrbError, OrbParams};
 use nalgebra::{Isometry3, Point3};
 
 /// Frames after a relocalisation during which no keyframe is made.

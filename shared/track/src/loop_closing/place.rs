@@ -20,14 +20,10 @@ use crate::geometry::{RectifiedCamera, draw_three, rigid_fit};
 use crate::ids::KfId;
 use crate::map::KeyFrame;
 use crate::optim::CHI2_MONO;
-use crate::search::TH_LOW;
-use bdis_orb::hamming;
+use crate::search::ratio_match;
 use nalgebra::{Isometry3, Point3};
 use std::collections::BTreeMap;
 
-/// Lowe's ratio of the keyframe-to-keyframe matching before the RANSAC (ORB-SLAM2's value for the loop's
-/// matching by vocabulary).
-const VERIFY_RATIO: f64 = 0.75;
 /// ORB-SLAM2's thresholds of the loop's geometric check (§8.2): matches to try a solver, inliers to accept it.
 pub const MIN_LOOP_MATCHES: usize = 20;
 pub const MIN_LOOP_INLIERS: usize = 20;
@@ -59,6 +55,11 @@ impl PlaceEntry {
                 .collect(),
         }
     }
+}
+
+/// The descriptors of `entry`'s stereo keypoints (those with a 3-D point), with their keypoint indices.
+fn stereo_descriptors(entry: &PlaceEntry) -> impl Iterator<Item = (usize, &[u8; 32])> {
+    entry.descriptors.iter().enumerate().filter(|&(j, _)| entry.camera_points[j].is_some())
 }
 
 /// A verified appearance match between two keyframes.
@@ -119,19 +120,7 @@ impl PlaceStore {
             .zip(&query.camera_points)
             .filter(|(_, p)| p.is_some())
             .step_by(stride)
-            .filter(|(d, _)| {
-                let (mut best, mut second) = (u32::MAX, u32::MAX);
-                for (c, _) in cand.descriptors.iter().zip(&cand.camera_points).filter(|(_, p)| p.is_some()) {
-                    let h = hamming(d, c);
-                    if h < best {
-                        second = best;
-                        best = h;
-                    } else if h < second {
-                        second = h;
-                    }
-                }
-                best <= TH_LOW && f64::from(best) < VERIFY_RATIO * f64::from(second)
-            })
+            .filter(|(d, _)| ratio_match(d, stereo_descriptors(cand)).is_some())
             .count()
     }
 
@@ -153,27 +142,12 @@ impl PlaceStore {
             if query.camera_points[i].is_none() {
                 continue;
             }
-            let (mut best, mut second) = ((u32::MAX, usize::MAX), u32::MAX);
-            for (j, c) in cand.descriptors.iter().enumerate() {
-                if cand.camera_points[j].is_none() {
-                    continue;
-                }
-                let h = hamming(d, c);
-                if h < best.0 {
-                    second = best.0;
-                    best = (h, j);
-                } else if h < second {
-                    second = h;
-                }
-            }
-            if best.0 > TH_LOW || f64::from(best.0) >= VERIFY_RATIO * f64::from(second) {
-                continue;
-            }
+            let Some((j, distance)) = ratio_match(d, stereo_descriptors(cand)) else { continue };
             // One to one: the closer claim on a candidate keypoint wins.
-            match claimed.get(&best.1) {
-                Some(&(h, _)) if h <= best.0 => {}
+            match claimed.get(&j) {
+                Some(&(h, _)) if h <= distance => {}
                 _ => {
-                    claimed.insert(best.1, (best.0, i));
+                    claimed.insert(j, (distance, i));
                 }
             }
         }

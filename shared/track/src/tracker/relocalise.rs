@@ -261,15 +261,5 @@ impl Tracker {
 
 /// The index of `d`'s best match among `descriptors` when it is ≤ TH_LOW and < 0.75 of the second best.
 fn best_two(d: &[u8; 32], descriptors: &[[u8; 32]]) -> Option<usize> {
-    let ((mut best, mut at), mut second) = ((u32::MAX, usize::MAX), u32::MAX);
-    for (j, p) in descriptors.iter().enumerate() {
-        let h = hamming(d, p);
-        if h < best {
-            second = best;
-            (best, at) = (h, j);
-        } else if h < second {
-            second = h;
-        }
-    }
-    (best <= TH_LOW && f64::from(best) < 0.75 * f64::from(second)).then_some(at)
+    crate::search::ratio_match(d, descriptors.iter().enumerate()).map(|(j, _)| j)
 }
