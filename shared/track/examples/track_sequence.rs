@@ -22,6 +22,7 @@ fn main() {
     let seq = sequence::Sequence::open(dir, settings_path.as_deref());
     let times = &seq.times;
     let mut tracker = seq.tracker();
+    let mut masker = sequence::masker(&a);
     tracker.set_refinement(!a.iter().any(|x| x == "--whole-pixel"));
     tracker.set_loop_closing(!a.iter().any(|x| x == "--no-loop-closing"));
     let mut cpu = Vec::new();
@@ -30,8 +31,11 @@ fn main() {
     let (mut detect_ms, mut wait_ms) = (Vec::new(), Vec::new());
     for (i, &t) in times.iter().enumerate().take(max) {
         let (l, r) = seq.pair(i);
+        let rgb = masker.is_some().then(|| seq.left_rgb(i));
+        // Timed as the service times a frame: the instrument estimate is the tracking thread's work.
         let start = std::time::Instant::now();
-        let res = tracker.track((t * 1e9).round() as u64, &l, &r).unwrap();
+        let keep_out = sequence::keep_out(masker.as_mut(), rgb.as_ref());
+        let res = tracker.track_masked((t * 1e9).round() as u64, &l, &r, keep_out).unwrap();
         let ms = start.elapsed().as_secs_f64() * 1e3;
         if let Some(m) = &res.mapper {
             for (total, step) in steps.iter_mut().zip(m.step_ms) {

@@ -5,7 +5,9 @@
 //!
 //! cargo run --release -p bdis-track --example track_starts -- <dir> --starts 0,3,7,11 [--frames N]
 //!     [--gt F] [--settings F] [--whole-pixel] [--no-loop-closing] [--out PREFIX] [--loops]
+//!     [--instrument-masks off]
 //!
+//! Frames are tracked with the instrument estimate, as the tracking service tracks them by default.
 //! Per start it also counts the frames `Lost` and `Uncertain`; `--loops` lists the loops closed (on stderr).
 //! Start K tracks frames K … K + N − 1 (N: all that are left); `--gt` defaults to `<dir>/gt/poses.tum`;
 //! `--out PREFIX` writes each start's trajectory to PREFIX-K.tum.
@@ -33,13 +35,13 @@ fn main() {
     println!("start  frames  keyframes  loops  ATE          scale error  ATE after Sim(3)  lost  uncertain");
     for &k in &starts {
         let mut tracker = seq.tracker();
+        let mut masker = sequence::masker(&a);
         tracker.set_refinement(!a.iter().any(|x| x == "--whole-pixel"));
         tracker.set_loop_closing(!a.iter().any(|x| x == "--no-loop-closing"));
         let end = seq.times.len().min(k.saturating_add(frames));
         let (mut keyframes, mut lost, mut uncertain) = (0, 0, 0);
         for i in k..end {
-            let (l, r) = seq.pair(i);
-            let res = tracker.track((seq.times[i] * 1e9).round() as u64, &l, &r).unwrap();
+            let res = seq.track(&mut tracker, masker.as_mut(), i);
             keyframes += usize::from(res.new_keyframe.is_some());
             lost += usize::from(res.state == bdis_track::TrackingState::Lost);
             uncertain += usize::from(res.state == bdis_track::TrackingState::Uncertain);

@@ -1,5 +1,8 @@
 //! What the offline examples share: a sequence folder (left/*.png, right/*.png sorted by number, times.txt,
-//! settings.yaml unless another is given) read as grey pairs, and a tracker made for it.
+//! settings.yaml unless another is given) read as grey pairs, a tracker made for it, and the instrument estimate
+//! the tracking service runs by default.
+// Each example uses part of this.
+#![allow(dead_code)]
 use bdis_track::{Tracker, TrackerSettings};
 use std::path::{Path, PathBuf};
 
@@ -48,6 +51,43 @@ impl Sequence {
     pub fn pair(&self, i: usize) -> (Vec<u8>, Vec<u8>) {
         (grey(&self.lefts[i]).0, grey(&self.rights[i]).0)
     }
+
+    /// Frame i's left image in colour, for the instrument estimate.
+    pub fn left_rgb(&self, i: usize) -> image::RgbImage {
+        image::open(&self.lefts[i]).unwrap().to_rgb8()
+    }
+
+    /// Tracks frame i as the tracking service does by default: with our instrument estimate from the left colour
+    /// image (`--instrument-masks estimate`), unless `masker` is `None` (`off`). Without it, footage where the
+    /// estimate finds something (instruments, and smoke reaching the border, which is grey too) tracks
+    /// differently offline than through the processes.
+    pub fn track(
+        &self,
+        tracker: &mut Tracker,
+        masker: Option<&mut bdis_track::instruments::InstrumentMasker>,
+        i: usize,
+    ) -> bdis_track::FrameResult {
+        let (l, r) = self.pair(i);
+        let rgb = masker.is_some().then(|| self.left_rgb(i));
+        let t_ns = (self.times[i] * 1e9).round() as u64;
+        tracker.track_masked(t_ns, &l, &r, keep_out(masker, rgb.as_ref())).unwrap()
+    }
+}
+
+/// The instrument estimate's mask of `rgb`, as the tracking service takes it: `None` when it found nothing.
+pub fn keep_out<'m>(
+    masker: Option<&'m mut bdis_track::instruments::InstrumentMasker>,
+    rgb: Option<&image::RgbImage>,
+) -> Option<&'m [u8]> {
+    let (m, img) = (masker?, rgb?);
+    let found = m.estimate(img.as_raw(), img.width() as usize, img.height() as usize);
+    (found.regions > 0).then(|| m.mask())
+}
+
+/// The instrument estimate the tracking service runs by default; `None` with `--instrument-masks off`.
+pub fn masker(args: &[String]) -> Option<bdis_track::instruments::InstrumentMasker> {
+    let off = args.windows(2).any(|w| w[0] == "--instrument-masks" && w[1] == "off");
+    (!off).then(|| bdis_track::instruments::InstrumentMasker::new(Default::default()))
 }
 
 /// An image as 8-bit grey (BT.601 weights), with its size.
