@@ -3,6 +3,7 @@
 //! search.
 
 use super::*;
+use crate::search::ratio_match;
 
 /// Keyframes away from the last pose whose points each lost frame also tries, in turn over the whole map: a
 /// scope taken out (to clean the lens) and put back, or moved while the view was lost, can come back to any
@@ -154,7 +155,7 @@ impl Tracker {
     /// Frame keypoints whose best match among keyframe `kf`'s points is ≤ TH_LOW and < 0.75 of the second best.
     fn votes(&self, kf: KfId, s: &mut RelocScratch) -> usize {
         self.keyframe_points(kf, s);
-        self.current.descriptors.iter().filter(|d| best_two(d, &s.descriptors).is_some()).count()
+        self.current.descriptors.iter().filter(|d| ratio_match(d, s.descriptors.iter().enumerate()).is_some()).count()
     }
 
     fn relocalise_against(&mut self, kf: KfId, s: &mut RelocScratch) -> bool {
@@ -171,7 +172,7 @@ impl Tracker {
         let repeats = s.linked.windows(2).any(|w| w[0] == w[1]);
         s.pairs.clear();
         for (i, d) in self.current.descriptors.iter().enumerate() {
-            let Some(j) = best_two(d, &s.descriptors) else { continue };
+            let Some((j, _)) = ratio_match(d, s.descriptors.iter().enumerate()) else { continue };
             if s.used[j] {
                 continue;
             }
@@ -257,9 +258,4 @@ impl Tracker {
         }
         good >= PRIORLESS_INLIERS
     }
-}
-
-/// The index of `d`'s best match among `descriptors` when it is ≤ TH_LOW and < 0.75 of the second best.
-fn best_two(d: &[u8; 32], descriptors: &[[u8; 32]]) -> Option<usize> {
-    crate::search::ratio_match(d, descriptors.iter().enumerate()).map(|(j, _)| j)
 }
