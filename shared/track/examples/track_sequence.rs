@@ -30,12 +30,11 @@ fn main() {
     let mut steps = [0.0f64; 5];
     let (mut detect_ms, mut wait_ms) = (Vec::new(), Vec::new());
     for (i, &t) in times.iter().enumerate().take(max) {
-        let (l, r) = seq.pair(i);
-        let rgb = masker.is_some().then(|| seq.left_rgb(i));
+        let frame = seq.frame(i, masker.is_some());
         // Timed as the service times a frame: the instrument estimate is the tracking thread's work.
         let start = std::time::Instant::now();
-        let keep_out = sequence::keep_out(masker.as_mut(), rgb.as_ref());
-        let res = tracker.track_masked((t * 1e9).round() as u64, &l, &r, keep_out).unwrap();
+        let keep_out = sequence::keep_out(masker.as_mut(), frame.left_rgb.as_ref());
+        let res = tracker.track_masked((t * 1e9).round() as u64, &frame.left, &frame.right, keep_out).unwrap();
         let ms = start.elapsed().as_secs_f64() * 1e3;
         if let Some(m) = &res.mapper {
             for (total, step) in steps.iter_mut().zip(m.step_ms) {

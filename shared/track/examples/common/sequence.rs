@@ -52,9 +52,11 @@ impl Sequence {
         (grey(&self.lefts[i]).0, grey(&self.rights[i]).0)
     }
 
-    /// Frame i's left image in colour, for the instrument estimate.
-    pub fn left_rgb(&self, i: usize) -> image::RgbImage {
-        image::open(&self.lefts[i]).unwrap().to_rgb8()
+    /// Frame i decoded once: grey left and right images, and the left in colour when `with_colour` (for the
+    /// instrument estimate).
+    pub fn frame(&self, i: usize, with_colour: bool) -> Frame {
+        let left_rgb = image::open(&self.lefts[i]).unwrap().to_rgb8();
+        Frame { left: grey_of(&left_rgb), right: grey(&self.rights[i]).0, left_rgb: with_colour.then_some(left_rgb) }
     }
 
     /// Tracks frame i as the tracking service does by default: with our instrument estimate from the left colour
@@ -67,11 +69,17 @@ impl Sequence {
         masker: Option<&mut bdis_track::instruments::InstrumentMasker>,
         i: usize,
     ) -> bdis_track::FrameResult {
-        let (l, r) = self.pair(i);
-        let rgb = masker.is_some().then(|| self.left_rgb(i));
+        let frame = self.frame(i, masker.is_some());
         let t_ns = (self.times[i] * 1e9).round() as u64;
-        tracker.track_masked(t_ns, &l, &r, keep_out(masker, rgb.as_ref())).unwrap()
+        tracker.track_masked(t_ns, &frame.left, &frame.right, keep_out(masker, frame.left_rgb.as_ref())).unwrap()
     }
+}
+
+/// One frame's images ([`Sequence::frame`]).
+pub struct Frame {
+    pub left: Vec<u8>,
+    pub right: Vec<u8>,
+    pub left_rgb: Option<image::RgbImage>,
 }
 
 /// The instrument estimate's mask of `rgb`, as the tracking service takes it: `None` when it found nothing.
@@ -86,17 +94,24 @@ pub fn keep_out<'m>(
 
 /// The instrument estimate the tracking service runs by default; `None` with `--instrument-masks off`.
 pub fn masker(args: &[String]) -> Option<bdis_track::instruments::InstrumentMasker> {
-    let off = args.windows(2).any(|w| w[0] == "--instrument-masks" && w[1] == "off");
-    (!off).then(|| bdis_track::instruments::InstrumentMasker::new(Default::default()))
+    let mode = args.iter().position(|x| x == "--instrument-masks").map(|i| args.get(i + 1).map(String::as_str));
+    match mode {
+        None | Some(Some("estimate")) => Some(bdis_track::instruments::InstrumentMasker::new(Default::default())),
+        Some(Some("off")) => None,
+        Some(other) => panic!("--instrument-masks: estimate or off, not {other:?}"),
+    }
 }
 
 /// An image as 8-bit grey (BT.601 weights), with its size.
 pub fn grey(path: &Path) -> (Vec<u8>, usize, usize) {
     let img = image::open(path).unwrap().to_rgb8();
     let (w, h) = (img.width() as usize, img.height() as usize);
-    let g = img
-        .pixels()
+    (grey_of(&img), w, h)
+}
+
+/// A decoded colour image as 8-bit grey (BT.601 weights).
+pub fn grey_of(img: &image::RgbImage) -> Vec<u8> {
+    img.pixels()
         .map(|p| ((u32::from(p[0]) * 4899 + u32::from(p[1]) * 9617 + u32::from(p[2]) * 1868 + 8192) >> 14) as u8)
-        .collect();
-    (g, w, h)
+        .collect()
 }
