@@ -47,6 +47,10 @@ pub fn eval_masks(args: MasksArgs) -> Result<()> {
     let mut masker = InstrumentMasker::new(InstrumentParams::default());
     let mut score = MaskScore::default();
     let (mut masked_share, mut frames_with_regions) = (0.0f64, 0usize);
+    // Every candidate region's opacity, kept and refused: how far each side is from the thresholds on this
+    // footage.
+    let (mut instruments, mut veils) = (Opacity::default(), Opacity::default());
+    let mut frames_with_veils = 0usize;
     let mut preview: Option<Preview> = None;
     let bar = bdis_slam::progress::bar(sequence.frames.len() as u64, "masks {bar:40} {pos}/{len} frames ({eta} left)");
     for entry in &sequence.frames {
@@ -56,6 +60,12 @@ pub fn eval_masks(args: MasksArgs) -> Result<()> {
         let found = masker.estimate(left.as_raw(), w, h);
         masked_share += f64::from(found.masked_share);
         frames_with_regions += usize::from(found.regions > 0);
+        frames_with_veils += usize::from(found.veils > 0);
+        for c in masker.candidates() {
+            let side = if c.instrument { &mut instruments } else { &mut veils };
+            side.edge_contrast.push(c.edge_contrast);
+            side.colour_return.push(c.colour_return);
+        }
         let name = entry.left.file_stem().map(|s| PathBuf::from(s).with_extension("png")).context("an image name")?;
         let truth = if scored {
             let path = truth_dir.join(&name);
@@ -108,6 +118,13 @@ pub fn eval_masks(args: MasksArgs) -> Result<()> {
             "frames": sequence.frames.len(),
             "frames_with_instruments": frames_with_regions,
             "masked_share": mean_share,
+            "frames_with_veils": frames_with_veils,
+            "opacity": {
+                "instruments": instruments.json(),
+                "veils": veils.json(),
+                "min_edge_contrast": masker.params.min_edge_contrast,
+                "min_colour_return": masker.params.min_colour_return,
+            },
         });
         if scored {
             report["precision"] = score.precision().into();
@@ -126,8 +143,66 @@ pub fn eval_masks(args: MasksArgs) -> Result<()> {
     } else {
         println!();
     }
+    if let Some(text) = instruments.text() {
+        println!("  instruments: {text}");
+    }
+    if let Some(text) = veils.text() {
+        println!("  not opaque (smoke, a membrane: not masked), in {frames_with_veils} frames: {text}");
+    }
     if let Some(path) = &args.preview {
         println!("preview: {}", path.display());
     }
     Ok(())
+}
+
+/// The opacity figures of a set of candidate regions.
+#[derive(Debug, Default)]
+struct Opacity {
+    edge_contrast: Vec<f32>,
+    colour_return: Vec<f32>,
+}
+
+impl Opacity {
+    fn json(&mut self) -> serde_json::Value {
+        serde_json::json!({
+            "regions": self.edge_contrast.len(),
+            "edge_contrast": spread(&mut self.edge_contrast).map(|s| s.json()),
+            "colour_return": spread(&mut self.colour_return).map(|s| s.json()),
+        })
+    }
+
+    fn text(&mut self) -> Option<String> {
+        let regions = self.edge_contrast.len();
+        let edge = spread(&mut self.edge_contrast)?;
+        let colour = spread(&mut self.colour_return)?;
+        Some(format!("{regions} regions, edge contrast {edge}, colour return {colour}"))
+    }
+}
+
+/// Least, median and greatest of a set of opacity figures.
+#[derive(Debug, Clone, Copy)]
+struct Spread {
+    least: f32,
+    median: f32,
+    greatest: f32,
+}
+
+impl Spread {
+    fn json(&self) -> serde_json::Value {
+        // An infinite figure (nothing to compare with) is not a JSON number.
+        let finite = |v: f32| if v.is_finite() { serde_json::json!(v) } else { serde_json::Value::Null };
+        serde_json::json!({ "min": finite(self.least), "median": finite(self.median), "max": finite(self.greatest) })
+    }
+}
+
+impl std::fmt::Display for Spread {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{:.2} … {:.2} (median {:.2})", self.least, self.greatest, self.median)
+    }
+}
+
+fn spread(values: &mut [f32]) -> Option<Spread> {
+    values.sort_by(f32::total_cmp);
+    let (&least, &greatest) = (values.first()?, values.last()?);
+    Some(Spread { least, median: values[values.len() / 2], greatest })
 }

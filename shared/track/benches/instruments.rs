@@ -1,7 +1,8 @@
 #![allow(clippy::expect_used)] // benchmark code: a panic is the failure report
 //! Criterion benchmark: our instrument-mask estimate (`bdis_track::instruments`) on one 640×480 frame of the
 //! synthetic laparoscope hover with two graspers (`synth --instruments`), single thread; and, for scale, the same
-//! frame without instruments (nothing found: the cost of the colour pass alone).
+//! frame without instruments (nothing found: the cost of the colour pass alone); and the frame with graspers
+//! without the opacity test (`opacity: false`), for that test's share.
 //!
 //! cargo bench -p bdis-track --bench instruments
 
@@ -24,6 +25,11 @@ fn bench(c: &mut Criterion) {
     let mut group = c.benchmark_group("instrument mask 640x480");
     group.bench_function("two graspers", |b| b.iter(|| masker.estimate(with_tools.left.as_raw(), w, h)));
     group.bench_function("no instrument", |b| b.iter(|| masker.estimate(clean.left.as_raw(), w, h)));
+    // The silhouette test's share: the same frame judged by colour, place and size alone.
+    let mut by_colour = InstrumentMasker::new(InstrumentParams { opacity: false, ..Default::default() });
+    group.bench_function("two graspers, colour alone", |b| {
+        b.iter(|| by_colour.estimate(with_tools.left.as_raw(), w, h))
+    });
     group.finish();
     let found = masker.estimate(with_tools.left.as_raw(), w, h);
     assert!(found.regions > 0, "{found:?}");

@@ -34,12 +34,14 @@ fn a_warmed_up_frame_without_a_keyframe_allocates_nothing() {
 fn a_warmed_up_instrument_estimate_allocates_nothing() {
     use bdis_track::instruments::{InstrumentMasker, InstrumentParams};
     let (w, h) = (320, 240);
-    // Red tissue, a grey shaft from the left border whose position changes frame to frame.
+    // Red tissue with a texture, a grey shaft from the left border whose position changes frame to frame (the
+    // silhouette test measures both).
     let frame = |shift: usize| -> Vec<u8> {
         (0..w * h)
             .flat_map(|i| {
                 let (x, y) = (i % w, i / w);
-                if x < w / 2 && (100 + shift..140 + shift).contains(&y) { [120u8, 121, 124] } else { [160, 70, 60] }
+                let t = ((x * 7 + y * 13) % 40) as u8;
+                if x < w / 2 && (100 + shift..140 + shift).contains(&y) { [120u8, 121, 124] } else { [160 + t, 70, 60] }
             })
             .collect()
     };
@@ -51,6 +53,7 @@ fn a_warmed_up_instrument_estimate_allocates_nothing() {
         let found = masker.estimate(rgb, w, h);
         assert_eq!(bdis_testkit::allocations() - before, 0, "{found:?}");
         assert_eq!(found.regions, 1);
+        assert!(masker.candidates()[0].edge_contrast.is_finite(), "{:?}", masker.candidates());
     }
 }
 
