@@ -17,8 +17,9 @@ pub struct MasksArgs {
     /// Write each estimated mask here (`<name>.png`, 255 = instrument).
     #[arg(long)]
     write: Option<PathBuf>,
-    /// Write a picture to look at: the frame where the estimate masks most, beside it with the estimate laid
-    /// over it (green: instrument found; red: tissue masked; blue: instrument missed, when true masks exist).
+    /// Write a picture to look at: the frame where the estimate masks or weighs most, beside it with the
+    /// estimate laid over it (green: instrument found; red: tissue masked; blue: instrument missed, when true
+    /// masks exist; yellow: a grey region weighed and left as a veil, smoke or a membrane).
     #[arg(long, value_name = "PNG")]
     preview: Option<PathBuf>,
     /// Print JSON instead of a sentence.
@@ -28,9 +29,11 @@ pub struct MasksArgs {
 
 /// The frame shown by `--preview`.
 struct Preview {
+    /// Share of the image masked or weighed and left.
     share: f32,
     left: image::RgbImage,
     mask: Vec<u8>,
+    veils: Vec<u8>,
     truth: Option<Vec<u8>>,
 }
 
@@ -86,8 +89,12 @@ pub fn eval_masks(args: MasksArgs) -> Result<()> {
                 .save(&path)
                 .with_context(|| format!("{}: cannot write", path.display()))?;
         }
-        if args.preview.is_some() && found.masked_share >= preview.as_ref().map_or(0.0, |p: &Preview| p.share) {
-            preview = Some(Preview { share: found.masked_share, left, mask: masker.mask().to_vec(), truth });
+        let weighed =
+            found.masked_share + masker.candidates().iter().filter(|c| !c.instrument).map(|c| c.share).sum::<f32>();
+        if args.preview.is_some() && weighed >= preview.as_ref().map_or(0.0, |p: &Preview| p.share) {
+            let mut veils = Vec::new();
+            masker.veils(&mut veils);
+            preview = Some(Preview { share: weighed, left, mask: masker.mask().to_vec(), veils, truth });
         }
         bar.inc(1);
     }
@@ -99,10 +106,12 @@ pub fn eval_masks(args: MasksArgs) -> Result<()> {
             picture.put_pixel(x, y, *px);
             let i = (y * w + x) as usize;
             let (found, truth) = (p.mask[i] != 0, p.truth.as_ref().map(|t| t.get(i).is_some_and(|&v| v != 0)));
+            let veil = p.veils.get(i).is_some_and(|&v| v != 0);
             let tint = match (found, truth) {
                 (true, Some(false)) => Some([255u8, 0, 0]),
                 (true, _) => Some([0, 255, 0]),
                 (false, Some(true)) => Some([0, 0, 255]),
+                _ if veil => Some([255, 255, 0]),
                 _ => None,
             };
             let out =

@@ -17,8 +17,10 @@
 //!    tissue's, its colour where no veil covers it), and its silhouette is a brightness step (its *edge
 //!    contrast*: the gradient along the boundary over the tissue's, both 90th percentiles). Either sign makes a
 //!    region opaque: a tool blurred by its own motion loses the step but not the colour return; one seen
-//!    through smoke loses the colour return but not the step. Both are ratios: no assumption on exposure,
-//!    texture or image size (`opacity.rs`);
+//!    through smoke loses the colour return but not the step. Both are ratios against the frame's own tissue:
+//!    no assumption on exposure. The step is the weaker sign: it shrinks with the optics' blur and with how
+//!    much fine detail the tissue shows (on our renders, more the larger they are), so the colour return
+//!    carries most instruments and the step those seen through smoke (`opacity.rs`; BENCHMARKS.md);
 //! 5. the result is grown by a couple of pixels (a silhouette's rim mixes metal and tissue colours).
 //!
 //! A view that is mostly grey is not tissue (a street, a phantom, a grey-scale camera): then nothing is masked.
@@ -131,6 +133,12 @@ pub struct InstrumentMasker {
     ring_saturations: Vec<u8>,
     ring_front: Vec<u32>,
     candidates: Vec<Candidate>,
+    /// The labels of the candidates refused as veils, and the working grid's step and size: what
+    /// [`Self::veils`] draws.
+    veil_labels: Vec<u32>,
+    grid_step: usize,
+    grid_size: (usize, usize),
+    image_size: (usize, usize),
 }
 
 const TISSUE: u8 = 0;
@@ -158,6 +166,25 @@ impl InstrumentMasker {
         &self.candidates
     }
 
+    /// Writes where the last estimate's refused candidates (veils: smoke, a membrane) lie into `out`, one byte
+    /// per pixel of the image, 255 = veil: for a picture of what the estimate weighed and left (not for the hot
+    /// path: it sizes `out`).
+    pub fn veils(&self, out: &mut Vec<u8>) {
+        let (step, (width, height), (full_width, _)) = (self.grid_step, self.grid_size, self.image_size);
+        out.clear();
+        out.resize(self.mask.len(), 0);
+        if self.veil_labels.is_empty() || width == 0 || step == 0 || full_width == 0 {
+            return;
+        }
+        for (i, v) in out.iter_mut().enumerate() {
+            let (x, y) = ((i % full_width) / step, (i / full_width) / step);
+            let cell = y.min(height - 1) * width + x.min(width - 1);
+            if self.class[cell] != TISSUE && self.veil_labels.contains(&self.labels[cell]) {
+                *v = 255;
+            }
+        }
+    }
+
     /// Estimates the mask of a `width × height` RGB image (3 bytes per pixel, rows of `3 · width`).
     pub fn estimate(&mut self, rgb: &[u8], width: usize, height: usize) -> InstrumentEstimate {
         let (full_width, full_height) = (width, height);
@@ -165,6 +192,7 @@ impl InstrumentMasker {
         self.mask.clear();
         self.mask.resize(full_width * full_height, 0);
         self.candidates.clear();
+        self.veil_labels.clear();
         if full_width * full_height == 0 || rgb.len() < 3 * full_width * full_height {
             return InstrumentEstimate::default();
         }
@@ -172,16 +200,17 @@ impl InstrumentMasker {
         // columns whatever the image size (a quarter of the work at 640×480), and the result spread back.
         let step = (full_width.min(full_height) / 240).max(1);
         let (width, height) = (full_width.div_ceil(step), full_height.div_ceil(step));
+        (self.grid_step, self.grid_size, self.image_size) = (step, (width, height), (full_width, full_height));
         let n = width * height;
         self.class.clear();
         self.class.resize(n, TISSUE);
-        self.luma.clear();
-        self.luma.resize(n, 0);
         self.saturation.clear();
         self.saturation.resize(n, 0);
         let (dark, clipped) = (p.dark_level * 255.0, p.clip_level * 255.0);
         let mut grey = 0usize;
         let samples = (0..height).flat_map(|gy| (0..width).map(move |gx| 3 * (gy * step * full_width + gx * step)));
+        self.luma.clear();
+        self.luma.resize(n, 0);
         let cells = self.class.iter_mut().zip(&mut self.luma).zip(&mut self.saturation);
         for (((class, luma), saturation), at) in cells.zip(samples) {
             let px = &rgb[at..at + 3];
@@ -220,6 +249,7 @@ impl InstrumentMasker {
         self.ring_front.clear();
         self.ring_front.reserve(n);
         self.candidates.reserve(n.div_ceil(min_area.max(1)));
+        self.veil_labels.reserve(n.div_ceil(min_area.max(1)));
         let (mut regions, mut veils) = (0usize, 0usize);
         let mut next_label = 0u32;
         // The tissue's 90th-percentile gradient and saturation, measured once a frame has a candidate.
@@ -263,7 +293,7 @@ impl InstrumentMasker {
                 continue;
             }
             let (edge_contrast, colour_return) = if p.opacity {
-                let levels = *tissue.get_or_insert_with(|| self.tissue_levels(width, height));
+                let levels = *tissue.get_or_insert_with(|| self.tissue_levels());
                 (
                     self.edge_contrast(width, height, levels.edge),
                     self.colour_return(width, height, ring, next_label, levels),
@@ -280,6 +310,7 @@ impl InstrumentMasker {
                 }
             } else {
                 veils += 1;
+                self.veil_labels.push(next_label);
             }
         }
         // Grow by a few pixels: square dilation, rows then columns.
@@ -458,6 +489,12 @@ mod tests {
         let veil = masker.candidates()[0];
         assert!(veil.edge_contrast < 0.5 * masker.params.min_edge_contrast, "{veil:?}");
         assert!(veil.colour_return < 0.5 * masker.params.min_colour_return, "{veil:?}");
+        // What was weighed and left can be drawn: the haze's thick part, by the left border.
+        let mut veils = Vec::new();
+        masker.veils(&mut veils);
+        let drawn: Vec<usize> = (0..w * h).filter(|&i| veils[i] != 0).collect();
+        assert!(drawn.len() as f32 >= 0.5 * veil.share * (w * h) as f32, "{} pixels drawn", drawn.len());
+        assert!(drawn.iter().all(|&i| i % w < w / 4), "the veil is drawn where the haze is thickest");
         // Without the silhouette test, the haze would have been taken for an instrument.
         let mut by_colour = InstrumentMasker::new(InstrumentParams { opacity: false, ..Default::default() });
         assert_eq!(by_colour.estimate(&rgb, w, h).regions, 1);

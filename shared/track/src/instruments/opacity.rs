@@ -79,7 +79,8 @@ impl InstrumentMasker {
     /// The tissue's 90th-percentile gradient (over tissue cells whose 3×3 neighbourhood is all tissue: not the
     /// rim of a region, not a highlight's) and its 90th-percentile saturation (over tissue cells); 0 where there
     /// is none.
-    pub(super) fn tissue_levels(&mut self, width: usize, height: usize) -> TissueLevels {
+    pub(super) fn tissue_levels(&mut self) -> TissueLevels {
+        let (width, height) = self.grid_size;
         let (class, luma) = (&self.class, &self.luma);
         let gradients = &mut self.tissue_gradients;
         gradients.clear();
