@@ -495,7 +495,7 @@ mod tests {
         let drawn: Vec<usize> = (0..w * h).filter(|&i| veils[i] != 0).collect();
         assert!(drawn.len() as f32 >= 0.5 * veil.share * (w * h) as f32, "{} pixels drawn", drawn.len());
         assert!(drawn.iter().all(|&i| i % w < w / 4), "the veil is drawn where the haze is thickest");
-        // Without the silhouette test, the haze would have been taken for an instrument.
+        // Without the opacity test, the haze would have been taken for an instrument.
         let mut by_colour = InstrumentMasker::new(InstrumentParams { opacity: false, ..Default::default() });
         assert_eq!(by_colour.estimate(&rgb, w, h).regions, 1);
     }
