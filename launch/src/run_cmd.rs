@@ -39,8 +39,8 @@ pub struct RunArgs {
     #[arg(long, value_name = "DIR", requires = "sequence")]
     masks: Option<PathBuf>,
     /// With --track, for frames without --masks: `estimate` (default) has the tracker find instruments itself
-    /// (grey regions entering from the border; nothing on footage that is not tissue-coloured) and keep them out
-    /// of the pose and the map; `off` takes every pixel.
+    /// (opaque grey regions entering from the border, smoke and membranes left; nothing on footage that is not
+    /// tissue-coloured) and keep them out of the pose and the map; `off` takes every pixel.
     #[arg(long, value_name = "MODE", value_parser = ["estimate", "off"], requires = "track")]
     instrument_masks: Option<String>,
     /// Skip the first N frames of --sequence (a video is decoded from frame N, exactly).

@@ -44,10 +44,10 @@ struct Args {
     /// every keyframe moved goes out as a correction. `off`: revisits are tied in by map reuse alone.
     #[arg(long, default_value = "on", value_parser = ["on", "off"])]
     loop_closing: String,
-    /// Instruments in frames that come without a mask: `estimate` finds them (grey regions from the image
-    /// border, see bdis_track::instruments; nothing on a view that is not tissue-coloured) and keeps them out of
-    /// the pose, and sends the estimate with each keyframe so the dense map leaves them out too. `off`: none.
-    /// A frame's own mask (`--masks` at acquisition) is always used.
+    /// Instruments in frames that come without a mask: `estimate` finds them (opaque grey regions from the image
+    /// border, see bdis_track::instruments; smoke and membranes are veils and left; nothing on a view that is
+    /// not tissue-coloured) and keeps them out of the pose, and sends the estimate with each keyframe so the
+    /// dense map leaves them out too. `off`: none. A frame's own mask (`--masks` at acquisition) is always used.
     #[arg(long, default_value = "estimate", value_parser = ["estimate", "off"])]
     instrument_masks: String,
     /// Continue after a crashed predecessor: its journal (`tracking.journal` in the run folder) gives the frames
