@@ -61,7 +61,7 @@ pub(crate) fn load(path: &Path) -> Result<(image::GrayImage, image::RgbImage)> {
     let rgb = image::open(path).with_context(|| format!("{}: cannot read the image", path.display()))?.to_rgb8();
     let gray = image::GrayImage::from_fn(rgb.width(), rgb.height(), |x, y| {
         let p = rgb.get_pixel(x, y);
-        image::Luma([bdis_source::decode::gray_of(p[0], p[1], p[2])])
+        image::Luma([bdis_core::pixel::gray_of(p[0], p[1], p[2])])
     });
     Ok((gray, rgb))
 }

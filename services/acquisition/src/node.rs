@@ -285,7 +285,7 @@ mod tests {
                     let view = bdis_ipc::FrameView::new(sample.user_header(), sample.payload()).unwrap();
                     let expected = |x: u32, y: u32| {
                         let (r, g, b) = (x * 5 + header.frame_seq as u32 + 1, y * 7, 90u32);
-                        ((r * 4899 + g * 9617 + b * 1868 + 8192) >> 14) as u8
+                        bdis_core::pixel::gray_of(r as u8, g as u8, b as u8)
                     };
                     assert_eq!(view.left_gray[(3 * w + 10) as usize], expected(10, 3), "frame {}", header.frame_seq);
                     // Nothing more is sent until this one is released (the end of the stream needs no credit).

@@ -502,13 +502,7 @@ mod tests {
         let rig = RectifiedCamera { bf: 50.0 * 4.0, ..camera };
         let (mut left, mut right) = (image::RgbImage::new(1, 1), image::RgbImage::new(1, 1));
         scene.render_pair(&rig, 0.0, 0.0, &mut left, &mut right);
-        let grey = |img: &image::RgbImage| -> Vec<u8> {
-            img.pixels()
-                .map(|p| {
-                    ((u32::from(p[0]) * 4899 + u32::from(p[1]) * 9617 + u32::from(p[2]) * 1868 + 8192) >> 14) as u8
-                })
-                .collect()
-        };
+        let grey = |img: &image::RgbImage| bdis_core::pixel::gray_of_rgb(img.as_raw());
         let payload: Vec<u8> = [grey(&left), grey(&right), left.into_raw()].concat();
         assert_eq!(payload.len(), layout.payload_len());
         let metas: Vec<KeyframeMeta> = (0..2)

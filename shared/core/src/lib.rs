@@ -11,6 +11,7 @@ pub mod calib;
 pub mod fanout;
 pub mod formats;
 pub mod geometry;
+pub mod pixel;
 pub mod scale;
 pub mod settings;
 pub mod stats;

@@ -6,6 +6,7 @@
 use std::mem::MaybeUninit;
 use std::path::{Path, PathBuf};
 
+use bdis_core::pixel::gray_of;
 use bdis_ipc::FrameLayout;
 use image::{ColorType, ImageDecoder};
 
@@ -29,12 +30,6 @@ pub struct FrameDecoder {
 /// A decoded image in one of our buffers.
 pub(crate) struct Decoded {
     pub(crate) color: ColorType,
-}
-
-/// Grey from RGB with the BT.601 weights in 14-bit fixed point (0.299, 0.587, 0.114), rounded.
-#[inline]
-pub fn gray_of(r: u8, g: u8, b: u8) -> u8 {
-    ((u32::from(r) * 4899 + u32::from(g) * 9617 + u32::from(b) * 1868 + 8192) >> 14) as u8
 }
 
 /// BT.601 studio-range YUV to full-range RGB, in 8-bit fixed point (capture devices, Y4M).
@@ -133,15 +128,6 @@ impl FrameDecoder {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn gray_weights_match_bt601() {
-        assert_eq!(gray_of(0, 0, 0), 0);
-        assert_eq!(gray_of(255, 255, 255), 255);
-        assert_eq!(gray_of(255, 0, 0), 76); // 0.299 · 255 = 76.2
-        assert_eq!(gray_of(0, 255, 0), 150); // 0.587 · 255 = 149.7
-        assert_eq!(gray_of(0, 0, 255), 29); // 0.114 · 255 = 29.1
-    }
 
     #[test]
     fn writes_every_byte_of_the_payload() {

@@ -7,10 +7,7 @@ use bdis_stereo::{Algorithm, GrayImage, Matcher, Params};
 fn gray(path: &std::path::Path) -> (Vec<u8>, Vec<bool>, usize, usize) {
     let rgb = image::open(path).unwrap().to_rgb8();
     let (w, h) = rgb.dimensions();
-    let g = rgb
-        .pixels()
-        .map(|p| ((u32::from(p[0]) * 4899 + u32::from(p[1]) * 9617 + u32::from(p[2]) * 1868 + 8192) >> 14) as u8)
-        .collect();
+    let g = bdis_core::pixel::gray_of_rgb(rgb.as_raw());
     let region = rgb.pixels().map(|p| p[0] != 0).collect();
     (g, region, w as usize, h as usize)
 }

@@ -16,9 +16,7 @@ const FRAMES: usize = 40;
 
 fn grey(path: &std::path::Path) -> Vec<u8> {
     let img = image::open(path).expect("frame").to_rgb8();
-    img.pixels()
-        .map(|p| ((u32::from(p[0]) * 4899 + u32::from(p[1]) * 9617 + u32::from(p[2]) * 1868 + 8192) >> 14) as u8)
-        .collect()
+    bdis_core::pixel::gray_of_rgb(img.as_raw())
 }
 
 fn bench(c: &mut Criterion) {

@@ -33,11 +33,7 @@ fn frames_in_poses_and_keyframes_out_over_shared_memory() {
     // The frames, as acquisition writes them: left grey, right grey, left RGB.
     let colon = bdis_synth::colon::Colon::default();
     let shading = bdis_synth::render::Shading::default();
-    let grey = |img: &image::RgbImage| -> Vec<u8> {
-        img.pixels()
-            .map(|p| ((u32::from(p[0]) * 4899 + u32::from(p[1]) * 9617 + u32::from(p[2]) * 1868 + 8192) >> 14) as u8)
-            .collect()
-    };
+    let grey = |img: &image::RgbImage| bdis_core::pixel::gray_of_rgb(img.as_raw());
     let payloads: Vec<Vec<u8>> = (0..n as u64)
         .map(|i| {
             let pair =

@@ -9,7 +9,8 @@ use std::mem::MaybeUninit;
 
 use image::ImageDecoder;
 
-use crate::decode::{gray_of, rgb_of_yuv};
+use crate::decode::rgb_of_yuv;
+use bdis_core::pixel::gray_of;
 
 /// A pixel format a capture device delivers that bdis-slam reads.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

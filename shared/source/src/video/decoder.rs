@@ -13,7 +13,7 @@ use bdis_ipc::FrameLayout;
 use super::native::{self, NativeReader};
 use super::y4m::PlaneLayout;
 use super::{Arrangement, VideoError, VideoSource};
-use crate::decode::gray_of;
+use bdis_core::pixel::gray_of;
 
 /// One file's decoder: the container read here, or an ffmpeg child.
 enum Decoding {

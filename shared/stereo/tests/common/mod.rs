@@ -21,7 +21,7 @@ pub fn load(path: &Path) -> (image::GrayImage, image::RgbImage) {
     let rgb = image::open(path).unwrap().to_rgb8();
     let gray = image::GrayImage::from_fn(rgb.width(), rgb.height(), |x, y| {
         let p = rgb.get_pixel(x, y);
-        image::Luma([((u32::from(p[0]) * 4899 + u32::from(p[1]) * 9617 + u32::from(p[2]) * 1868 + 8192) >> 14) as u8])
+        image::Luma([bdis_core::pixel::gray_of(p[0], p[1], p[2])])
     });
     (gray, rgb)
 }

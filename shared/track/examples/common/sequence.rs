@@ -111,7 +111,5 @@ pub fn grey(path: &Path) -> (Vec<u8>, usize, usize) {
 
 /// A decoded colour image as 8-bit grey (BT.601 weights).
 pub fn grey_of(img: &image::RgbImage) -> Vec<u8> {
-    img.pixels()
-        .map(|p| ((u32::from(p[0]) * 4899 + u32::from(p[1]) * 9617 + u32::from(p[2]) * 1868 + 8192) >> 14) as u8)
-        .collect()
+    bdis_core::pixel::gray_of_rgb(img.as_raw())
 }

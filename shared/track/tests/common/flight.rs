@@ -25,7 +25,5 @@ pub fn colon_frame(i: usize) -> (Vec<u8>, Vec<u8>) {
 
 /// A rendered image greyed as acquisition does (BT.601).
 pub fn grey(img: &image::RgbImage) -> Vec<u8> {
-    img.pixels()
-        .map(|p| ((u32::from(p[0]) * 4899 + u32::from(p[1]) * 9617 + u32::from(p[2]) * 1868 + 8192) >> 14) as u8)
-        .collect()
+    bdis_core::pixel::gray_of_rgb(img.as_raw())
 }
