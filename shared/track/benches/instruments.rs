@@ -25,7 +25,7 @@ fn bench(c: &mut Criterion) {
     let mut group = c.benchmark_group("instrument mask 640x480");
     group.bench_function("two graspers", |b| b.iter(|| masker.estimate(with_tools.left.as_raw(), w, h)));
     group.bench_function("no instrument", |b| b.iter(|| masker.estimate(clean.left.as_raw(), w, h)));
-    // The silhouette test's share: the same frame judged by colour, place and size alone.
+    // The opacity test's share: the same frame judged by colour, place and size alone.
     let mut by_colour = InstrumentMasker::new(InstrumentParams { opacity: false, ..Default::default() });
     group.bench_function("two graspers, colour alone", |b| {
         b.iter(|| by_colour.estimate(with_tools.left.as_raw(), w, h))

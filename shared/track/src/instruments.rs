@@ -27,6 +27,7 @@
 //! Depth discontinuity and motion against the camera are the cues to add next (see the issue's note).
 
 mod opacity;
+use bdis_core::pixel::gray_of;
 use opacity::TissueLevels;
 
 /// The estimator's thresholds (ratios and shares of the image: no unit, no image size).
@@ -120,10 +121,9 @@ pub struct InstrumentMasker {
     grid: Vec<u8>,
     mask: Vec<u8>,
     scratch: Vec<u8>,
-    /// Brightness (BT.601 luma) and saturation (`(max − min) / max`, of 255) on the working grid, for the
-    /// opacity test.
+    /// Brightness (BT.601 luma) on the working grid, for the opacity test's gradients (its saturations are
+    /// computed where they are read: a quarter of the tissue and the rings, on frames with a candidate).
     luma: Vec<u8>,
-    saturation: Vec<u8>,
     /// The tissue's gradient magnitudes and saturations, counted (histograms: percentiles without a sort).
     tissue_gradients: Vec<u32>,
     tissue_saturations: Vec<u32>,
@@ -204,19 +204,15 @@ impl InstrumentMasker {
         let n = width * height;
         self.class.clear();
         self.class.resize(n, TISSUE);
-        self.saturation.clear();
-        self.saturation.resize(n, 0);
         let (dark, clipped) = (p.dark_level * 255.0, p.clip_level * 255.0);
         let mut grey = 0usize;
         let samples = (0..height).flat_map(|gy| (0..width).map(move |gx| 3 * (gy * step * full_width + gx * step)));
         self.luma.clear();
         self.luma.resize(n, 0);
-        let cells = self.class.iter_mut().zip(&mut self.luma).zip(&mut self.saturation);
-        for (((class, luma), saturation), at) in cells.zip(samples) {
+        for ((class, luma), at) in self.class.iter_mut().zip(&mut self.luma).zip(samples) {
             let px = &rgb[at..at + 3];
-            *luma = ((299 * u32::from(px[0]) + 587 * u32::from(px[1]) + 114 * u32::from(px[2]) + 500) / 1000) as u8;
+            *luma = gray_of(px[0], px[1], px[2]);
             let (hi, lo) = (px[0].max(px[1]).max(px[2]), px[0].min(px[1]).min(px[2]));
-            *saturation = if hi == 0 { 0 } else { ((255 * u32::from(hi - lo)) / u32::from(hi)) as u8 };
             let (hi_f, red_lead) = (f32::from(hi), f32::from(px[0]) - f32::from(px[1].max(px[2])));
             let pale = f32::from(hi - lo) <= p.max_saturation * hi_f && red_lead <= p.max_red_lead * hi_f;
             // A clipped pixel that still shows colour is tissue; a pale one may be glare or a metal highlight.
@@ -293,11 +289,8 @@ impl InstrumentMasker {
                 continue;
             }
             let (edge_contrast, colour_return) = if p.opacity {
-                let levels = *tissue.get_or_insert_with(|| self.tissue_levels());
-                (
-                    self.edge_contrast(width, height, levels.edge),
-                    self.colour_return(width, height, ring, next_label, levels),
-                )
+                let levels = *tissue.get_or_insert_with(|| self.tissue_levels(rgb, step));
+                (self.edge_contrast(width, height, levels.edge), self.colour_return(rgb, ring, next_label, levels))
             } else {
                 (f32::INFINITY, f32::INFINITY)
             };

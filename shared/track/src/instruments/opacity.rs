@@ -35,14 +35,8 @@ impl InstrumentMasker {
     /// `edge_contrast` leaves them): the median saturation of the tissue within `ring` cells of it (8-connected
     /// steps through tissue), over the tissue's 90th percentile. The ring's cells are marked with the region's
     /// label: tissue cells carry no label of their own.
-    pub(super) fn colour_return(
-        &mut self,
-        width: usize,
-        height: usize,
-        ring: usize,
-        label: u32,
-        levels: TissueLevels,
-    ) -> f32 {
+    pub(super) fn colour_return(&mut self, rgb: &[u8], ring: usize, label: u32, levels: TissueLevels) -> f32 {
+        let (width, height) = self.grid_size;
         self.ring_saturations.clear();
         let (w, h) = (width as isize, height as isize);
         let mut layer_start = 0;
@@ -61,7 +55,7 @@ impl InstrumentMasker {
                         if self.class[j] == TISSUE && self.labels[j] != label {
                             self.labels[j] = label;
                             self.ring_front.push(j as u32);
-                            self.ring_saturations.push(self.saturation[j]);
+                            self.ring_saturations.push(self.saturation_at(rgb, j));
                         }
                     }
                 }
@@ -78,9 +72,10 @@ impl InstrumentMasker {
 
     /// The tissue's 90th-percentile gradient (over tissue cells whose 3×3 neighbourhood is all tissue: not the
     /// rim of a region, not a highlight's) and its 90th-percentile saturation (over tissue cells); 0 where there
-    /// is none.
-    pub(super) fn tissue_levels(&mut self) -> TissueLevels {
+    /// is none. `rgb` is the image `estimate` was given, sampled every `step` pixels.
+    pub(super) fn tissue_levels(&mut self, rgb: &[u8], step: usize) -> TissueLevels {
         let (width, height) = self.grid_size;
+        let full_width = self.image_size.0;
         let (class, luma) = (&self.class, &self.luma);
         let gradients = &mut self.tissue_gradients;
         gradients.clear();
@@ -95,7 +90,7 @@ impl InstrumentMasker {
                 if row[x] != TISSUE {
                     continue;
                 }
-                saturations[usize::from(self.saturation[y * width + x])] += 1;
+                saturations[usize::from(saturation_at(rgb, 3 * (y * full_width + x) * step))] += 1;
                 let around = [
                     above[x - 1],
                     above[x],
@@ -126,6 +121,26 @@ pub(super) struct TissueLevels {
     /// 90th-percentile saturation (of 255): the tissue's own colour where no veil covers it (under smoke the
     /// median tissue is veiled too).
     saturation: u8,
+}
+
+impl InstrumentMasker {
+    /// Where grid cell `cell`'s pixel starts in the RGB image.
+    fn rgb_offset(&self, cell: usize) -> usize {
+        let (width, step) = (self.grid_size.0, self.grid_step);
+        3 * ((cell / width) * step * self.image_size.0 + (cell % width) * step)
+    }
+
+    /// Saturation of grid cell `cell`'s pixel.
+    fn saturation_at(&self, rgb: &[u8], cell: usize) -> u8 {
+        saturation_at(rgb, self.rgb_offset(cell))
+    }
+}
+
+/// Saturation `(max − min) / max`, of 255, of the pixel at byte `at` of an RGB image.
+fn saturation_at(rgb: &[u8], at: usize) -> u8 {
+    let (r, g, b) = (rgb[at], rgb[at + 1], rgb[at + 2]);
+    let (hi, lo) = (r.max(g).max(b), r.min(g).min(b));
+    if hi == 0 { 0 } else { ((255 * u32::from(hi - lo)) / u32::from(hi)) as u8 }
 }
 
 /// The value below which `share` of a histogram's counts lie (0 for an empty histogram).
