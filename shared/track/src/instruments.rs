@@ -289,7 +289,7 @@ impl InstrumentMasker {
                 continue;
             }
             let (edge_contrast, colour_return) = if p.opacity {
-                let levels = *tissue.get_or_insert_with(|| self.tissue_levels(rgb, step));
+                let levels = *tissue.get_or_insert_with(|| self.tissue_levels(rgb));
                 (self.edge_contrast(width, height, levels.edge), self.colour_return(rgb, ring, next_label, levels))
             } else {
                 (f32::INFINITY, f32::INFINITY)

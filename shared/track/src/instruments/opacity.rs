@@ -72,10 +72,11 @@ impl InstrumentMasker {
 
     /// The tissue's 90th-percentile gradient (over tissue cells whose 3×3 neighbourhood is all tissue: not the
     /// rim of a region, not a highlight's) and its 90th-percentile saturation (over tissue cells); 0 where there
-    /// is none. `rgb` is the image `estimate` was given, sampled every `step` pixels.
-    pub(super) fn tissue_levels(&mut self, rgb: &[u8], step: usize) -> TissueLevels {
+    /// is none. `rgb` is the image `estimate` was given.
+    pub(super) fn tissue_levels(&mut self, rgb: &[u8]) -> TissueLevels {
         let (width, height) = self.grid_size;
-        let full_width = self.image_size.0;
+        // The pixel offset of a cell, written out: `rgb_offset` would borrow all of `self`.
+        let (step, full_width) = (self.grid_step, self.image_size.0);
         let (class, luma) = (&self.class, &self.luma);
         let gradients = &mut self.tissue_gradients;
         gradients.clear();
@@ -111,19 +112,7 @@ impl InstrumentMasker {
             saturation: percentile(saturations, EDGE_PERCENTILE) as u8,
         }
     }
-}
 
-/// What the tissue of a frame looks like, to judge a region against.
-#[derive(Debug, Clone, Copy)]
-pub(super) struct TissueLevels {
-    /// 90th-percentile gradient magnitude.
-    pub(super) edge: u16,
-    /// 90th-percentile saturation (of 255): the tissue's own colour where no veil covers it (under smoke the
-    /// median tissue is veiled too).
-    saturation: u8,
-}
-
-impl InstrumentMasker {
     /// Where grid cell `cell`'s pixel starts in the RGB image.
     fn rgb_offset(&self, cell: usize) -> usize {
         let (width, step) = (self.grid_size.0, self.grid_step);
@@ -134,6 +123,16 @@ impl InstrumentMasker {
     fn saturation_at(&self, rgb: &[u8], cell: usize) -> u8 {
         saturation_at(rgb, self.rgb_offset(cell))
     }
+}
+
+/// What the tissue of a frame looks like, to judge a region against.
+#[derive(Debug, Clone, Copy)]
+pub(super) struct TissueLevels {
+    /// 90th-percentile gradient magnitude.
+    pub(super) edge: u16,
+    /// 90th-percentile saturation (of 255): the tissue's own colour where no veil covers it (under smoke the
+    /// median tissue is veiled too).
+    saturation: u8,
 }
 
 /// Saturation `(max − min) / max`, of 255, of the pixel at byte `at` of an RGB image.
