@@ -24,7 +24,8 @@
 //! 5. the result is grown by a couple of pixels (a silhouette's rim mixes metal and tissue colours).
 //!
 //! A view that is mostly grey is not tissue (a street, a phantom, a grey-scale camera): then nothing is masked.
-//! Depth discontinuity and motion against the camera are the cues to add next (see the issue's note).
+//! Motion against the camera is a cue still to try. Depth discontinuity was measured with a dense matcher and
+//! overlaps between tools and veils off a hover (BENCHMARKS.md, "A third sign, depth").
 
 mod opacity;
 use bdis_core::pixel::gray_of;
@@ -107,6 +108,12 @@ pub struct Candidate {
     pub colour_return: f32,
     /// Masked as an instrument.
     pub instrument: bool,
+}
+
+/// Where working-grid cell `(gx, gy)`'s pixel starts in an RGB image `full_width` pixels wide, sampled every
+/// `step` pixels.
+fn rgb_offset(gx: usize, gy: usize, step: usize, full_width: usize) -> usize {
+    3 * (gy * step * full_width + gx * step)
 }
 
 /// Estimates instrument masks frame after frame with buffers it owns (a warmed-up frame allocates nothing).
@@ -206,7 +213,7 @@ impl InstrumentMasker {
         self.class.resize(n, TISSUE);
         let (dark, clipped) = (p.dark_level * 255.0, p.clip_level * 255.0);
         let mut grey = 0usize;
-        let samples = (0..height).flat_map(|gy| (0..width).map(move |gx| 3 * (gy * step * full_width + gx * step)));
+        let samples = (0..height).flat_map(|gy| (0..width).map(move |gx| rgb_offset(gx, gy, step, full_width)));
         self.luma.clear();
         self.luma.resize(n, 0);
         for ((class, luma), at) in self.class.iter_mut().zip(&mut self.luma).zip(samples) {

@@ -2,7 +2,7 @@
 //! and colour return, against what the frame's tissue looks like. Methods of `InstrumentMasker` on its own
 //! buffers, so a warmed-up frame allocates nothing.
 
-use super::{EDGE_PERCENTILE, InstrumentMasker, MAX_GRADIENT, TISSUE};
+use super::{EDGE_PERCENTILE, InstrumentMasker, MAX_GRADIENT, TISSUE, rgb_offset};
 
 impl InstrumentMasker {
     /// The edge contrast of the region whose members are in `stack`: the 90th-percentile gradient at its
@@ -75,7 +75,6 @@ impl InstrumentMasker {
     /// is none. `rgb` is the image `estimate` was given.
     pub(super) fn tissue_levels(&mut self, rgb: &[u8]) -> TissueLevels {
         let (width, height) = self.grid_size;
-        // The pixel offset of a cell, written out: `rgb_offset` would borrow all of `self`.
         let (step, full_width) = (self.grid_step, self.image_size.0);
         let (class, luma) = (&self.class, &self.luma);
         let gradients = &mut self.tissue_gradients;
@@ -91,7 +90,7 @@ impl InstrumentMasker {
                 if row[x] != TISSUE {
                     continue;
                 }
-                saturations[usize::from(saturation_at(rgb, 3 * (y * full_width + x) * step))] += 1;
+                saturations[usize::from(saturation_at(rgb, rgb_offset(x, y, step, full_width)))] += 1;
                 let around = [
                     above[x - 1],
                     above[x],
@@ -113,15 +112,10 @@ impl InstrumentMasker {
         }
     }
 
-    /// Where grid cell `cell`'s pixel starts in the RGB image.
-    fn rgb_offset(&self, cell: usize) -> usize {
-        let (width, step) = (self.grid_size.0, self.grid_step);
-        3 * ((cell / width) * step * self.image_size.0 + (cell % width) * step)
-    }
-
     /// Saturation of grid cell `cell`'s pixel.
     fn saturation_at(&self, rgb: &[u8], cell: usize) -> u8 {
-        saturation_at(rgb, self.rgb_offset(cell))
+        let width = self.grid_size.0;
+        saturation_at(rgb, rgb_offset(cell % width, cell / width, self.grid_step, self.image_size.0))
     }
 }
 
