@@ -22,10 +22,14 @@ fn bench(c: &mut Criterion) {
             let scale = w as f32 / 640.0;
             let load = |side: &str| {
                 image::open(data.join(format!("{set}/{side}/1.png"))).map(|i| {
-                    let grey = i.to_luma8();
-                    if grey.width() == w && grey.height() == h {
-                        grey.into_raw()
+                    // The pipeline's grey (BT.601), as the acquisition service makes it.
+                    let rgb = i.to_rgb8();
+                    let (iw, ih) = (rgb.width(), rgb.height());
+                    let grey = bdis_core::pixel::gray_of_rgb(rgb.as_raw());
+                    if iw == w && ih == h {
+                        grey
                     } else {
+                        let grey = image::GrayImage::from_raw(iw, ih, grey).expect("one byte per pixel");
                         image::imageops::resize(&grey, w, h, image::imageops::FilterType::CatmullRom).into_raw()
                     }
                 })

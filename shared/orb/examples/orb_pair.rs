@@ -3,8 +3,9 @@
 use bdis_orb::{Features, OrbExtractor, OrbParams, StereoFeatures, StereoMatcher};
 fn main() {
     let a: Vec<String> = std::env::args().collect();
-    let l = image::open(&a[1]).unwrap().to_luma8().into_raw();
-    let r = image::open(&a[2]).unwrap().to_luma8().into_raw();
+    // The pipeline's grey (BT.601), as the acquisition service makes it.
+    let l = bdis_core::pixel::gray_of_rgb(image::open(&a[1]).unwrap().to_rgb8().as_raw());
+    let r = bdis_core::pixel::gray_of_rgb(image::open(&a[2]).unwrap().to_rgb8().as_raw());
     let params = OrbParams { n_features: 1000, ..OrbParams::default() };
     let (mut el, mut er) = (OrbExtractor::new(params, 640, 480).unwrap(), OrbExtractor::new(params, 640, 480).unwrap());
     let mut m = StereoMatcher::new();

@@ -16,10 +16,11 @@ fn data(set: &str) -> Option<PathBuf> {
     }
 }
 
+/// The image's grey as the pipeline makes it (BT.601, `bdis_core::pixel`), not `image`'s Rec. 709.
 fn gray(path: &Path) -> (Vec<u8>, usize, usize) {
-    let g = image::open(path).unwrap().to_luma8();
-    let (w, h) = (g.width() as usize, g.height() as usize);
-    (g.into_raw(), w, h)
+    let rgb = image::open(path).unwrap().to_rgb8();
+    let (w, h) = (rgb.width() as usize, rgb.height() as usize);
+    (bdis_core::pixel::gray_of_rgb(rgb.as_raw()), w, h)
 }
 
 #[test]

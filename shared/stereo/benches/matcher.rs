@@ -14,9 +14,11 @@ use criterion::{Criterion, criterion_group, criterion_main};
 fn pair() -> (Vec<u8>, Vec<u8>, usize, usize, &'static str) {
     let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data/bdis/31");
     if let (Ok(l), Ok(r)) = (image::open(dir.join("left/1.png")), image::open(dir.join("right/1.png"))) {
-        let (l, r) = (l.to_luma8(), r.to_luma8());
+        // The pipeline's grey (BT.601), as the acquisition service makes it.
+        let (l, r) = (l.to_rgb8(), r.to_rgb8());
         let (w, h) = (l.width() as usize, l.height() as usize);
-        return (l.into_raw(), r.into_raw(), w, h, "set31-1");
+        let grey = |rgb: &image::RgbImage| bdis_core::pixel::gray_of_rgb(rgb.as_raw());
+        return (grey(&l), grey(&r), w, h, "set31-1");
     }
     let (w, h) = (640, 480);
     let tex = |x: f32, y: f32| -> u8 {

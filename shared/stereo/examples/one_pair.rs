@@ -26,16 +26,17 @@ fn main() {
         other => panic!("unknown preset {other}"),
     };
     let params = if unhalved { Params { level_offset: Some(0), ..params } } else { params };
-    let l = image::open(&args[2]).unwrap().to_luma8();
-    let r = image::open(&args[3]).unwrap().to_luma8();
-    let repeats: usize = args.get(4).map_or(1, |s| s.parse().unwrap());
+    // The pipeline's grey (BT.601), as the acquisition service makes it.
+    let (l, r) = (image::open(&args[2]).unwrap().to_rgb8(), image::open(&args[3]).unwrap().to_rgb8());
     let (w, h) = (l.width() as usize, l.height() as usize);
+    let (l, r) = (bdis_core::pixel::gray_of_rgb(l.as_raw()), bdis_core::pixel::gray_of_rgb(r.as_raw()));
+    let repeats: usize = args.get(4).map_or(1, |s| s.parse().unwrap());
     let mut m = Matcher::new(params).unwrap();
     let mut out = DisparityMap::default();
     for _ in 0..repeats {
         m.compute_into(
-            GrayImage { width: w, height: h, data: l.as_raw() },
-            GrayImage { width: w, height: h, data: r.as_raw() },
+            GrayImage { width: w, height: h, data: &l },
+            GrayImage { width: w, height: h, data: &r },
             &mut out,
         )
         .unwrap();
