@@ -24,8 +24,9 @@
 //! 5. the result is grown by a couple of pixels (a silhouette's rim mixes metal and tissue colours).
 //!
 //! A view that is mostly grey is not tissue (a street, a phantom, a grey-scale camera): then nothing is masked.
-//! Motion against the camera is a cue still to try. Depth discontinuity was measured with a dense matcher and
-//! overlaps between tools and veils off a hover (BENCHMARKS.md, "A third sign, depth").
+//! The other two cues were measured at their best (a dense matcher's depth; optical flow against the
+//! true camera motion) and overlap between tools and veils: smoke's billows drift across the view about as
+//! fast as graspers move (BENCHMARKS.md, "A third sign, depth" and "Motion, the other cue").
 
 mod opacity;
 use bdis_core::pixel::gray_of;
