@@ -3,9 +3,11 @@
 //! a development tool (the product runs the `bdis-tracking` service).
 //!
 //! cargo run --release -p bdis-track --example track_sequence -- <dir> <out.tum> [max frames] [--whole-pixel]
-//!     [--settings F] [--verbose] [--dump-map F]
+//!     [--settings F] [--verbose] [--dump-map F] [--online F]
 //!     [--no-loop-closing]
 //!
+//! `--online F` writes each frame's pose as the tracker gave it at the time (TUM, world_from_camera, then the
+//! pose method's name): before the trajectory's re-expression through keyframes and the veils' bridges.
 //! `--dump-map F` writes the finished map's keyframes and observations for `observation_truth.py` (beside this).
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 use std::io::Write;
@@ -25,6 +27,7 @@ fn main() {
     let mut masker = sequence::masker(&a);
     tracker.set_refinement(!a.iter().any(|x| x == "--whole-pixel"));
     tracker.set_loop_closing(!a.iter().any(|x| x == "--no-loop-closing"));
+    let mut online: Vec<String> = Vec::new();
     let mut cpu = Vec::new();
     let mut kf_ms = Vec::new();
     let mut steps = [0.0f64; 5];
@@ -35,6 +38,12 @@ fn main() {
         let start = std::time::Instant::now();
         let keep_out = sequence::keep_out(masker.as_mut(), frame.left_rgb.as_ref());
         let res = tracker.track_masked((t * 1e9).round() as u64, &frame.left, &frame.right, keep_out).unwrap();
+        if let Some(c) = res.camera_from_world {
+            let w = c.inverse();
+            let (q, p) = (w.rotation.quaternion(), w.translation.vector);
+            let method = res.quality.method.name();
+            online.push(format!("{t:.6} {} {} {} {} {} {} {} {method}", p.x, p.y, p.z, q.i, q.j, q.k, q.w));
+        }
         let ms = start.elapsed().as_secs_f64() * 1e3;
         if let Some(m) = &res.mapper {
             for (total, step) in steps.iter_mut().zip(m.step_ms) {
@@ -127,6 +136,9 @@ fn main() {
     );
     if let Some(i) = a.iter().position(|x| x == "--dump-map") {
         dump_map(tracker.map(), std::path::Path::new(&a[i + 1]));
+    }
+    if let Some(i) = a.iter().position(|x| x == "--online") {
+        std::fs::write(&a[i + 1], online.join("\n") + "\n").unwrap();
     }
     let mut out = std::fs::File::create(&a[2]).unwrap();
     for (t_ns, pose, _lost) in tracker.trajectory() {
