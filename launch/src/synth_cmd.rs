@@ -61,7 +61,9 @@ pub struct SynthArgs {
     #[arg(long)]
     instruments: bool,
     /// A puff of surgical smoke 40 % of the way in: a haze that rises in 0.3 s, hides 80 % of the tissue's light
-    /// at its thickest for 0.5 s and clears in 0.8 s (in the images only, not the ground truth)
+    /// at its thickest for 0.5 s and clears in 0.8 s (in the images only, not the ground truth). It is a
+    /// billowed sheet at half the working distance that rides with the scope, drifting up: real smoke stays in
+    /// the cavity instead, so a moving scope would see it move as a still scene at its depth
     #[arg(long)]
     smoke: bool,
     /// A bleed 30 % of the way in: a pool of blood spreads over 2 s from the tissue just below the centre of the
