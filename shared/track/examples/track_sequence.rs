@@ -38,13 +38,13 @@ fn main() {
         let start = std::time::Instant::now();
         let keep_out = sequence::keep_out(masker.as_mut(), frame.left_rgb.as_ref());
         let res = tracker.track_masked((t * 1e9).round() as u64, &frame.left, &frame.right, keep_out).unwrap();
+        let ms = start.elapsed().as_secs_f64() * 1e3;
         if let Some(c) = res.camera_from_world {
             let w = c.inverse();
             let (q, p) = (w.rotation.quaternion(), w.translation.vector);
             let method = res.quality.method.name();
             online.push(format!("{t:.6} {} {} {} {} {} {} {} {method}", p.x, p.y, p.z, q.i, q.j, q.k, q.w));
         }
-        let ms = start.elapsed().as_secs_f64() * 1e3;
         if let Some(m) = &res.mapper {
             for (total, step) in steps.iter_mut().zip(m.step_ms) {
                 *total += step;
