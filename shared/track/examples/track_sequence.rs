@@ -27,6 +27,7 @@ fn main() {
     let mut masker = sequence::masker(&a);
     tracker.set_refinement(!a.iter().any(|x| x == "--whole-pixel"));
     tracker.set_loop_closing(!a.iter().any(|x| x == "--no-loop-closing"));
+    let online_path = a.iter().position(|x| x == "--online").map(|i| std::path::PathBuf::from(&a[i + 1]));
     let mut online: Vec<String> = Vec::new();
     let mut cpu = Vec::new();
     let mut kf_ms = Vec::new();
@@ -39,7 +40,7 @@ fn main() {
         let keep_out = sequence::keep_out(masker.as_mut(), frame.left_rgb.as_ref());
         let res = tracker.track_masked((t * 1e9).round() as u64, &frame.left, &frame.right, keep_out).unwrap();
         let ms = start.elapsed().as_secs_f64() * 1e3;
-        if let Some(c) = res.camera_from_world {
+        if let Some(c) = res.camera_from_world.filter(|_| online_path.is_some()) {
             let w = c.inverse();
             let (q, p) = (w.rotation.quaternion(), w.translation.vector);
             let method = res.quality.method.name();
@@ -137,8 +138,8 @@ fn main() {
     if let Some(i) = a.iter().position(|x| x == "--dump-map") {
         dump_map(tracker.map(), std::path::Path::new(&a[i + 1]));
     }
-    if let Some(i) = a.iter().position(|x| x == "--online") {
-        std::fs::write(&a[i + 1], online.join("\n") + "\n").unwrap();
+    if let Some(path) = &online_path {
+        std::fs::write(path, online.join("\n") + "\n").unwrap();
     }
     let mut out = std::fs::File::create(&a[2]).unwrap();
     for (t_ns, pose, _lost) in tracker.trajectory() {
