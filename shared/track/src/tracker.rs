@@ -334,17 +334,12 @@ impl Tracker {
         if ok {
             ok = self.track_local_map(&mut result);
         }
-        let coasting = !ok && self.coast();
-        if coasting {
-            result.quality.method = PoseMethod::Prediction;
-            result.inliers = 0;
-        }
+        let mut coasting = !ok && self.coast();
         ok |= coasting;
-        self.last_coasted = coasting;
-        result.quality.inliers = result.inliers as u32;
-        let doubt = if coasting {
+        let mut doubt = if coasting {
             Some(Doubt::LowContrast)
         } else if ok {
+            result.quality.inliers = result.inliers as u32;
             match self.assess(&mut result.quality) {
                 None | Some(Doubt::MapMoving) if self.still_detached() => Some(Doubt::Detached),
                 doubt => doubt,
@@ -352,6 +347,27 @@ impl Tracker {
         } else {
             Some(Doubt::FewInliers)
         };
+        // Under a veil it is the haze, not a cut, that takes most of the last frame's points away: a pose
+        // nothing confirms there is coasted like one the images could not give (smoke that hangs in the cavity
+        // leaves a few dim matches where a sheet riding with the scope left none).
+        if doubt == Some(Doubt::Unconfirmed) && self.coast() {
+            coasting = true;
+            doubt = Some(Doubt::LowContrast);
+            // The measures were of the pose given up; what appearance found stands.
+            let q = &result.quality;
+            result.quality = TrackingQuality {
+                appearance_matches: q.appearance_matches,
+                appearance_consensus: q.appearance_consensus,
+                prior_rejected: q.prior_rejected,
+                ..TrackingQuality::default()
+            };
+        }
+        if coasting {
+            result.quality.method = PoseMethod::Prediction;
+            result.inliers = 0;
+        }
+        self.last_coasted = coasting;
+        result.quality.inliers = result.inliers as u32;
         result.quality.doubt = doubt;
         self.last_doubt = doubt;
         // A pose nothing confirms, on a view that lost most of the last one's points, is no pose.

@@ -97,3 +97,23 @@ fn a_veil_too_thick_to_track_through_is_coasted_and_the_written_trajectory_bridg
         assert!(error < 0.2, "frame {i}: {error:.3} mm off");
     }
 }
+
+#[test]
+fn a_veil_that_thickens_at_once_is_coasted_where_its_few_matches_confirm_nothing() {
+    // Half the contrast gone over frames 12–15, then 70–74 % of it over 16–21: the scope enters the thick of a
+    // cloud. Where a pose keeps under half the last frame's inliers and appearance finds nothing, a cut would be
+    // lost (`Doubt::Unconfirmed`); under a veil it is the haze that took them (at 72 % the frame kept 46 of
+    // 141), and the frame is coasted instead: never lost, `Ok` again once clear.
+    for thick in [0.70, 0.72, 0.74] {
+        let results = track_veiled(&mut colon_tracker(), 30, |i| match i {
+            12..16 => 0.5,
+            16..22 => thick,
+            _ => 0.0,
+        });
+        for (i, r) in results.iter().enumerate() {
+            assert_ne!(r.state, TrackingState::Lost, "{thick}: frame {i}: {:?}", r.quality);
+        }
+        assert!((12..22).all(|i| doubted_for_contrast(&results[i])), "{thick}");
+        assert!(results[24..].iter().all(|r| r.state == TrackingState::Ok), "{thick}: tracking resumed after the veil");
+    }
+}

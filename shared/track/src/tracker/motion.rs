@@ -9,10 +9,11 @@ impl Tracker {
         Some(self.velocity? * self.last.camera_from_world?)
     }
 
-    /// A frame seen through a veil (smoke) that the images could not pose is posed by the motion model
-    /// instead, `Uncertain`, with no match kept: the haze takes the texture away for a second or two, and the
-    /// scope goes on moving as it was. Losing the frame instead would leave only relocalisation, which finds
-    /// known places only, while the scope may have moved on into new tissue by the time the veil lifts.
+    /// A frame seen through a veil (smoke) that the images could not pose, or posed from a few matches that
+    /// nothing confirms ([`Doubt::Unconfirmed`]), is posed by the motion model instead, `Uncertain`, with no
+    /// match kept: the haze takes the texture away for a second or two, and the scope goes on moving as it
+    /// was. Losing the frame instead would leave only relocalisation, which finds known places only, while the
+    /// scope may have moved on into new tissue by the time the veil lifts.
     /// Returns whether the frame was coasted.
     pub(super) fn coast(&mut self) -> bool {
         // The veil lasts at most `MAX_VEIL_S`, and so does coasting.
