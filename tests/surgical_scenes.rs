@@ -7,7 +7,8 @@
 //! is refused in one line naming the file.
 //!
 //! Smoke, breathing and bleeding (the other surgical scenes) on the same hover: smoke's thick frames are
-//! `Uncertain`, none of it is taken for an instrument, and its ATE stays within 2× of the clear hover's; under ±2 mm of breathing and under a spreading
+//! `Uncertain`, none of it is taken for an instrument, and its ATE stays within 2× of the clear hover's (smoke
+//! that stays in the cavity and a sheet that rides with the scope); under ±2 mm of breathing and under a spreading
 //! pool of blood tracking holds and the map stays on the (mean) tissue.
 //!
 //! Rendered once per test binary at 320×240 (f = 260), 90 frames (3 s): the smallest ORB's eight levels take.
@@ -189,45 +190,53 @@ fn a_mask_folder_without_every_frame_is_refused_naming_the_file() {
 
 #[test]
 fn smoke_makes_the_frames_it_veils_uncertain_and_tracking_resumes_when_it_clears() {
-    // 120 frames: the puff starts 40 % in (frame 48), is thickest over frames 57–72 and is gone by frame 96.
-    let dir = renders().root.join("smoke");
-    synth_hover(&dir, 120, &["--smoke"]);
-    let run_dir = renders().root.join("smoke-run");
-    track_run(&dir, &dir.join("settings.yaml"), &run_dir, "smoke", &[]);
-    let csv = std::fs::read_to_string(run_dir.join("tracking-quality.csv")).unwrap();
-    let states: Vec<(usize, String, String)> = csv
-        .lines()
-        .skip(1)
-        .map(|line| {
-            let f: Vec<&str> = line.split(',').collect();
-            (f[0].parse().unwrap(), f[2].to_string(), f[3].to_string())
-        })
-        .collect();
-    let count = |range: std::ops::Range<usize>, state: &str| {
-        states.iter().filter(|(i, s, _)| range.contains(i) && s == state).count()
-    };
-    let thick = count(57..73, "uncertain");
-    assert!(thick >= 12, "{thick} of the 16 thickest frames uncertain: {csv}");
-    assert!(states.iter().any(|(_, _, doubt)| doubt == "low-contrast"), "{csv}");
-    assert_eq!(count(0..120, "lost"), 0, "{csv}");
-    assert!(count(0..48, "ok") == 48 && count(100..120, "ok") == 20, "ok before the smoke and after it: {csv}");
-    // Smoke is grey and reaches the border, as an instrument does, but it fades into the tissue: the estimate
-    // weighs it (a candidate on some frames) and masks none of it.
-    let out = run_with_timeout(
-        Command::new(bdis_slam()).args(["eval", "masks", "--json", "--sequence"]).arg(&dir),
-        Duration::from_secs(300),
-    );
-    assert!(out.status.success(), "{}", text(&out.stderr));
-    let masks: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
-    assert_eq!(masks["frames_with_instruments"], 0, "smoke taken for an instrument: {masks}");
-    assert!(masks["frames_with_veils"].as_u64().unwrap() > 0, "the smoke was never a candidate: {masks}");
-    // The bound: ATE within 2× of the same hover without smoke. The written trajectory bridges the
-    // veil from the clear frames on both sides (the veiled frames' own poses follow the haze).
+    // The bound: ATE within 2× of the same hover without smoke.
     let clear = renders().root.join("smoke-clear");
     synth_hover(&clear, 120, &[]);
     let (_, clear_ate) = track(&clear, "smoke-clear-run", &[]);
-    let (smoke_ate, _) = ate(&dir, &run_dir);
-    assert!(smoke_ate <= 2.0 * clear_ate, "ATE {smoke_ate:.3} mm through the smoke against {clear_ate:.3} mm clear");
+    // Both kinds of smoke the renderer has: a cloud that stays in the cavity (real smoke), and a sheet that
+    // rides with the scope (the harder case: it says "standing still" whatever the scope does).
+    for kind in ["cavity", "scope"] {
+        // 120 frames: the puff starts 40 % in (frame 48), is thickest over frames 57–72 and is gone by frame 96.
+        let dir = renders().root.join(format!("smoke-{kind}"));
+        synth_hover(&dir, 120, &["--smoke", kind]);
+        let run_dir = renders().root.join(format!("smoke-{kind}-run"));
+        track_run(&dir, &dir.join("settings.yaml"), &run_dir, kind, &[]);
+        let csv = std::fs::read_to_string(run_dir.join("tracking-quality.csv")).unwrap();
+        let states: Vec<(usize, String, String)> = csv
+            .lines()
+            .skip(1)
+            .map(|line| {
+                let f: Vec<&str> = line.split(',').collect();
+                (f[0].parse().unwrap(), f[2].to_string(), f[3].to_string())
+            })
+            .collect();
+        let count = |range: std::ops::Range<usize>, state: &str| {
+            states.iter().filter(|(i, s, _)| range.contains(i) && s == state).count()
+        };
+        let thick = count(57..73, "uncertain");
+        assert!(thick >= 12, "{kind}: {thick} of the 16 thickest frames uncertain: {csv}");
+        assert!(states.iter().any(|(_, _, doubt)| doubt == "low-contrast"), "{kind}: {csv}");
+        assert_eq!(count(0..120, "lost"), 0, "{kind}: {csv}");
+        assert!(count(0..48, "ok") == 48 && count(100..120, "ok") == 20, "{kind}: ok before and after: {csv}");
+        // Smoke is grey and reaches the border, as an instrument does, but it fades into the tissue: the
+        // estimate weighs it (a candidate on some frames) and masks none of it.
+        let out = run_with_timeout(
+            Command::new(bdis_slam()).args(["eval", "masks", "--json", "--sequence"]).arg(&dir),
+            Duration::from_secs(300),
+        );
+        assert!(out.status.success(), "{}", text(&out.stderr));
+        let masks: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+        assert_eq!(masks["frames_with_instruments"], 0, "{kind}: smoke taken for an instrument: {masks}");
+        assert!(masks["frames_with_veils"].as_u64().unwrap() > 0, "{kind}: the smoke was never a candidate: {masks}");
+        // The written trajectory bridges the veil from the clear frames on both sides (the veiled frames' own
+        // poses follow the haze).
+        let (smoke_ate, _) = ate(&dir, &run_dir);
+        assert!(
+            smoke_ate <= 2.0 * clear_ate,
+            "{kind}: ATE {smoke_ate:.3} mm through the smoke against {clear_ate:.3} mm clear"
+        );
+    }
 }
 
 #[test]

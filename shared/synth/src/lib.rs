@@ -46,6 +46,16 @@ fn value_noise(seed: u64, u: f64, v: f64) -> f64 {
     a * (1.0 - sv) + b * sv
 }
 
+/// Smooth value noise in [0, 1) over space, lattice spacing 1 (trilinear between [`lattice`] values of one
+/// seed per lattice plane).
+fn value_noise3(seed: u64, u: f64, v: f64, w: f64) -> f64 {
+    let k = w.floor();
+    let s = |t: f64| t * t * (3.0 - 2.0 * t);
+    let sw = s(w - k);
+    let plane = |k: f64| value_noise(seed ^ (k as i64 as u64).wrapping_mul(0xD6E8_FEB8_6659_FD93), u, v);
+    plane(k) * (1.0 - sw) + plane(k + 1.0) * sw
+}
+
 /// Procedural tissue: a pink-red base at several scales, dark curvilinear vessels, and smooth low-texture
 /// patches. `u`, `v` are surface coordinates in millimetres.
 #[derive(Debug, Clone, Copy)]
@@ -380,8 +390,9 @@ pub struct SceneRequest {
     /// Instruments in the view (two laparoscopic graspers over the abdomen, a working-channel tool in the
     /// colon), with a ground-truth mask per frame in `gt/masks/`.
     pub instruments: bool,
-    /// A puff of surgical smoke 40 % of the way in: up in 0.3 s, 0.5 s thick, gone 0.8 s later.
-    pub smoke: bool,
+    /// A puff of surgical smoke 40 % of the way in: up in 0.3 s, 0.5 s thick, gone 0.8 s later, hanging in the
+    /// cavity or riding with the scope ([`smoke`]); `None`: clear air.
+    pub smoke: Option<smoke::Anchoring>,
     /// Breathing ([`breathing`]): the largest displacement of the tissue from its mean surface, mm; 0: still.
     pub breathing_mm: f64,
     /// A bleed 30 % of the way in ([`bleeding`]): a pool of blood spreading over the tissue in view for 2 s.
@@ -405,7 +416,7 @@ impl Default for SceneRequest {
             raw: None,
             optics_blur_px: 0.0,
             instruments: false,
-            smoke: false,
+            smoke: None,
             breathing_mm: 0.0,
             breathing_wavelength_mm: breathing::WAVELENGTH_MM,
             bleeding: false,
@@ -556,7 +567,13 @@ pub fn write_scene(
     let tools = request
         .instruments
         .then(|| instruments::Instruments::new(tool_kind, working_distance_mm, shading.exposure_distance_mm));
-    let smoke = request.smoke.then(|| smoke::Smoke::puff(0.4 * total_s, working_distance_mm, seed));
+    let smoke_start_s = 0.4 * total_s;
+    let smoke = request.smoke.map(|anchoring| match anchoring {
+        smoke::Anchoring::Scope => smoke::Smoke::puff(smoke_start_s, working_distance_mm, seed),
+        smoke::Anchoring::Cavity => {
+            smoke::Smoke::cavity_puff(smoke_start_s, working_distance_mm, &path(smoke_start_s), seed)
+        }
+    });
     // The bleed's source: the tissue a little below the centre of the view when it starts (the centre of a colon
     // view looks down the lumen).
     let bleeding = if request.bleeding {

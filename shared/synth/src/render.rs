@@ -126,7 +126,7 @@ impl RawLens {
 
     /// The ray (rectified frame, z = 1 not implied) through raw pixel (u, v) of a view (1 left, 2 right),
     /// with (u, v) in the renderer's pixel-corner convention.
-    fn ray(&self, view: u64, u: f64, v: f64) -> Option<Vector3<f64>> {
+    pub(crate) fn ray(&self, view: u64, u: f64, v: f64) -> Option<Vector3<f64>> {
         let (camera, turn) = if view == 1 {
             (&self.left, &self.left_rectified_from_raw)
         } else {
@@ -324,24 +324,22 @@ pub fn render_scene(
         }
     }
     // The optics, then the sensor: blur in the camera's pixel grid, noise per pixel, rounding to grey levels.
-    for (radiance_image, img, view) in [(&mut left_radiance, &mut left, 1u64), (&mut right_radiance, &mut right, 2)] {
+    for (radiance_image, img, view, pose, zbuf) in [
+        (&mut left_radiance, &mut left, 1u64, world_from_left, &depth),
+        (&mut right_radiance, &mut right, 2, world_from_right, &right_depth),
+    ] {
         if shading.optics_blur_px > 0.0 {
             radiance_image.iter_mut().filter(|r| r.is_nan()).for_each(|r| *r = 0.0);
             gaussian_blur_rgb(radiance_image, w as usize, h as usize, shading.optics_blur_px);
         }
         if let Some(haze) = &shading.haze {
-            // The sheet seen from this view's centre: the right camera sits a baseline to the right.
-            let offset = if view == 1 { 0.0 } else { rig.baseline() };
-            let z = haze.depth_mm;
-            // Lit by the scope's light at its depth, as a wall there would be (an albedo of 0.6), never white.
-            let exposure = (0.8 * (shading.exposure_distance_mm / z).powi(2) * 0.6).min(0.85) * 255.0;
-            for (i, radiance) in radiance_image.chunks_exact_mut(3).enumerate() {
-                let (x, y) = ((i % w as usize) as f64 + 0.5, (i / w as usize) as f64 + 0.5);
-                let a = haze.alpha((x - rig.cx) * z / rig.fx + offset, (y - rig.cy) * z / rig.fy);
-                for r in radiance {
-                    *r = if r.is_nan() { 0.0 } else { *r } * (1.0 - a) + exposure * a;
-                }
-            }
+            // Through the camera's pixel grid as it is (raw or rectified): the view's ray through each pixel.
+            let ray = |x: f64, y: f64| match &shading.lens {
+                None => Some(Vector3::new((x - rig.cx) / rig.fx, (y - rig.cy) / rig.fy, 1.0)),
+                Some(lens) => lens.ray(view, x, y),
+            };
+            let seen = crate::smoke::View { rig, ray: &ray, right: view == 2, world_from_camera: pose, z_depth: zbuf };
+            haze.veil(radiance_image, &seen, shading.exposure_distance_mm);
         }
         for (i, (px, radiance)) in img.chunks_exact_mut(3).zip(radiance_image.chunks_exact(3)).enumerate() {
             if radiance[0].is_nan() {

@@ -309,6 +309,48 @@ fn smoke_lowers_the_contrast_and_leaves_the_ground_truth_alone() {
 }
 
 #[test]
+fn smoke_in_the_cavity_stays_where_it_was_made_and_a_scope_that_flies_on_leaves_it_behind() {
+    let rig = rig();
+    let colon = Colon::default();
+    let detail = |img: &image::RgbImage| {
+        let g: Vec<f64> = img.pixels().map(|p| f64::from(p.0[1])).collect();
+        let w = img.width() as usize;
+        g.chunks(w).flat_map(|row| row.windows(3).map(|t| (t[0] - 2.0 * t[1] + t[2]).abs())).sum::<f64>()
+    };
+    // Made in front of the scope where it is at 0 s, seen at its peak (0.5 s) from 6 mm further on (inside the
+    // cloud: it is 0.75 radii across either side of a centre 0.6 radii ahead) and from 30 mm further on.
+    let made_at = colon.forward_pose(0.0, 20.0);
+    let (here, on) = (colon.forward_pose(0.3, 20.0), colon.forward_pose(1.5, 20.0));
+    let cloud = bdis_synth::smoke::Smoke::cavity_puff(0.0, colon.radius_mm, &made_at, 5);
+    let sheet = bdis_synth::smoke::Smoke::puff(0.0, colon.radius_mm, 5);
+    // Without the sensor's noise, which the haze does not lower, the contrast is the texture's.
+    let clear = Shading { noise: 0.0, ..Shading::default() };
+    let (in_cloud, in_sheet) =
+        (Shading { haze: cloud.haze_at(0.5), ..clear }, Shading { haze: sheet.haze_at(0.5), ..clear });
+    for pose in [here, on] {
+        let a = render(&colon, &rig, &clear, &pose, 3);
+        let b = render(&colon, &rig, &in_cloud, &pose, 3);
+        let bits = |d: &[f32]| d.iter().map(|z| z.to_bits()).collect::<Vec<_>>();
+        assert_eq!(bits(&a.depth), bits(&b.depth), "the ground truth is the tissue's");
+        let sheeted = render(&colon, &rig, &in_sheet, &pose, 3);
+        assert!(detail(&sheeted.left) < 0.8 * detail(&a.left), "the sheet rides with the scope everywhere");
+        if pose == here {
+            assert!(
+                detail(&b.left) < 0.6 * detail(&a.left),
+                "veiled in the cloud: {} vs {}",
+                detail(&b.left),
+                detail(&a.left)
+            );
+            // Smoke scatters the scope's light back: the view turns paler, towards grey.
+            let mean = |img: &image::RgbImage, c: usize| img.pixels().map(|p| f64::from(p.0[c])).sum::<f64>();
+            assert!(mean(&b.left, 1) > mean(&a.left, 1), "the haze is lit");
+        } else {
+            assert_eq!(a.left, b.left, "the cloud is behind the scope that flew on");
+        }
+    }
+}
+
+#[test]
 fn breathing_moves_the_tissue_both_ways_by_its_amplitude_and_leaves_the_mean_surface_in_the_mesh() {
     let rig = rig();
     let abdomen = Abdomen::default();
