@@ -15,11 +15,11 @@ use crate::{value_noise, value_noise3};
 /// Where a puff's smoke hangs.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum Anchoring {
-    /// A sheet at half the working distance that moves with the scope.
+    /// A cloud fixed in the cavity, made in front of the scope where the puff starts: real smoke.
     #[default]
-    Scope,
-    /// A cloud fixed in the cavity, made in front of the scope where the puff starts.
     Cavity,
+    /// A sheet at half the working distance that moves with the scope.
+    Scope,
 }
 
 /// A cloud of smoke fixed in the scene: a ball of billowed density, thinning towards its rim.
@@ -66,7 +66,8 @@ pub struct Haze {
     pub seed: u64,
 }
 
-/// Samples along a ray's chord through the cloud: the chord is at most two radii, eight billows, long.
+/// Samples along a ray's chord through the cloud: the chord is at most two radii, twelve billows, long, so
+/// about two samples a billow where it is longest (a fixed count keeps every frame's cost the same).
 const CLOUD_STEPS: usize = 24;
 
 impl Smoke {
