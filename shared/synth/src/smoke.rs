@@ -198,7 +198,7 @@ pub(crate) struct View<'a> {
 impl Haze {
     /// Lays the haze over one view's radiance (RGB per pixel, 0..255, NaN where no ray met a wall), lit by the
     /// scope's light as the renderer lights the tissue (`exposure_distance_mm`: where a white wall facing it is
-    /// at 80 % of full scale, [`crate::render::Shading`]).
+    /// at 80 % of full scale, the renderer's `Shading::exposure_distance_mm`).
     pub(crate) fn veil(&self, radiance_image: &mut [f64], view: &View, exposure_distance_mm: f64) {
         let w = view.rig.width as usize;
         // What the smoke sends back at a distance (along the ray for the cloud, the depth for the sheet): the
