@@ -3,7 +3,7 @@
 
 use crate::frame::{Frame, Scales};
 use crate::geometry::{CameraFromWorld, RectifiedCamera};
-use crate::map::{KfId, Map, PointId};
+use crate::map::{KfId, Map, MapPoint, PointId};
 use crate::optim::CHI2_MONO;
 use bdis_orb::{RotationBins, RotationHistogram, hamming};
 
@@ -253,6 +253,38 @@ impl Searcher {
     }
 }
 
+/// Where a map point appears to a camera that sees it by §5.6's frustum test: in front of it and in the image,
+/// within the point's scale-invariance distances, and at under 60° from its mean viewing direction.
+#[derive(Debug, Clone, Copy)]
+pub struct SeenAt {
+    pub u: f64,
+    pub v: f64,
+    /// Depth along the optical axis (for the right image's column) and distance from the camera's centre.
+    pub z: f64,
+    pub dist: f64,
+    pub view_cos: f64,
+}
+
+/// The frustum test of §5.6 for `point` seen from `pose`; `None` when it fails.
+pub fn seen_from(cam: &RectifiedCamera, point: &MapPoint, pose: &CameraFromWorld) -> Option<SeenAt> {
+    let pc = pose * point.position;
+    if pc.z <= 0.0 {
+        return None;
+    }
+    let (u, v) = cam.project(&pc);
+    if !cam.in_image(u, v) {
+        return None;
+    }
+    let centre = pose.inverse() * nalgebra::Point3::origin();
+    let d = point.position - centre;
+    let dist = d.norm();
+    if dist < 0.8 * point.min_dist || dist > 1.2 * point.max_dist {
+        return None;
+    }
+    let view_cos = d.dot(&point.normal) / dist;
+    (view_cos >= 0.5).then_some(SeenAt { u, v, z: pc.z, dist, view_cos })
+}
+
 /// The frustum test of §5.6 for the local-map search; fills the point's cache. Returns whether it is visible.
 pub fn frustum_check(
     cam: &RectifiedCamera,
@@ -263,27 +295,10 @@ pub fn frustum_check(
 ) -> bool {
     let point = &mut map.points[p];
     point.cache.in_view = false;
-    let pc = pose * point.position;
-    if pc.z <= 0.0 {
-        return false;
-    }
-    let (u, v) = cam.project(&pc);
-    if !cam.in_image(u, v) {
-        return false;
-    }
-    let centre = pose.inverse() * nalgebra::Point3::origin();
-    let d = point.position - centre;
-    let dist = d.norm();
-    if dist < 0.8 * point.min_dist || dist > 1.2 * point.max_dist {
-        return false;
-    }
-    let view_cos = d.dot(&point.normal) / dist;
-    if view_cos < 0.5 {
-        return false;
-    }
+    let Some(SeenAt { u, v, z, dist, view_cos }) = seen_from(cam, point, pose) else { return false };
     let level = scales.predict_level(dist, point.max_dist);
     point.cache =
-        crate::map::TrackCache { in_view: true, u, v, u_right: u - cam.bf / pc.z, level, view_cos, ..point.cache };
+        crate::map::TrackCache { in_view: true, u, v, u_right: u - cam.bf / z, level, view_cos, ..point.cache };
     true
 }
 
