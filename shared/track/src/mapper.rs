@@ -319,7 +319,8 @@ impl LocalMapper {
         let ratio_factor = 1.5 * scales.factor;
         for kf2 in neighbours {
             let (k1, k2) = (&map.keyframes[kf1], &map.keyframes[kf2]);
-            if (k1.centre() - k2.centre()).norm() < cam.baseline() {
+            // Two veiled keyframes may share the smoke's own texture: it is not triangulated.
+            if (k1.centre() - k2.centre()).norm() < cam.baseline() || (k1.veiled && k2.veiled) {
                 continue;
             }
             let t1 = k1.camera_from_world;

@@ -53,7 +53,8 @@ pub enum TrackingState {
     NotInitialized,
     Ok,
     /// Tracked, but the images do not support the pose well enough to trust it ([`TrackingQuality::doubt`]
-    /// says why): the pose is published and recorded, no keyframe is made from it.
+    /// says why): the pose is published and recorded; a keyframe is made from it only for the doubts that
+    /// allow one (`Tracker::track`).
     Uncertain,
     Lost,
 }
@@ -149,6 +150,12 @@ pub struct Tracker {
     veil: quality::Veil,
     /// The current frame's texture contrast over the clearest of its place's (NaN without a reference).
     contrast_ratio: f32,
+    /// That clearest contrast of the place: what a keyframe made under a veil records as its own, so that the
+    /// place stays judged against its clear view however many veiled keyframes follow.
+    place_contrast: f32,
+    /// The last keyframe made in a clear view: what a keyframe made under a veil takes its new points from
+    /// ([`Self::seen_in_clear_view`]).
+    clear_kf: Option<KfId>,
     /// Whether the last frame was posed by the motion model alone through a veil ([`Self::coast`]).
     last_coasted: bool,
     /// Frames since the last tracked one that had the features to begin a map from and that relocalisation
@@ -233,6 +240,8 @@ impl Tracker {
             map_moved_rel: 0.0,
             veil: quality::Veil::Clear,
             contrast_ratio: f32::NAN,
+            place_contrast: f32::NAN,
+            clear_kf: None,
             last_coasted: false,
             unplaced_frames: 0,
             detached: None,
@@ -388,12 +397,17 @@ impl Tracker {
             // A keyframe fixes map points and the dense map at its pose: only from a pose the images support.
             // A map still settling is the exception: the next keyframe's adjustment is what settles it. So is a
             // jerk's priorless pose: the view has run ahead of the map, and the keyframe is what holds it. And an
-            // unconfirmed prior: the keyframe is what appearance can confirm the next frames against.
+            // unconfirmed prior: the keyframe is what appearance can confirm the next frames against. And a
+            // veiled view posed on the map (not coasted): a scope that moves on under smoke otherwise leaves its
+            // map behind and is lost when the smoke clears; such a keyframe takes new points only where the
+            // last clear keyframe saw the same tissue (`create_keyframe`), so the smoke itself never enters the
+            // map.
             let supported = self.state == TrackingState::Ok
                 || matches!(
                     doubt,
                     Some(Doubt::MapMoving | Doubt::Detached | Doubt::PriorlessFewInliers | Doubt::UnconfirmedPrior)
-                );
+                )
+                || (doubt == Some(Doubt::LowContrast) && !coasting);
             if supported && self.need_keyframe(result.inliers) {
                 self.create_keyframe(&mut result);
             }

@@ -5,16 +5,13 @@ use super::*;
 impl Tracker {
     /// §5.8 with a mapper that runs inline (always idle, never stopped): gathers what the rule looks at.
     pub(super) fn need_keyframe(&self, inliers: usize) -> bool {
+        // Under a veil the haze takes matches away wherever the scope is: the ratio counts the reference's points
+        // still in view where it counts matched ones in a clear view (only moving on takes the map out of view).
+        // The close-points rule is left as it is: in a flight it is what calls for keyframes under the veil.
+        let veiled = self.veil.is_down();
         let n_kfs = self.map.n_good_keyframes() as u64;
-        let reference_points = self.reference_kf.map(|r| {
-            let min_obs = if n_kfs <= 2 { 2 } else { 3 };
-            self.map.keyframes[r]
-                .points
-                .iter()
-                .flatten()
-                .filter(|&&p| !self.map.points[p].bad && self.map.points[p].n_obs >= min_obs)
-                .count()
-        });
+        let min_obs = if n_kfs <= 2 { 2 } else { 3 };
+        let reference_points = self.reference_kf.map(|r| self.reference_points(r, min_obs).count());
         let close = self.close_depth();
         let (mut tracked_close, mut untracked_close) = (0, 0);
         for i in 0..self.current.len() {
@@ -27,6 +24,10 @@ impl Tracker {
                 }
             }
         }
+        let inliers = match self.reference_kf {
+            Some(r) if veiled => self.reference_points_in_view(r, min_obs),
+            _ => inliers,
+        };
         keyframe_needed(&KeyframeEvidence {
             frame_id: self.current.id,
             last_relocalisation_frame: self.last_reloc_frame,
@@ -45,6 +46,17 @@ impl Tracker {
         let Some(pose) = self.current.camera_from_world else { return };
         self.refine_new_disparities();
         let kf = self.map.add_keyframe(KeyFrame::from_frame(0, &self.current, pose));
+        // Under a veil the haze is in the keypoints' surroundings: a new point must be tissue the last clear
+        // keyframe saw, and the place keeps its clear contrast.
+        let veiled = self.veil.is_down();
+        if veiled {
+            let made = &mut self.map.keyframes[kf];
+            made.contrast = self.place_contrast.max(made.contrast);
+            made.veiled = true;
+        } else {
+            self.clear_kf = Some(kf);
+        }
+        let mut found = Vec::new();
         // New stereo points, nearest first: every close keypoint, far ones until 100 have been covered.
         let mut by_depth: Vec<(f32, usize)> = (0..self.current.len())
             .filter(|&i| self.current.depth[i] > 0.0)
@@ -56,7 +68,10 @@ impl Tracker {
         for (z, i) in by_depth {
             let has_point =
                 self.current.points[i].is_some_and(|p| !self.map.points[p].bad && self.map.points[p].n_obs > 0);
-            if !has_point && let Some(x) = self.current.unproject_world(&self.cam, i) {
+            if !has_point
+                && let Some(x) = self.current.unproject_world(&self.cam, i)
+                && (!veiled || self.seen_in_clear_view(&x, i, &mut found))
+            {
                 let p = self.map.new_point(x, kf, i, &self.scales);
                 self.current.points[i] = Some(p);
                 self.current.outlier[i] = false;
@@ -78,6 +93,53 @@ impl Tracker {
         self.current.camera_from_world = Some(kf_pose);
         result.new_keyframe = Some(kf);
         result.mapper = Some(report);
+    }
+
+    /// Keyframe `r`'s good points seen by at least `min_obs` (a stereo observation counting 2).
+    fn reference_points(&self, r: KfId, min_obs: u32) -> impl Iterator<Item = &crate::map::MapPoint> {
+        let points = self.map.keyframes[r].points.iter().flatten().map(|&p| &self.map.points[p]);
+        points.filter(move |point| !point.bad && point.n_obs >= min_obs)
+    }
+
+    /// Of [`Self::reference_points`], those the current pose still sees (§5.6's frustum test), matched or not.
+    fn reference_points_in_view(&self, r: KfId, min_obs: u32) -> usize {
+        let Some(pose) = self.current.camera_from_world else { return 0 };
+        self.reference_points(r, min_obs)
+            .filter(|point| crate::search::seen_from(&self.cam, point, &pose).is_some())
+            .count()
+    }
+
+    /// Whether keypoint `i` of the current frame, put at `x` by its stereo depth, is tissue the last clear
+    /// keyframe saw: that keyframe has a keypoint where `x` projects (within the χ² gate of a measurement at
+    /// the octave the distance predicts), at the same disparity, with a matching descriptor.
+    ///
+    /// Why: a keypoint under a veil may be the smoke's own texture, or a corner the haze has moved. Smoke that
+    /// hangs in the cavity was not there in the clear view, and smoke that rides with the scope was somewhere
+    /// else in it (it moves with the camera, not with the scene), so neither is found; tissue is, wherever the
+    /// scope has moved since. Without the check a veiled keyframe fills the map with smoke that rides with the
+    /// scope, and the poses follow it (8 mm off on a 150-frame oblique view).
+    fn seen_in_clear_view(&self, x: &Point3<f64>, i: usize, found: &mut Vec<usize>) -> bool {
+        let Some(kf) = self.clear_kf.map(|k| &self.map.keyframes[k]).filter(|kf| !kf.bad) else { return false };
+        let in_clear = kf.camera_from_world * x;
+        let in_current = self.current.camera_from_world.map_or(in_clear, |pose| pose * x);
+        if in_clear.z <= 0.0 || in_current.z <= 0.0 {
+            return false;
+        }
+        // The clear keyframe saw the corner from its own distance: smaller from farther, at a lower octave.
+        let octave = self.current.keypoints[i].octave;
+        let shift = (in_current.z / in_clear.z).ln() / self.scales.factor.ln();
+        let predicted = (f64::from(octave) + shift).round().clamp(0.0, (self.scales.levels() - 1) as f64) as u8;
+        let (u, v) = self.cam.project(&in_clear);
+        let u_right = u - self.cam.bf / in_clear.z;
+        let radius = crate::optim::CHI2_MONO.sqrt() * self.scales.scale[usize::from(predicted)];
+        let octaves = predicted.saturating_sub(1)..=predicted + 1;
+        kf.grid.features_in_area(&kf.keypoints, (u as f32, v as f32), radius as f32, octaves, found);
+        let descriptor = &self.current.descriptors[i];
+        found.iter().any(|&j| {
+            let right = kf.u_right[j];
+            (right < 0.0 || (f64::from(right) - u_right).abs() < radius)
+                && bdis_orb::hamming(descriptor, &kf.descriptors[j]) <= TH_HIGH
+        })
     }
 }
 

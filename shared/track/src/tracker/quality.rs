@@ -241,6 +241,7 @@ impl Tracker {
         // No reference (NaN): nothing to judge by, a clear view.
         let ratio = self.current.contrast / reference_contrast;
         self.contrast_ratio = ratio;
+        self.place_contrast = reference_contrast;
         let longest = (MAX_VEIL_S * self.settings.fps).round() as u32;
         self.veil = match self.veil {
             _ if ratio.is_nan() || ratio >= CONTRAST_RESTORED => Veil::Clear,
