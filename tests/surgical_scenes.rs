@@ -219,6 +219,25 @@ fn smoke_makes_the_frames_it_veils_uncertain_and_tracking_resumes_when_it_clears
         assert!(states.iter().any(|(_, _, doubt)| doubt == "low-contrast"), "{kind}: {csv}");
         assert_eq!(count(0..120, "lost"), 0, "{kind}: {csv}");
         assert!(count(0..48, "ok") == 48 && count(100..120, "ok") == 20, "{kind}: ok before and after: {csv}");
+        // Keyframes made under the veil serve tracking only: the dense map gets every other keyframe and none of
+        // those (no depth is taken from a smoky view).
+        let keyframe_column = csv.lines().next().unwrap().split(',').position(|c| c == "keyframe").unwrap();
+        let veiled_keyframes = csv
+            .lines()
+            .skip(1)
+            .map(|line| line.split(',').collect::<Vec<_>>())
+            .filter(|f| f[3] == "low-contrast" && !f[keyframe_column].is_empty())
+            .count() as u64;
+        let json = |name: &str| -> serde_json::Value {
+            serde_json::from_str(&std::fs::read_to_string(run_dir.join(name)).unwrap()).unwrap()
+        };
+        let (made, inserted) =
+            (json("tracking.json")["keyframes_created"].as_u64(), json("mosaic.json")["keyframes_inserted"].as_u64());
+        assert_eq!(
+            inserted,
+            made.map(|m| m - veiled_keyframes),
+            "{kind}: {veiled_keyframes} keyframes made under the veil"
+        );
         // Smoke is grey and reaches the border, as an instrument does, but it fades into the tissue: the
         // estimate weighs it (a candidate on some frames) and masks none of it.
         let out = run_with_timeout(

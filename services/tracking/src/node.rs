@@ -171,7 +171,8 @@ impl Outputs {
         self.generation += 1;
         let culled = tracker.map().culled_following(&report.moved);
         let moved = report.moved.iter().map(|&k| (k, 0)).chain(culled.into_iter().map(|k| (k, 1)));
-        for (k, culled) in moved {
+        // Veiled keyframes were never published (`run`): nothing downstream holds them.
+        for (k, culled) in moved.filter(|&(k, _)| !tracker.map().keyframes[k].veiled) {
             let pose = self.world.to_world(&tracker.map().keyframe_pose(k).inverse());
             let kf_id = self.world.kf_id(k);
             let record = KeyframePose {
@@ -331,10 +332,13 @@ pub fn run(config: Config) -> Result<()> {
             if let Some(camera_from_map) = &result.camera_from_world {
                 out.world.anchor(&earlier, header.frame_seq, &camera_from_map.inverse());
             }
-            if let Some(kf) = result.new_keyframe {
+            // A keyframe made under a veil (smoke) serves tracking: its images are no view to take depth from,
+            // so the dense map never hears of it.
+            let published = result.new_keyframe.filter(|&k| !tracker.map().keyframes[k].veiled);
+            if let Some(kf) = published {
                 out.keyframe(&tracker, kf, &view, keep_out)?;
-                counts.keyframes += 1;
             }
+            counts.keyframes += u64::from(result.new_keyframe.is_some());
             drop(sample);
             if let Some(report) = &result.mapper {
                 out.corrections(&tracker, report)?;
@@ -350,7 +354,7 @@ pub fn run(config: Config) -> Result<()> {
                 world_from_camera: world_from_camera.map(|p| pose_to_array(&p)).unwrap_or([0.0; 7]),
                 state: state_code(result.state),
                 inliers: result.inliers as u32,
-                new_keyframe: result.new_keyframe.map_or(u64::MAX, |k| out.world.kf_id(k)),
+                new_keyframe: published.map_or(u64::MAX, |k| out.world.kf_id(k)),
                 cpu_ns,
                 matched: result.quality.matched,
                 doubt: doubt_code(result.quality.doubt),

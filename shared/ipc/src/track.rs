@@ -14,7 +14,8 @@ pub mod tracking_state {
     /// Tracked, but the images do not support the pose well enough to trust it (`PoseRecord::doubt` says
     /// why): the pose is there, and no keyframe is made from it (unless the doubt is `MAP_MOVING`: the next
     /// keyframe's adjustment is what settles the map; `DETACHED`: its keyframes are what the new segment is
-    /// tracked with; or `PRIORLESS_FEW_INLIERS`: in a jerk the keyframe is what the next frames hold on to).
+    /// tracked with; `PRIORLESS_FEW_INLIERS`: in a jerk the keyframe is what the next frames hold on to; or
+    /// `LOW_CONTRAST`: a scope moving on under smoke keeps a map, with keyframes that are not published).
     pub const UNCERTAIN: u32 = 4;
 }
 
@@ -98,7 +99,8 @@ pub struct PoseRecord {
     pub state: u32,
     /// Inlier map points of the final pose optimisation.
     pub inliers: u32,
-    /// The keyframe made from this frame, or `u64::MAX`.
+    /// The keyframe made from this frame and published on the keyframe topic, or `u64::MAX` (also for a
+    /// keyframe made under a veil, which serves tracking only).
     pub new_keyframe: u64,
     /// CPU time the tracking thread spent on this frame, ns.
     pub cpu_ns: u64,

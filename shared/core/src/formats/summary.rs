@@ -40,7 +40,8 @@ pub struct TrackingSummary {
     /// `detached` until tied back).
     #[serde(default)]
     pub segments_begun: u64,
-    /// Keyframe ids handed out (the next id is this number).
+    /// Keyframe ids handed out (the next id is this number). A keyframe made under a veil (smoke) takes an id
+    /// but is not published: it serves tracking only.
     pub keyframes_created: u64,
     /// Keyframes in the last instance's map after culling.
     pub keyframes_in_map: u64,
