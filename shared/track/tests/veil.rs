@@ -2,7 +2,8 @@
 //! blended towards the image's mean, which takes that share of the texture contrast away as a haze does.
 //! The veil is doubted from when it comes down until the view is clear again, not merely less veiled; a view
 //! that stays dim longer than smoke lasts is taken as it is; a veil too thick to track through is coasted
-//! on the motion model, never lost, and the written trajectory bridges it.
+//! on the motion model, never lost, and the written trajectory bridges it; a scope that moves on under the
+//! renderer's own smoke keeps a map with keyframes flagged as veiled.
 
 mod common;
 
