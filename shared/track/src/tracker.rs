@@ -155,7 +155,7 @@ pub struct Tracker {
     place_contrast: f32,
     /// The last keyframe made in a clear view: what a keyframe made under a veil takes its new points from
     /// ([`Self::seen_in_clear_view`]).
-    clear_kf: Option<KfId>,
+    clear_view: keyframe::ClearView,
     /// Whether the last frame was posed by the motion model alone through a veil ([`Self::coast`]).
     last_coasted: bool,
     /// Frames since the last tracked one that had the features to begin a map from and that relocalisation
@@ -241,7 +241,7 @@ impl Tracker {
             veil: quality::Veil::Clear,
             contrast_ratio: f32::NAN,
             place_contrast: f32::NAN,
-            clear_kf: None,
+            clear_view: keyframe::ClearView::default(),
             last_coasted: false,
             unplaced_frames: 0,
             detached: None,

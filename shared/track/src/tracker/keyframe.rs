@@ -4,16 +4,22 @@ use super::*;
 
 impl Tracker {
     /// §5.8 with a mapper that runs inline (always idle, never stopped): gathers what the rule looks at.
-    pub(super) fn need_keyframe(&self, inliers: usize) -> bool {
+    pub(super) fn need_keyframe(&mut self, inliers: usize) -> bool {
         // Under a veil the haze takes matches away wherever the scope is: the ratio counts the reference's points
         // still in view where it counts matched ones in a clear view (only moving on takes the map out of view).
-        // The close-points rule is left as it is: in a flight it is what calls for keyframes under the veil.
+        // The close-points rule is kept (in a flight it is what calls for keyframes under the veil), but only
+        // while a keyframe could add one of those close points: under a veil a new point must be tissue the
+        // last clear keyframe saw (`seen_in_clear_view`). Over a hover's haze none is, and the rule, reading the
+        // matches the haze took for tissue the map lacks, made a keyframe every frame that added nothing.
         let veiled = self.veil.is_down();
         let n_kfs = self.map.n_good_keyframes() as u64;
         let min_obs = if n_kfs <= 2 { 2 } else { 3 };
         let reference_points = self.reference_kf.map(|r| self.reference_points(r, min_obs).count());
         let close = self.close_depth();
         let (mut tracked_close, mut untracked_close) = (0, 0);
+        // Whether one of the untracked close keypoints could become a point; checked until one is found.
+        let mut addable = !veiled;
+        let mut found = std::mem::take(&mut self.clear_view.near);
         for i in 0..self.current.len() {
             let z = f64::from(self.current.depth[i]);
             if z > 0.0 && z < close {
@@ -21,8 +27,18 @@ impl Tracker {
                     tracked_close += 1;
                 } else {
                     untracked_close += 1;
+                    addable = addable
+                        || self
+                            .current
+                            .unproject_world(&self.cam, i)
+                            .is_some_and(|x| self.seen_in_clear_view(&x, i, &mut found));
                 }
             }
+        }
+        self.clear_view.near = found;
+        // Close keypoints no keyframe could add do not call for one.
+        if !addable {
+            untracked_close = 0;
         }
         let inliers = match self.reference_kf {
             Some(r) if veiled => self.reference_points_in_view(r, min_obs),
@@ -54,9 +70,9 @@ impl Tracker {
             made.contrast = self.place_contrast.max(made.contrast);
             made.veiled = true;
         } else {
-            self.clear_kf = Some(kf);
+            self.clear_view.kf = Some(kf);
         }
-        let mut found = Vec::new();
+        let mut found = std::mem::take(&mut self.clear_view.near);
         // New stereo points, nearest first: every close keypoint, far ones until 100 have been covered.
         let mut by_depth: Vec<(f32, usize)> = (0..self.current.len())
             .filter(|&i| self.current.depth[i] > 0.0)
@@ -82,6 +98,7 @@ impl Tracker {
                 break;
             }
         }
+        self.clear_view.near = found;
         self.reference_kf = Some(kf);
         self.last_kf_frame = self.current.id;
         let report = self.mapper.process(&mut self.map, kf, &self.cam, &self.scales, self.settings.th_depth);
@@ -119,7 +136,7 @@ impl Tracker {
     /// scope has moved since. Without the check a veiled keyframe fills the map with smoke that rides with the
     /// scope, and the poses follow it (8 mm off on a 150-frame oblique view).
     fn seen_in_clear_view(&self, x: &Point3<f64>, i: usize, found: &mut Vec<usize>) -> bool {
-        let Some(kf) = self.clear_kf.map(|k| &self.map.keyframes[k]).filter(|kf| !kf.bad) else { return false };
+        let Some(kf) = self.clear_view.kf.map(|k| &self.map.keyframes[k]).filter(|kf| !kf.bad) else { return false };
         let in_clear = kf.camera_from_world * x;
         let in_current = self.current.camera_from_world.map_or(in_clear, |pose| pose * x);
         if in_clear.z <= 0.0 || in_current.z <= 0.0 {
@@ -141,6 +158,14 @@ impl Tracker {
                 && bdis_orb::hamming(descriptor, &kf.descriptors[j]) <= TH_HIGH
         })
     }
+}
+
+/// The last keyframe made in a clear view, and the gate's buffer of its keypoints near a projection
+/// ([`Tracker::seen_in_clear_view`]), reused.
+#[derive(Debug, Default)]
+pub(super) struct ClearView {
+    pub kf: Option<KfId>,
+    near: Vec<usize>,
 }
 
 /// What the keyframe decision looks at.
