@@ -3,7 +3,8 @@
 //! The veil is doubted from when it comes down until the view is clear again, not merely less veiled; a view
 //! that stays dim longer than smoke lasts is taken as it is; a veil too thick to track through is coasted
 //! on the motion model, never lost, and the written trajectory bridges it; a scope that moves on under the
-//! renderer's own smoke keeps a map with keyframes flagged as veiled.
+//! renderer's own smoke keeps a map with keyframes flagged as veiled; a hover under it makes no keyframe
+//! that adds nothing.
 
 mod common;
 
