@@ -127,14 +127,14 @@ fn a_veil_that_thickens_at_once_is_coasted_where_its_few_matches_confirm_nothing
     }
 }
 
-/// The colon flight of [`colon_flight`] at `speed_mm_s` with `smoke` rendered into it.
-fn smoky_colon_flight(frames: usize, speed_mm_s: f64, smoke: &bdis_synth::smoke::Smoke) -> Vec<(Vec<u8>, Vec<u8>)> {
+/// The colon flight of [`colon_flight`] with `smoke` rendered into it.
+fn smoky_colon_flight(frames: usize, smoke: &bdis_synth::smoke::Smoke) -> Vec<(Vec<u8>, Vec<u8>)> {
     let colon = bdis_synth::colon::Colon::default();
     (0..frames)
         .map(|i| {
             let t = i as f64 / 30.0;
             let shading = bdis_synth::render::Shading { haze: smoke.haze_at(t), ..Default::default() };
-            let pose = colon.forward_pose(t, speed_mm_s);
+            let pose = colon.forward_pose(t, 20.0);
             let pair = bdis_synth::render::render(&colon, &render_rig(), &shading, &pose, i as u64);
             (grey(&pair.left), grey(&pair.right))
         })
@@ -157,7 +157,7 @@ fn a_scope_flying_on_under_smoke_keeps_its_map_and_its_way() {
         ..bdis_synth::smoke::Smoke::cavity_puff(1.0 / 3.0, colon.radius_mm, &truth(10), 7)
     };
     let mut tracker = colon_tracker();
-    let results: Vec<FrameResult> = smoky_colon_flight(frames, 20.0, &smoke)
+    let results: Vec<FrameResult> = smoky_colon_flight(frames, &smoke)
         .iter()
         .enumerate()
         .map(|(i, (l, r))| match tracker.track(i as u64 * 33_333_333, l, r) {
@@ -209,11 +209,8 @@ fn a_hover_under_smoke_makes_no_keyframe_that_adds_nothing() {
     let mut tracker = colon_tracker();
     let mut results = Vec::with_capacity(frames);
     for i in 0..frames {
-        let t = i as f64 / 30.0;
-        let shading =
-            bdis_synth::render::Shading { exposure_distance_mm: 65.0, haze: smoke.haze_at(t), ..Default::default() };
-        let pair = bdis_synth::render::render(&abdomen, &render_rig(), &shading, &truth(i), i as u64);
-        match tracker.track(i as u64 * 33_333_333, &grey(&pair.left), &grey(&pair.right)) {
+        let (left, right) = common::abdomen_pair_through(&abdomen, &truth(i), i as u64, smoke.haze_at(i as f64 / 30.0));
+        match tracker.track(i as u64 * 33_333_333, &left, &right) {
             Ok(result) => results.push(result),
             Err(e) => panic!("frame {i}: {e}"),
         }

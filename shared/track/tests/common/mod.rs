@@ -32,7 +32,17 @@ pub fn abdomen_pair(
     world_from_camera: &nalgebra::Isometry3<f64>,
     noise_seed: u64,
 ) -> (Vec<u8>, Vec<u8>) {
-    let shading = bdis_synth::render::Shading { exposure_distance_mm: 65.0, ..Default::default() };
+    abdomen_pair_through(abdomen, world_from_camera, noise_seed, None)
+}
+
+/// [`abdomen_pair`] seen through `haze` (the renderer's smoke at that moment, if any).
+pub fn abdomen_pair_through(
+    abdomen: &bdis_synth::abdomen::Abdomen,
+    world_from_camera: &nalgebra::Isometry3<f64>,
+    noise_seed: u64,
+    haze: Option<bdis_synth::smoke::Haze>,
+) -> (Vec<u8>, Vec<u8>) {
+    let shading = bdis_synth::render::Shading { exposure_distance_mm: 65.0, haze, ..Default::default() };
     let pair = bdis_synth::render::render(abdomen, &render_rig(), &shading, world_from_camera, noise_seed);
     (grey(&pair.left), grey(&pair.right))
 }
