@@ -7,6 +7,7 @@ use anyhow::{Context, Result, bail};
 use bdis_core::formats::{pfm, ply, trajectory};
 use bdis_core::geometry::StampedPose;
 use bdis_eval::map::Layers;
+use bdis_eval::status::{StatusBar, StatusHonesty};
 use nalgebra::Point3;
 
 #[derive(Debug, clap::Subcommand)]
@@ -40,6 +41,18 @@ pub struct TrajArgs {
     /// Time step of the relative pose error, seconds (for KITTI: lines).
     #[arg(long, default_value_t = 1.0)]
     delta: f64,
+    /// The run's `tracking-quality.csv` (or its run folder): also judge each frame reported `Ok` against its last
+    /// keyframe — its position relative to it must be within --max-error-of-travel of the distance travelled
+    /// since it (issue #22's honesty bar), judged from --min-steps median ground-truth steps of travel on.
+    #[arg(long)]
+    quality: Option<PathBuf>,
+    /// The honesty bar: an `Ok` frame's error relative to its keyframe over the travel since it.
+    #[arg(long, default_value_t = 0.01, requires = "quality")]
+    max_error_of_travel: f64,
+    /// Frames are judged from this many median steps of travel since their keyframe (1 % of less is under the
+    /// measurement noise of any tracker).
+    #[arg(long, default_value_t = 4.0, requires = "quality")]
+    min_steps: f64,
     /// Print JSON instead of the report.
     #[arg(long)]
     json: bool,
@@ -126,8 +139,15 @@ pub fn eval(command: EvalCommand) -> Result<()> {
             let ate = bdis_eval::traj::ate(&gt, &est, a.max_dt)
                 .with_context(|| format!("{} vs {}", a.est.display(), a.gt.display()))?;
             let rpe = bdis_eval::traj::rpe(&gt, &est, a.max_dt, a.delta)?;
+            let status = match &a.quality {
+                Some(path) => Some(judge_status(&gt, &est, path, a.max_dt, a.max_error_of_travel, a.min_steps)?),
+                None => None,
+            };
             if a.json {
-                println!("{}", serde_json::to_string_pretty(&serde_json::json!({ "ate": ate, "rpe": rpe }))?);
+                println!(
+                    "{}",
+                    serde_json::to_string_pretty(&serde_json::json!({ "ate": ate, "rpe": rpe, "status": status }))?
+                );
             } else {
                 let t = &ate.translation;
                 println!(
@@ -156,6 +176,9 @@ pub fn eval(command: EvalCommand) -> Result<()> {
                     if a.format == "kitti" { "pose" } else { "s" },
                     ate.sim3.translation.rmse
                 );
+                if let Some(status) = &status {
+                    print_status(status);
+                }
             }
         }
         EvalCommand::Map(a) => {
@@ -254,6 +277,49 @@ pub fn eval(command: EvalCommand) -> Result<()> {
         }
     }
     Ok(())
+}
+
+/// Judges the frames of the run's quality log (`path`: the file or its run folder) reported `Ok`.
+fn judge_status(
+    gt: &[StampedPose],
+    est: &[StampedPose],
+    path: &Path,
+    max_dt: f64,
+    max_error_of_travel: f64,
+    min_steps: f64,
+) -> Result<StatusHonesty> {
+    if !(max_error_of_travel.is_finite() && max_error_of_travel > 0.0) {
+        bail!("--max-error-of-travel: must be > 0, found {max_error_of_travel}");
+    }
+    if !(min_steps.is_finite() && min_steps >= 0.0) {
+        bail!("--min-steps: must be ≥ 0, found {min_steps}");
+    }
+    let file = if path.is_dir() { path.join("tracking-quality.csv") } else { path.to_path_buf() };
+    let frames = bdis_eval::status::read_quality_csv(&file)?;
+    Ok(bdis_eval::status::judge_ok_frames(gt, est, &frames, max_dt, StatusBar { max_error_of_travel, min_steps })?)
+}
+
+fn print_status(s: &StatusHonesty) {
+    println!(
+        "status: {} frames Ok, {} judged (≥ {} median steps = {:.6} from their keyframe); {} over {} % of the travel \
+         since their keyframe; worst {:.2} %",
+        s.ok_frames,
+        s.judged,
+        s.bar.min_steps,
+        s.min_travel,
+        s.wrong_ok.len(),
+        100.0 * s.bar.max_error_of_travel,
+        100.0 * s.worst_error_of_travel
+    );
+    for w in &s.wrong_ok {
+        println!(
+            "  Ok at {:.3} s: {:.2} % of the {:.6} travelled since the keyframe at {:.3} s",
+            w.t_s,
+            100.0 * w.error_of_travel,
+            w.travelled,
+            w.keyframe_t_s
+        );
+    }
 }
 
 /// How a map is brought into the ground truth's frame: by its run's estimated trajectory and the ground truth's.

@@ -1,0 +1,279 @@
+//! Whether the tracker's `Ok` meant what it says: issue #22's honesty bar. A frame reported `Ok` must have its
+//! position relative to the last keyframe within a share (1 %) of the distance travelled since that keyframe —
+//! a wrong pose must be `Uncertain` or `Lost`, never `Ok`. Judged from the run's own files: the written
+//! trajectory, and the frame states and keyframes of `tracking-quality.csv`.
+//!
+//! Only frames that have travelled some distance since their keyframe are judged (by default four median steps
+//! of the ground truth): just after a keyframe the travel is a fraction of a step, and 1 % of it is under any
+//! tracker's measurement noise. Every figure is a ratio or is relative to the ground truth's own steps: no unit,
+//! no image size.
+
+use std::path::Path;
+
+use bdis_core::geometry::StampedPose;
+use nalgebra::Isometry3;
+use serde::{Deserialize, Serialize};
+
+/// What the tracker reported for one frame (one line of `tracking-quality.csv`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ReportedFrame {
+    /// The frame's source time, seconds (the trajectory's time stamp).
+    pub t_s: f64,
+    /// Reported `Ok` (not `Uncertain`, `Lost` or not yet initialised).
+    pub ok: bool,
+    /// A keyframe was made from it.
+    pub keyframe: bool,
+}
+
+/// The bar and where it is judged.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct StatusBar {
+    /// An `Ok` frame's position error relative to its keyframe may be at most this share of the travel since
+    /// the keyframe (issue #22: 0.01).
+    pub max_error_of_travel: f64,
+    /// Frames are judged from this many median ground-truth steps of travel since their keyframe.
+    pub min_steps: f64,
+}
+
+impl Default for StatusBar {
+    fn default() -> Self {
+        Self { max_error_of_travel: 0.01, min_steps: 4.0 }
+    }
+}
+
+/// An `Ok` frame over the bar.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct WrongOk {
+    pub t_s: f64,
+    /// Its keyframe's time, seconds.
+    pub keyframe_t_s: f64,
+    /// The true distance travelled since the keyframe, in the ground truth's unit.
+    pub travelled: f64,
+    /// Its position error relative to the keyframe, over `travelled`.
+    pub error_of_travel: f64,
+}
+
+/// How honest a run's `Ok` was.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct StatusHonesty {
+    pub bar: StatusBar,
+    /// The travel from which a frame is judged, in the ground truth's unit (`bar.min_steps` median steps).
+    pub min_travel: f64,
+    /// Frames reported `Ok`.
+    pub ok_frames: usize,
+    /// Of them, those judged: far enough from a keyframe, with a pose for the frame and its keyframe in both
+    /// trajectories.
+    pub judged: usize,
+    /// The largest error over travel among the judged frames (0 when none was judged).
+    pub worst_error_of_travel: f64,
+    /// The judged frames over the bar, in time order.
+    pub wrong_ok: Vec<WrongOk>,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum StatusError {
+    #[error("{path}: cannot read: {source}")]
+    Read { path: String, source: std::io::Error },
+    #[error("{path}: no header line")]
+    NoHeader { path: String },
+    #[error("{path}: the header has no column `{column}`")]
+    NoColumn { path: String, column: &'static str },
+    #[error("{path}, line {line}: field `{column}`: {problem}")]
+    Field { path: String, line: usize, column: &'static str, problem: String },
+    #[error("the ground truth has fewer than two poses: no step to measure travel by")]
+    NoSteps,
+}
+
+/// Reads the frames of a run's `tracking-quality.csv` (columns `t_source_s`, `state` and `keyframe`, found by
+/// name; the others are not read).
+pub fn read_quality_csv(path: &Path) -> Result<Vec<ReportedFrame>, StatusError> {
+    let shown = || path.display().to_string();
+    let text = std::fs::read_to_string(path).map_err(|source| StatusError::Read { path: shown(), source })?;
+    let mut lines = text.lines();
+    let header: Vec<&str> = lines.next().ok_or_else(|| StatusError::NoHeader { path: shown() })?.split(',').collect();
+    let column = |column: &'static str| {
+        header.iter().position(|h| h.trim() == column).ok_or_else(|| StatusError::NoColumn { path: shown(), column })
+    };
+    let (t, state, keyframe) = (column("t_source_s")?, column("state")?, column("keyframe")?);
+    let mut frames = Vec::new();
+    for (n, line) in lines.enumerate() {
+        if line.trim().is_empty() {
+            continue;
+        }
+        let fields: Vec<&str> = line.split(',').collect();
+        let field = |index: usize, column: &'static str| {
+            fields.get(index).map(|f| f.trim()).ok_or_else(|| StatusError::Field {
+                path: shown(),
+                line: n + 2,
+                column,
+                problem: format!("missing ({} fields, the header has {})", fields.len(), header.len()),
+            })
+        };
+        let t_text = field(t, "t_source_s")?;
+        let t_s: f64 = t_text.parse().ok().filter(|t: &f64| t.is_finite()).ok_or_else(|| StatusError::Field {
+            path: shown(),
+            line: n + 2,
+            column: "t_source_s",
+            problem: format!("`{t_text}` is not a time in seconds"),
+        })?;
+        frames.push(ReportedFrame {
+            t_s,
+            ok: field(state, "state")? == "ok",
+            keyframe: !field(keyframe, "keyframe")?.is_empty(),
+        });
+    }
+    Ok(frames)
+}
+
+/// The pose of `poses` (sorted by time) nearest to `t_s`, if one is within `max_dt_s`.
+fn pose_near(poses: &[StampedPose], t_s: f64, max_dt_s: f64) -> Option<Isometry3<f64>> {
+    let k = poses.partition_point(|p| p.t_s < t_s);
+    [k.checked_sub(1), Some(k)]
+        .into_iter()
+        .flatten()
+        .filter_map(|i| poses.get(i))
+        .filter(|p| (p.t_s - t_s).abs() <= max_dt_s)
+        .min_by(|a, b| (a.t_s - t_s).abs().total_cmp(&(b.t_s - t_s).abs()))
+        .map(|p| p.world_from_camera)
+}
+
+/// Judges each `Ok` frame of `frames` (in time order) against the last keyframe before it: its position relative
+/// to that keyframe, from `est` and from `gt` (poses matched by time within `max_dt_s`).
+pub fn judge_ok_frames(
+    gt: &[StampedPose],
+    est: &[StampedPose],
+    frames: &[ReportedFrame],
+    max_dt_s: f64,
+    bar: StatusBar,
+) -> Result<StatusHonesty, StatusError> {
+    let mut steps: Vec<f64> = gt
+        .windows(2)
+        .map(|w| (w[1].world_from_camera.translation.vector - w[0].world_from_camera.translation.vector).norm())
+        .collect();
+    if steps.is_empty() {
+        return Err(StatusError::NoSteps);
+    }
+    let mid = steps.len() / 2;
+    let min_travel = bar.min_steps * *steps.select_nth_unstable_by(mid, f64::total_cmp).1;
+    let mut honesty = StatusHonesty {
+        bar,
+        min_travel,
+        ok_frames: frames.iter().filter(|f| f.ok).count(),
+        judged: 0,
+        worst_error_of_travel: 0.0,
+        wrong_ok: Vec::new(),
+    };
+    let mut keyframe_t_s = None;
+    for frame in frames {
+        if frame.keyframe {
+            keyframe_t_s = Some(frame.t_s);
+            continue;
+        }
+        let Some(k) = keyframe_t_s.filter(|_| frame.ok) else { continue };
+        let relative = |poses: &[StampedPose]| {
+            let (a, b) = (pose_near(poses, k, max_dt_s)?, pose_near(poses, frame.t_s, max_dt_s)?);
+            Some((a.inverse() * b).translation.vector)
+        };
+        let (Some(truth), Some(estimate)) = (relative(gt), relative(est)) else { continue };
+        let travelled = truth.norm();
+        if travelled < min_travel {
+            continue;
+        }
+        let error_of_travel = (estimate - truth).norm() / travelled;
+        honesty.judged += 1;
+        honesty.worst_error_of_travel = honesty.worst_error_of_travel.max(error_of_travel);
+        if error_of_travel > bar.max_error_of_travel {
+            honesty.wrong_ok.push(WrongOk { t_s: frame.t_s, keyframe_t_s: k, travelled, error_of_travel });
+        }
+    }
+    Ok(honesty)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::{Translation3, UnitQuaternion, Vector3};
+
+    /// A straight path at 1 unit a frame, 30 frames a second.
+    fn straight(n: usize) -> Vec<StampedPose> {
+        (0..n)
+            .map(|i| StampedPose {
+                t_s: i as f64 / 30.0,
+                world_from_camera: Isometry3::from_parts(
+                    Translation3::new(i as f64, 0.0, 0.0),
+                    UnitQuaternion::from_axis_angle(&Vector3::y_axis(), 0.01 * i as f64),
+                ),
+            })
+            .collect()
+    }
+
+    fn frames(n: usize, keyframes: &[usize], ok: impl Fn(usize) -> bool) -> Vec<ReportedFrame> {
+        (0..n).map(|i| ReportedFrame { t_s: i as f64 / 30.0, ok: ok(i), keyframe: keyframes.contains(&i) }).collect()
+    }
+
+    #[test]
+    fn a_wrong_ok_frame_is_found_and_a_wrong_uncertain_one_is_not() {
+        let gt = straight(30);
+        let mut est = gt.clone();
+        // Frame 12 is 0.2 off sideways: 2.5 % of the 8 travelled since keyframe 4. Frame 20 is as far off but
+        // reported Uncertain; frame 6 is off too, but only 2 from its keyframe (under four median steps).
+        for (i, off) in [(12, 0.2), (20, 0.3), (6, 0.5)] {
+            est[i].world_from_camera.translation.vector.z += off;
+        }
+        let reported = frames(30, &[0, 4, 16], |i| i != 20);
+        let honesty = judge_ok_frames(&gt, &est, &reported, 0.01, StatusBar::default()).unwrap();
+        assert!((honesty.min_travel - 4.0).abs() < 1e-9, "{honesty:?}");
+        assert_eq!(honesty.ok_frames, 29);
+        assert_eq!(honesty.wrong_ok.len(), 1, "{honesty:?}");
+        let wrong = honesty.wrong_ok[0];
+        assert!((wrong.t_s - 12.0 / 30.0).abs() < 1e-9 && (wrong.keyframe_t_s - 4.0 / 30.0).abs() < 1e-9);
+        assert!((wrong.error_of_travel - 0.025).abs() < 1e-9, "{wrong:?}");
+        // Judged: frames 8–15 after keyframe 4 (4 to 11 travelled), 21–29 after keyframe 16 (the Uncertain 20
+        // is not), none after keyframe 0 (frames 1–3 are under the bar's travel).
+        assert_eq!(honesty.judged, 8 + 9, "{honesty:?}");
+    }
+
+    #[test]
+    fn a_right_trajectory_in_another_unit_passes_alike() {
+        // The same path in metres and in millimetres, every pose 0.2 % of a step off: within the bar either way.
+        for unit in [1.0, 1000.0] {
+            let gt: Vec<StampedPose> = straight(40)
+                .into_iter()
+                .map(|mut p| {
+                    p.world_from_camera.translation.vector *= unit;
+                    p
+                })
+                .collect();
+            let mut est = gt.clone();
+            for (i, p) in est.iter_mut().enumerate() {
+                p.world_from_camera.translation.vector.y += 0.002 * unit * if i % 2 == 0 { 1.0 } else { -1.0 };
+            }
+            let honesty =
+                judge_ok_frames(&gt, &est, &frames(40, &[0, 10, 25], |_| true), 0.01, StatusBar::default()).unwrap();
+            assert!(honesty.wrong_ok.is_empty(), "unit {unit}: {honesty:?}");
+            assert!(honesty.judged > 20 && honesty.worst_error_of_travel < 0.01, "unit {unit}: {honesty:?}");
+        }
+    }
+
+    #[test]
+    fn a_quality_file_with_a_bad_time_is_refused_naming_the_line_and_field() {
+        let dir = std::env::temp_dir().join(format!("bdis-eval-status-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("tracking-quality.csv");
+        std::fs::write(&path, "frame_seq,t_source_s,state,doubt,keyframe\n0,0.000000,ok,,0\n1,zero,ok,,\n").unwrap();
+        let message = read_quality_csv(&path).unwrap_err().to_string();
+        assert!(message.contains("line 3") && message.contains("t_source_s") && message.contains("zero"), "{message}");
+        std::fs::write(
+            &path,
+            "frame_seq,t_source_s,state,doubt,keyframe\n0,0.000000,ok,,0\n1,0.033333,uncertain,low-contrast,\n",
+        )
+        .unwrap();
+        let frames = read_quality_csv(&path).unwrap();
+        assert_eq!(frames.len(), 2);
+        assert!(frames[0].ok && frames[0].keyframe && !frames[1].ok && !frames[1].keyframe);
+        std::fs::write(&path, "frame_seq,state\n").unwrap();
+        let message = read_quality_csv(&path).unwrap_err().to_string();
+        assert!(message.contains("t_source_s"), "{message}");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+}
