@@ -46,6 +46,11 @@ pub struct TrajArgs {
     /// since it (issue #22's honesty bar), judged from --min-steps median ground-truth steps of travel on.
     #[arg(long)]
     quality: Option<PathBuf>,
+    /// The run's `keyframes.tum`, for --quality: each keyframe's own pose, which the frames after it were tracked
+    /// against (without it, the written trajectory's pose at the keyframe's time, which a veil's bridge may have
+    /// replaced).
+    #[arg(long, requires = "quality")]
+    keyframes: Option<PathBuf>,
     /// The honesty bar: an `Ok` frame's error relative to its keyframe over the travel since it.
     #[arg(long, default_value_t = 0.01, requires = "quality")]
     max_error_of_travel: f64,
@@ -140,7 +145,14 @@ pub fn eval(command: EvalCommand) -> Result<()> {
                 .with_context(|| format!("{} vs {}", a.est.display(), a.gt.display()))?;
             let rpe = bdis_eval::traj::rpe(&gt, &est, a.max_dt, a.delta)?;
             let status = match &a.quality {
-                Some(path) => Some(judge_status(&gt, &est, path, a.max_dt, a.max_error_of_travel, a.min_steps)?),
+                Some(path) => {
+                    let keyframes = match &a.keyframes {
+                        Some(k) => load_traj(k, "tum")?,
+                        None => Vec::new(),
+                    };
+                    let bar = StatusBar { max_error_of_travel: a.max_error_of_travel, min_steps: a.min_steps };
+                    Some(judge_status(&gt, &est, &keyframes, path, a.max_dt, bar)?)
+                }
                 None => None,
             };
             if a.json {
@@ -283,20 +295,20 @@ pub fn eval(command: EvalCommand) -> Result<()> {
 fn judge_status(
     gt: &[StampedPose],
     est: &[StampedPose],
+    keyframes: &[StampedPose],
     path: &Path,
     max_dt: f64,
-    max_error_of_travel: f64,
-    min_steps: f64,
+    bar: StatusBar,
 ) -> Result<StatusHonesty> {
-    if !(max_error_of_travel.is_finite() && max_error_of_travel > 0.0) {
-        bail!("--max-error-of-travel: must be > 0, found {max_error_of_travel}");
+    if !(bar.max_error_of_travel.is_finite() && bar.max_error_of_travel > 0.0) {
+        bail!("--max-error-of-travel: must be > 0, found {}", bar.max_error_of_travel);
     }
-    if !(min_steps.is_finite() && min_steps >= 0.0) {
-        bail!("--min-steps: must be ≥ 0, found {min_steps}");
+    if !(bar.min_steps.is_finite() && bar.min_steps >= 0.0) {
+        bail!("--min-steps: must be ≥ 0, found {}", bar.min_steps);
     }
     let file = if path.is_dir() { path.join("tracking-quality.csv") } else { path.to_path_buf() };
     let frames = bdis_eval::status::read_quality_csv(&file)?;
-    Ok(bdis_eval::status::judge_ok_frames(gt, est, &frames, max_dt, StatusBar { max_error_of_travel, min_steps })?)
+    Ok(bdis_eval::status::judge_ok_frames(gt, est, keyframes, &frames, max_dt, bar)?)
 }
 
 fn print_status(s: &StatusHonesty) {
