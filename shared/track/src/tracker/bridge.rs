@@ -3,10 +3,11 @@
 //! coasted it. Live, that pose is the best there is and goes out flagged. Once the frames after the veil are
 //! tracked again, the trajectory written at the end (which bundle adjustment's corrections also reach) bridges
 //! the veil instead: the smoothest path between the clear frames on both sides, leaving each side at the
-//! speed it was moving. The veiled frames' own poses are not weighed in: a veil's error is not noise that an
-//! average would remove but a shift that follows the haze.
+//! speed it was moving and turning at the rate it was turning. The veiled frames' own poses are not weighed in:
+//! a veil's error is not noise that an average would remove but a shift that follows the haze (at 320×240;
+//! at 640×480 a colon flight's were within 0.02 mm, closer than the bridge: BENCHMARKS.md).
 
-use nalgebra::{Isometry3, Translation3, Vector3};
+use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 
 /// The clear frames at each end of a veil whose motion gives the bridge its end velocities: long enough to
 /// average a few frames' jitter, short enough to stay the motion of the moment.
@@ -96,32 +97,116 @@ pub(super) fn bridge_losses(t_s: &[f64], world_from_camera: &mut [Isometry3<f64>
     }
 }
 
-/// Rewrites the frames strictly between `Clear` frames `a` and `b` as the smoothest path between them: a cubic
-/// Hermite curve meeting both ends' positions and their velocities ([`motion_at`], the chord where there is
-/// none), the rotation slerped.
-fn bridge_span(t_s: &[f64], world_from_camera: &mut [Isometry3<f64>], views: &[View], a: usize, b: usize) {
-    let position = |i: usize| world_from_camera[i].translation.vector;
-    let span = t_s[b] - t_s[a];
-    if span <= 0.0 {
-        return;
+/// How a bridge turns the camera between its ends.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Turn {
+    /// A cubic in the rotation vector from the first end, meeting both ends' orientations and turn rates: it
+    /// follows a turn that speeds up or reverses (a swing through its far end).
+    Hermite,
+    /// At one steady rate from end to end (a slerp): for motion that turns faster than the end rates say about
+    /// the middle (a scope swinging to and fro more than once under a veil), where the cubic overshoots.
+    Steady,
+}
+
+/// The two ends of a bridge from `Clear` frame `a` to `Clear` frame `b`: their poses and motion.
+struct Ends {
+    a: usize,
+    span: f64,
+    p_a: Vector3<f64>,
+    p_b: Vector3<f64>,
+    v_a: Vector3<f64>,
+    v_b: Vector3<f64>,
+    r_a: UnitQuaternion<f64>,
+    /// The turn from a to b, in the world's frame (as [`Motion::angular`]).
+    turn: Vector3<f64>,
+    w_a: Vector3<f64>,
+    w_b: Vector3<f64>,
+}
+
+impl Ends {
+    /// `None` when the ends are at one time.
+    fn of(t_s: &[f64], world_from_camera: &[Isometry3<f64>], views: &[View], a: usize, b: usize) -> Option<Self> {
+        let span = t_s[b] - t_s[a];
+        if span <= 0.0 {
+            return None;
+        }
+        let (p_a, p_b) = (world_from_camera[a].translation.vector, world_from_camera[b].translation.vector);
+        let r_a = world_from_camera[a].rotation;
+        let turn = (world_from_camera[b].rotation * r_a.inverse()).scaled_axis();
+        // Where an end has too few clear frames for its motion: the chord and the steady turn.
+        let (chord, steady) = ((p_b - p_a) / span, turn / span);
+        let motion = |from: usize, towards_past: bool| {
+            motion_at(t_s, world_from_camera, views, from, towards_past)
+                .map_or((chord, steady), |m| (m.velocity, m.angular))
+        };
+        let ((v_a, w_a), (v_b, w_b)) = (motion(a, true), motion(b, false));
+        Some(Self { a, span, p_a, p_b, v_a, v_b, r_a, turn, w_a, w_b })
     }
-    let chord = (position(b) - position(a)) / span;
-    let velocity_at = |from: usize, towards_past: bool| {
-        motion_at(t_s, world_from_camera, views, from, towards_past).map_or(chord, |m| m.velocity)
-    };
-    let (v_a, v_b) = (velocity_at(a, true), velocity_at(b, false));
-    let (p_a, p_b) = (position(a), position(b));
-    let (r_a, r_b) = (world_from_camera[a].rotation, world_from_camera[b].rotation);
-    for i in a + 1..b {
-        let u = ((t_s[i] - t_s[a]) / span).clamp(0.0, 1.0);
-        // Cubic Hermite: positions and velocities of both ends met.
+
+    /// The bridge's pose at time `t`: a cubic Hermite curve meeting both ends' positions and velocities, and the
+    /// orientation as `turn` says.
+    fn pose_at(&self, t_s: &[f64], t: f64, turn: Turn) -> Isometry3<f64> {
+        let u = ((t - t_s[self.a]) / self.span).clamp(0.0, 1.0);
         let (u2, u3) = (u * u, u * u * u);
-        let p = p_a * (2.0 * u3 - 3.0 * u2 + 1.0)
-            + v_a * (span * (u3 - 2.0 * u2 + u))
-            + p_b * (3.0 * u2 - 2.0 * u3)
-            + v_b * (span * (u3 - u2));
-        let rotation = r_a.try_slerp(&r_b, u, 1e-9).unwrap_or(if u < 0.5 { r_a } else { r_b });
-        world_from_camera[i] = Isometry3::from_parts(Translation3::from(p), rotation);
+        let (h_start, h_start_rate) = (2.0 * u3 - 3.0 * u2 + 1.0, self.span * (u3 - 2.0 * u2 + u));
+        let (h_end, h_end_rate) = (3.0 * u2 - 2.0 * u3, self.span * (u3 - u2));
+        let p = self.p_a * h_start + self.v_a * h_start_rate + self.p_b * h_end + self.v_b * h_end_rate;
+        // The same cubic for the rotation vector from a: 0 there, `turn` at b, the turn rates at both ends.
+        let from_a = match turn {
+            Turn::Hermite => self.w_a * h_start_rate + self.turn * h_end + self.w_b * h_end_rate,
+            Turn::Steady => self.turn * u,
+        };
+        Isometry3::from_parts(Translation3::from(p), UnitQuaternion::from_scaled_axis(from_a) * self.r_a)
+    }
+}
+
+/// At most this many runs of clear frames are scored on each side of a bridge ([`turn_near`]): a run starting at
+/// every frame while there are no more, evenly spaced beyond, so the choice costs a bounded number of bridges
+/// however long a run of lost frames is.
+const MAX_RUNS_PER_SIDE: usize = 128;
+
+/// Which way of turning predicts this footage's own clear frames better, near the bridge from `a` to `b`: each
+/// run of clear frames as long as the bridge, within twice its length before `a` or after `b`, is bridged from
+/// its own ends both ways, and the two are scored by their orientations' squared error against the frames'
+/// measured ones. The motion the veil hides is most like the motion around it; the cubic where nothing says
+/// otherwise.
+fn turn_near(t_s: &[f64], world_from_camera: &[Isometry3<f64>], views: &[View], a: usize, b: usize) -> Turn {
+    let (n, length, span) = (t_s.len(), b - a, t_s[b] - t_s[a]);
+    // Clear frames before each index: whether a run is all clear in one subtraction.
+    let mut clear_before = Vec::with_capacity(n + 1);
+    clear_before.push(0usize);
+    for v in views {
+        clear_before.push(clear_before.last().copied().unwrap_or(0) + usize::from(*v == View::Clear));
+    }
+    let step = (2 * length).div_ceil(MAX_RUNS_PER_SIDE).max(1);
+    let before = (a.saturating_sub(3 * length)..=a.saturating_sub(length)).filter(|&j| j + length <= a);
+    let after = (b..=b + 2 * length).filter(|&j| j + length < n);
+    let (mut hermite, mut steady) = (0.0, 0.0);
+    for j in before.step_by(step).chain(after.step_by(step)) {
+        let e = j + length;
+        let near = if e <= a { t_s[a] - t_s[j] <= 2.0 * span } else { t_s[e] - t_s[b] <= 2.0 * span };
+        if !near || clear_before[e + 1] - clear_before[j] != length + 1 {
+            continue;
+        }
+        let Some(ends) = Ends::of(t_s, world_from_camera, views, j, e) else { continue };
+        for i in j + 1..e {
+            let measured = &world_from_camera[i].rotation;
+            hermite += ends.pose_at(t_s, t_s[i], Turn::Hermite).rotation.angle_to(measured).powi(2);
+            steady += ends.pose_at(t_s, t_s[i], Turn::Steady).rotation.angle_to(measured).powi(2);
+        }
+    }
+    if steady < hermite { Turn::Steady } else { Turn::Hermite }
+}
+
+/// Rewrites the frames strictly between `Clear` frames `a` and `b` as the smoothest path between them, leaving
+/// each end moving and turning as it was ([`Ends::pose_at`]), unless turning steadily from end to end predicts
+/// the clear frames around it better ([`turn_near`]). Slerped between the ends alone (what this was), the
+/// orientation under smoke over a colon flight was 1.9° off (0.06° clear; BENCHMARKS.md).
+fn bridge_span(t_s: &[f64], world_from_camera: &mut [Isometry3<f64>], views: &[View], a: usize, b: usize) {
+    let Some(ends) = Ends::of(t_s, world_from_camera, views, a, b) else { return };
+    let turn = turn_near(t_s, world_from_camera, views, a, b);
+    for i in a + 1..b {
+        world_from_camera[i] = ends.pose_at(t_s, t_s[i], turn);
     }
 }
 
@@ -180,7 +265,6 @@ pub(super) fn motion_at(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use nalgebra::UnitQuaternion;
 
     /// A camera moving at constant speed while turning steadily, sampled at 30 Hz.
     fn steady(k: usize) -> Isometry3<f64> {
@@ -221,6 +305,68 @@ mod tests {
         let mut poses = shifted(n, veiled);
         bridge_veils(&t_s, &mut poses, &views(n, veiled, |_| None));
         on_the_motion(&poses, 0..n);
+    }
+
+    /// A scope swinging to and fro (±17°, 4 s a swing) while it drifts sideways, veiled for 1.2 s across the
+    /// swing's far end: the bridge leaves each side turning as it was, so it follows the swing through the veil.
+    /// A slerp between the ends (both at 10°) held still there and was 7° off.
+    #[test]
+    fn a_veil_over_a_pan_keeps_the_turn_of_both_sides() {
+        let n = 90;
+        let t_s: Vec<f64> = (0..n).map(|k| k as f64 / 30.0).collect();
+        let swing = |k: usize| {
+            let t = t_s[k];
+            Isometry3::from_parts(
+                Translation3::new(10.0 * t, 0.0, 60.0),
+                UnitQuaternion::from_scaled_axis(
+                    Vector3::y() * 17f64.to_radians() * (0.5 * std::f64::consts::PI * t).sin(),
+                ),
+            )
+        };
+        let veiled = |k: usize| (12..48).contains(&k);
+        // Under the veil, the measured orientations are off by 5°.
+        let off = UnitQuaternion::from_scaled_axis(Vector3::x() * 5f64.to_radians());
+        let mut poses: Vec<Isometry3<f64>> = (0..n)
+            .map(|k| {
+                if veiled(k) { Isometry3::from_parts(swing(k).translation, off * swing(k).rotation) } else { swing(k) }
+            })
+            .collect();
+        bridge_veils(&t_s, &mut poses, &views(n, veiled, |_| None));
+        let worst_deg =
+            (30..66).map(|k| poses[k].rotation.angle_to(&swing(k).rotation).to_degrees()).fold(0.0, f64::max);
+        assert!(worst_deg < 1.0, "the bridge's orientation is up to {worst_deg:.2}° off the swing");
+        for k in (0..12).chain(48..n) {
+            assert_eq!(poses[k], swing(k), "clear frame {k} rewritten");
+        }
+    }
+
+    /// The renderer's pan (±17°, 0.8 s a swing) veiled for 1.3 s: no bridge can follow a swing and a half it
+    /// does not see, and a cubic sent off at the end rates (up to 130°/s) would overshoot by more than the
+    /// swing. The clear frames around say so, and the bridge turns steadily from end to end.
+    #[test]
+    fn a_veil_over_swings_faster_than_it_turns_steadily() {
+        let n = 150;
+        let t_s: Vec<f64> = (0..n).map(|k| k as f64 / 30.0).collect();
+        let swing = |t: f64| 17f64.to_radians() * (2.5 * std::f64::consts::PI * t).sin();
+        let truth: Vec<Isometry3<f64>> = t_s
+            .iter()
+            .map(|&t| {
+                Isometry3::from_parts(
+                    Translation3::new(10.0 * t, 0.0, 60.0),
+                    UnitQuaternion::from_scaled_axis(Vector3::y() * swing(t)),
+                )
+            })
+            .collect();
+        let veiled = |k: usize| (63..101).contains(&k);
+        let mut poses = truth.clone();
+        bridge_veils(&t_s, &mut poses, &views(n, veiled, |_| None));
+        let (a, b) = (62, 101);
+        let (r_a, r_b) = (truth[a].rotation, truth[b].rotation);
+        for k in a + 1..b {
+            let u = (t_s[k] - t_s[a]) / (t_s[b] - t_s[a]);
+            let steady = r_a.slerp(&r_b, u);
+            assert!(poses[k].rotation.angle_to(&steady) < 1e-9, "frame {k} does not turn steadily");
+        }
     }
 
     #[test]
