@@ -54,8 +54,8 @@ pub struct TrajArgs {
     /// The honesty bar: an `Ok` frame's error relative to its keyframe over the travel since it.
     #[arg(long, default_value_t = 0.01, requires = "quality")]
     max_error_of_travel: f64,
-    /// Frames are judged from this many median steps of travel since their keyframe (1 % of less is under the
-    /// measurement noise of any tracker).
+    /// Frames are judged from this many median steps of travel since their keyframe (1 % of a shorter travel is
+    /// under the measurement noise of any tracker).
     #[arg(long, default_value_t = 4.0, requires = "quality")]
     min_steps: f64,
     /// Print JSON instead of the report.
