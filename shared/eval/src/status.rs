@@ -1,7 +1,8 @@
 //! Whether the tracker's `Ok` meant what it says: issue #22's honesty bar. A frame reported `Ok` must have its
 //! position relative to the last keyframe within a share (1 %) of the distance travelled since that keyframe —
 //! a wrong pose must be `Uncertain` or `Lost`, never `Ok`. Judged from the run's own files: the written
-//! trajectory, and the frame states and keyframes of `tracking-quality.csv`.
+//! trajectory, the frame states and keyframes of `tracking-quality.csv`, and where given each keyframe's own
+//! pose (`keyframes.tum`).
 //!
 //! Only frames that have travelled some distance since their keyframe are judged (by default four median steps
 //! of the ground truth): just after a keyframe the travel is a fraction of a step, and 1 % of it is under any
