@@ -343,6 +343,6 @@ fn a_wrong_ok_frame_is_named_from_the_run_s_quality_log() {
     let out = run_with_timeout(Command::new(bdis_slam()).arg("eval").args(args).arg(&run), Duration::from_secs(30));
     assert_eq!(out.status.code(), Some(1));
     let stderr = text(&out.stderr);
-    assert!(stderr.contains("tracking-quality.csv, line 6: field `t_source_s`: `soon` is not a time"), "{stderr}");
+    assert!(stderr.contains("tracking-quality.csv:6: field `t_source_s`: `soon` is not a time"), "{stderr}");
     assert_eq!(stderr.lines().count(), 1, "{stderr}");
 }

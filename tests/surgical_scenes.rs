@@ -21,6 +21,8 @@ use std::process::Command;
 use std::sync::OnceLock;
 use std::time::Duration;
 
+use bdis_core::formats::quality::{self, QualityLine, ReportedState, read_quality_log};
+
 const FRAMES: usize = 90;
 
 struct Renders {
@@ -202,32 +204,25 @@ fn smoke_makes_the_frames_it_veils_uncertain_and_tracking_resumes_when_it_clears
         synth_hover(&dir, 120, &["--smoke", kind]);
         let run_dir = renders().root.join(format!("smoke-{kind}-run"));
         track_run(&dir, &dir.join("settings.yaml"), &run_dir, kind, &[]);
-        let csv = std::fs::read_to_string(run_dir.join("tracking-quality.csv")).unwrap();
-        let states: Vec<(usize, String, String)> = csv
-            .lines()
-            .skip(1)
-            .map(|line| {
-                let f: Vec<&str> = line.split(',').collect();
-                (f[0].parse().unwrap(), f[2].to_string(), f[3].to_string())
-            })
-            .collect();
-        let count = |range: std::ops::Range<usize>, state: &str| {
-            states.iter().filter(|(i, s, _)| range.contains(i) && s == state).count()
+        let log_path = run_dir.join(quality::FILE_NAME);
+        // The file's text goes into the failure messages; its lines are read as the viewer and `eval` read them.
+        let csv = std::fs::read_to_string(&log_path).unwrap();
+        let frames = read_quality_log(&log_path).unwrap().lines;
+        let count = |range: std::ops::Range<u64>, state: ReportedState| {
+            frames.iter().filter(|f| range.contains(&f.frame_seq) && f.state == state).count()
         };
-        let thick = count(57..73, "uncertain");
+        let veiled = |f: &&QualityLine| f.doubt.as_deref() == Some("low-contrast");
+        let thick = count(57..73, ReportedState::Uncertain);
         assert!(thick >= 12, "{kind}: {thick} of the 16 thickest frames uncertain: {csv}");
-        assert!(states.iter().any(|(_, _, doubt)| doubt == "low-contrast"), "{kind}: {csv}");
-        assert_eq!(count(0..120, "lost"), 0, "{kind}: {csv}");
-        assert!(count(0..48, "ok") == 48 && count(100..120, "ok") == 20, "{kind}: ok before and after: {csv}");
+        assert!(frames.iter().any(|f| veiled(&f)), "{kind}: {csv}");
+        assert_eq!(count(0..120, ReportedState::Lost), 0, "{kind}: {csv}");
+        assert!(
+            count(0..48, ReportedState::Ok) == 48 && count(100..120, ReportedState::Ok) == 20,
+            "{kind}: ok before and after: {csv}"
+        );
         // Keyframes made under the veil serve tracking only: the dense map gets every other keyframe and none of
         // those (no depth is taken from a smoky view).
-        let keyframe_column = csv.lines().next().unwrap().split(',').position(|c| c == "keyframe").unwrap();
-        let veiled_keyframes = csv
-            .lines()
-            .skip(1)
-            .map(|line| line.split(',').collect::<Vec<_>>())
-            .filter(|f| f[3] == "low-contrast" && !f[keyframe_column].is_empty())
-            .count() as u64;
+        let veiled_keyframes = frames.iter().filter(veiled).filter(|f| f.keyframe.is_some()).count() as u64;
         let json = |name: &str| -> serde_json::Value {
             serde_json::from_str(&std::fs::read_to_string(run_dir.join(name)).unwrap()).unwrap()
         };

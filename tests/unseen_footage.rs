@@ -16,6 +16,7 @@ use std::process::Command;
 use std::sync::{Mutex, OnceLock};
 use std::time::Duration;
 
+use bdis_core::formats::quality::{self, QualityLog, ReportedState, read_quality_log};
 use bdis_core::formats::trajectory::read_tum;
 use bdis_core::geometry::StampedPose;
 
@@ -42,26 +43,9 @@ fn track(tmp: &Path, seq: &Path, settings: &Path, tag: &str) -> PathBuf {
     run_dir
 }
 
-/// One line of `tracking-quality.csv`.
-struct QualityRow {
-    t_s: f64,
-    state: String,
-    doubt: String,
-}
-
-fn quality(run_dir: &Path) -> Vec<QualityRow> {
-    let csv = std::fs::read_to_string(run_dir.join("tracking-quality.csv")).unwrap();
-    let mut lines = csv.lines();
-    let header: Vec<&str> = lines.next().unwrap().split(',').collect();
-    let col = |name: &str| header.iter().position(|h| *h == name).unwrap_or_else(|| panic!("no column {name}"));
-    let (t, state, doubt) = (col("t_source_s"), col("state"), col("doubt"));
-    lines
-        .map(|l| {
-            let f: Vec<&str> = l.split(',').collect();
-            assert_eq!(f.len(), header.len(), "{l}");
-            QualityRow { t_s: f[t].parse().unwrap(), state: f[state].to_string(), doubt: f[doubt].to_string() }
-        })
-        .collect()
+/// The run's `tracking-quality.csv`, read as the viewer and `eval` read it.
+fn quality_log(run_dir: &Path) -> QualityLog {
+    read_quality_log(&run_dir.join(quality::FILE_NAME)).unwrap()
 }
 
 fn path_length(gt: &[StampedPose]) -> f64 {
@@ -75,10 +59,9 @@ fn path_length(gt: &[StampedPose]) -> f64 {
 /// (below it the 1 % is under the measurement noise of any tracker). Returns (frames checked, worst error /
 /// distance).
 fn ok_frames_are_right(gt: &[StampedPose], est: &[StampedPose], run_dir: &Path, min_steps: f64) -> (usize, f64) {
-    use bdis_eval::status::{StatusBar, judge_ok_frames, read_quality_csv};
-    let frames = read_quality_csv(&run_dir.join("tracking-quality.csv")).unwrap();
+    use bdis_eval::status::{StatusBar, judge_ok_frames};
     let bar = StatusBar { max_error_of_travel: 0.01, min_steps };
-    let honesty = judge_ok_frames(gt, est, &[], &frames, 1e-4, bar).unwrap();
+    let honesty = judge_ok_frames(gt, est, &[], &quality_log(run_dir), 1e-4, bar).unwrap();
     if let Some(w) = honesty.wrong_ok.first() {
         panic!(
             "frame at {:.3} s: Ok with {:.2} % of the {:.3} travelled since the keyframe at {:.3} s ({} such frames)",
@@ -114,10 +97,10 @@ fn real_car_footage_in_metres_is_tracked_to_one_percent_with_every_step_right() 
         let (truth, estimate) = (step(&gt), step(&est));
         assert!((estimate - truth).abs() <= 0.05 * truth, "frame {k}: step {estimate:.3} m, the truth {truth:.3} m");
     }
-    let rows = quality(&first);
+    let rows = quality_log(&first).lines;
     assert_eq!(rows.len(), gt.len(), "a quality line per frame");
     // Footage a tracker can hold: the frames are Ok (their steps were checked above).
-    let ok = rows.iter().filter(|r| r.state == "ok").count();
+    let ok = rows.iter().filter(|r| r.state == ReportedState::Ok).count();
     eprintln!("kitti-a: {ok} of {} frames Ok", rows.len());
     assert!(ok >= rows.len() - 2, "only {ok} of {} frames Ok on footage that can be tracked", rows.len());
     // Deterministic: the same run again gives the same trajectory, byte for byte.
@@ -215,9 +198,12 @@ fn hard_case(name: &str) {
     let gt = read_tum(&seq.join("gt/poses.tum")).unwrap();
     let est = read_tum(&run_dir.join("trajectory.tum")).unwrap();
     assert_eq!(est.len(), gt.len(), "{name}: a pose for every frame");
-    let rows = quality(&run_dir);
-    let not_ok: Vec<String> =
-        rows.iter().filter(|r| r.state != "ok").map(|r| format!("{:.3} s {} {}", r.t_s, r.state, r.doubt)).collect();
+    let rows = quality_log(&run_dir).lines;
+    let not_ok: Vec<String> = rows
+        .iter()
+        .filter(|r| r.state != ReportedState::Ok)
+        .map(|r| format!("{:.3} s {} {}", r.t_source_s, r.state.name(), r.doubt.as_deref().unwrap_or("")))
+        .collect();
     let ate = bdis_eval::traj::ate(&gt, &est, 0.01).unwrap().translation.rmse;
     let length = path_length(&gt);
     // Honesty where it can be judged: ten median steps of travel since the keyframe.
@@ -234,7 +220,7 @@ fn hard_case(name: &str) {
         100.0 * ate / length,
         100.0 * case.ate_of_path
     );
-    assert!(rows.iter().all(|r| r.state != "lost"), "{name}: lost frames: {not_ok:?}");
+    assert!(rows.iter().all(|r| r.state != ReportedState::Lost), "{name}: lost frames: {not_ok:?}");
 }
 
 #[test]

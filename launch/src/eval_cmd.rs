@@ -4,7 +4,7 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
-use bdis_core::formats::{pfm, ply, trajectory};
+use bdis_core::formats::{pfm, ply, quality, trajectory};
 use bdis_core::geometry::StampedPose;
 use bdis_eval::map::Layers;
 use bdis_eval::status::{StatusBar, StatusHonesty};
@@ -144,14 +144,22 @@ pub fn eval(command: EvalCommand) -> Result<()> {
             let ate = bdis_eval::traj::ate(&gt, &est, a.max_dt)
                 .with_context(|| format!("{} vs {}", a.est.display(), a.gt.display()))?;
             let rpe = bdis_eval::traj::rpe(&gt, &est, a.max_dt, a.delta)?;
-            let status = match &a.quality {
+            let log = match &a.quality {
                 Some(path) => {
+                    let file = if path.is_dir() { path.join(quality::FILE_NAME) } else { path.clone() };
+                    let log = quality::read_quality_log(&file)?;
+                    Some((file, log))
+                }
+                None => None,
+            };
+            let status = match &log {
+                Some((file, log)) => {
                     let keyframes = match &a.keyframes {
                         Some(k) => load_traj(k, "tum")?,
                         None => Vec::new(),
                     };
                     let bar = StatusBar { max_error_of_travel: a.max_error_of_travel, min_steps: a.min_steps };
-                    Some(judge_status(&gt, &est, &keyframes, path, a.max_dt, bar)?)
+                    Some(judge_status(&gt, &est, &keyframes, file, log, a.max_dt, bar)?)
                 }
                 None => None,
             };
@@ -291,12 +299,13 @@ pub fn eval(command: EvalCommand) -> Result<()> {
     Ok(())
 }
 
-/// Judges the frames of the run's quality log (`path`: the file or its run folder) reported `Ok`.
+/// Judges the frames of the run's quality log (`log`, read from `file`) reported `Ok`.
 fn judge_status(
     gt: &[StampedPose],
     est: &[StampedPose],
     keyframes: &[StampedPose],
-    path: &Path,
+    file: &Path,
+    log: &quality::QualityLog,
     max_dt: f64,
     bar: StatusBar,
 ) -> Result<StatusHonesty> {
@@ -306,9 +315,8 @@ fn judge_status(
     if !(bar.min_steps.is_finite() && bar.min_steps >= 0.0) {
         bail!("--min-steps: must be ≥ 0, found {}", bar.min_steps);
     }
-    let file = if path.is_dir() { path.join("tracking-quality.csv") } else { path.to_path_buf() };
-    let frames = bdis_eval::status::read_quality_csv(&file)?;
-    Ok(bdis_eval::status::judge_ok_frames(gt, est, keyframes, &frames, max_dt, bar)?)
+    bdis_eval::status::judge_ok_frames(gt, est, keyframes, log, max_dt, bar)
+        .with_context(|| format!("{}", file.display()))
 }
 
 fn print_status(s: &StatusHonesty) {

@@ -38,15 +38,8 @@ pub struct MapArgs {
     map_params: Vec<String>,
 }
 
-fn pose_at(poses: &[bdis_core::geometry::StampedPose], t_s: f64) -> Option<&bdis_core::geometry::StampedPose> {
-    let i = poses.partition_point(|p| p.t_s < t_s);
-    [i.checked_sub(1), Some(i)]
-        .into_iter()
-        .flatten()
-        .filter_map(|k| poses.get(k))
-        .filter(|p| (p.t_s - t_s).abs() <= 1e-3)
-        .min_by(|a, b| (a.t_s - t_s).abs().total_cmp(&(b.t_s - t_s).abs()))
-}
+/// A keyframe is matched to its frame, and a frame to its pose, within 1 ms of its time.
+const MAX_POSE_DT_S: f64 = 1e-3;
 
 pub fn map(args: MapArgs) -> Result<()> {
     let mut params = MosaicParams::default();
@@ -64,7 +57,7 @@ pub fn map(args: MapArgs) -> Result<()> {
                 let found = sequence
                     .frames
                     .iter()
-                    .position(|f| f.t_source_s.is_some_and(|t| (t - kf.t_s).abs() <= 1e-3))
+                    .position(|f| f.t_source_s.is_some_and(|t| (t - kf.t_s).abs() <= MAX_POSE_DT_S))
                     .with_context(|| {
                         format!(
                             "{}: keyframe at t = {} s is no frame of {}",
@@ -96,7 +89,7 @@ pub fn map(args: MapArgs) -> Result<()> {
         let Some(t_s) = entry.t_source_s else {
             bail!("{}: frame {index} has no time, so no pose can be matched to it", args.sequence.display())
         };
-        let Some(pose) = pose_at(&poses, t_s) else {
+        let Some(pose) = bdis_core::geometry::pose_nearest_in_time(&poses, t_s, MAX_POSE_DT_S) else {
             bail!("{}: no pose within 1 ms of frame {index} (t = {t_s} s)", args.poses.display())
         };
         let (left_gray, left_rgb) = crate::stereo_cmd::load(&entry.left)?;

@@ -1,7 +1,8 @@
 //! `tracking-quality.csv`: one line per frame on how well the images supported its pose (see
 //! `bdis_track::TrackingQuality`), so a user can see where tracking was weak and why. Appended as frames are
 //! tracked (a tracker restarted after a crash continues the file; a new run in the same folder starts it
-//! anew); buffered, flushed at the end of the stream.
+//! anew); buffered, flushed at the end of the stream. The format (header, state names) and its one reader are
+//! `bdis_core::formats::quality`.
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -9,10 +10,8 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result};
 use bdis_track::{FrameResult, TrackingState};
 
-pub const FILE_NAME: &str = "tracking-quality.csv";
-const HEADER: &str = "frame_seq,t_source_s,state,doubt,method,prior_rejected,matched,inliers,inlier_ratio,\
-reprojection_rms_px,position_sigma_rel,rotation_sigma_deg,appearance_matches,appearance_consensus,\
-appearance_agreement,cpu_ms,keyframe";
+pub use bdis_core::formats::quality::FILE_NAME;
+use bdis_core::formats::quality::{HEADER, ReportedState};
 
 #[derive(Debug)]
 pub struct QualityLog {
@@ -20,13 +19,14 @@ pub struct QualityLog {
     out: std::io::BufWriter<std::fs::File>,
 }
 
-pub fn state_name(state: TrackingState) -> &'static str {
+fn state_name(state: TrackingState) -> &'static str {
     match state {
-        TrackingState::NotInitialized => "not-initialised",
-        TrackingState::Ok => "ok",
-        TrackingState::Uncertain => "uncertain",
-        TrackingState::Lost => "lost",
+        TrackingState::NotInitialized => ReportedState::NotInitialised,
+        TrackingState::Ok => ReportedState::Ok,
+        TrackingState::Uncertain => ReportedState::Uncertain,
+        TrackingState::Lost => ReportedState::Lost,
     }
+    .name()
 }
 
 impl QualityLog {
@@ -115,6 +115,11 @@ mod tests {
         log.finish().unwrap();
         drop(log);
         assert_eq!(lines(&dir).len(), 3);
+        // What it wrote is what the format's reader (the viewer's, `eval`'s) reads.
+        let read = bdis_core::formats::quality::read_quality_log(&dir.join(FILE_NAME)).unwrap();
+        let seen: Vec<_> = read.lines.iter().map(|l| (l.frame_seq, l.state, l.keyframe)).collect();
+        assert_eq!(seen, [(0, ReportedState::Lost, None), (1, ReportedState::Lost, Some(1))]);
+        assert!(read.logs_keyframes);
         // The same run's tracker restarted after frame 1 adds its frames after the earlier ones.
         let mut log = QualityLog::open(&dir, true).unwrap();
         log.frame(2, &result, 1_000_000, None).unwrap();

@@ -15,6 +15,18 @@ pub struct StampedPose {
     pub world_from_camera: Pose,
 }
 
+/// The pose of `poses` (sorted by time, as trajectory files are) nearest in time to `t_s`, if one is within
+/// `max_dt_s` of it.
+pub fn pose_nearest_in_time(poses: &[StampedPose], t_s: f64, max_dt_s: f64) -> Option<&StampedPose> {
+    let after = poses.partition_point(|p| p.t_s < t_s);
+    [after.checked_sub(1), Some(after)]
+        .into_iter()
+        .flatten()
+        .filter_map(|i| poses.get(i))
+        .filter(|p| (p.t_s - t_s).abs() <= max_dt_s)
+        .min_by(|a, b| (a.t_s - t_s).abs().total_cmp(&(b.t_s - t_s).abs()))
+}
+
 /// Builds a pose from a translation and a quaternion given as (qx, qy, qz, qw), the TUM order. A quaternion that
 /// is unit to 1e-12 is taken as it is, so a file written by us reads back bit-identically; one that is merely
 /// close to unit is normalised; a zero or non-finite one is `None`.
@@ -86,5 +98,21 @@ mod tests {
         }
         assert!(pose_from_translation_quaternion([0.0; 3], [0.0; 4]).is_none());
         assert!(pose_from_rows_3x4(&[2.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0]).is_none());
+    }
+
+    #[test]
+    fn the_nearest_pose_in_time_is_found_only_within_the_tolerance() {
+        let poses: Vec<StampedPose> = [0.0, 0.1, 0.2, 0.4]
+            .into_iter()
+            .map(|t_s| StampedPose { t_s, world_from_camera: Isometry3::translation(t_s, 0.0, 0.0) })
+            .collect();
+        let near = |t_s: f64, max_dt_s: f64| pose_nearest_in_time(&poses, t_s, max_dt_s).map(|p| p.t_s);
+        assert_eq!(near(0.14, 0.05), Some(0.1));
+        assert_eq!(near(0.16, 0.05), Some(0.2));
+        assert_eq!(near(0.3, 0.05), None, "no pose within 0.05 s of 0.3 s");
+        assert_eq!(near(-0.01, 0.05), Some(0.0));
+        assert_eq!(near(0.45, 0.05), Some(0.4));
+        assert_eq!(near(0.5, 0.05), None);
+        assert_eq!(pose_nearest_in_time(&[], 0.0, 1.0), None);
     }
 }

@@ -9,22 +9,10 @@
 //! tracker's measurement noise. Every figure is a ratio or is relative to the ground truth's own steps: no unit,
 //! no image size.
 
-use std::path::Path;
-
-use bdis_core::geometry::StampedPose;
+use bdis_core::formats::quality::{QualityLog, ReportedState};
+use bdis_core::geometry::{StampedPose, pose_nearest_in_time};
 use nalgebra::Isometry3;
 use serde::{Deserialize, Serialize};
-
-/// What the tracker reported for one frame (one line of `tracking-quality.csv`).
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct ReportedFrame {
-    /// The frame's source time, seconds (the trajectory's time stamp).
-    pub t_s: f64,
-    /// Reported `Ok` (not `Uncertain`, `Lost` or not yet initialised).
-    pub ok: bool,
-    /// A keyframe was made from it.
-    pub keyframe: bool,
-}
 
 /// The bar and where it is judged.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -73,72 +61,20 @@ pub struct StatusHonesty {
 
 #[derive(Debug, thiserror::Error)]
 pub enum StatusError {
-    #[error("{path}: cannot read: {source}")]
-    Read { path: String, source: std::io::Error },
-    #[error("{path}: no header line")]
-    NoHeader { path: String },
-    #[error("{path}: the header has no column `{column}`")]
-    NoColumn { path: String, column: &'static str },
-    #[error("{path}, line {line}: field `{column}`: {problem}")]
-    Field { path: String, line: usize, column: &'static str, problem: String },
     #[error("the ground truth has fewer than two poses: no step to measure travel by")]
     NoSteps,
+    #[error(
+        "the quality log has no `keyframe` column (written before keyframes were logged): no keyframe to judge from"
+    )]
+    KeyframesNotLogged,
 }
 
-/// Reads the frames of a run's `tracking-quality.csv` (columns `t_source_s`, `state` and `keyframe`, found by
-/// name; the others are not read).
-pub fn read_quality_csv(path: &Path) -> Result<Vec<ReportedFrame>, StatusError> {
-    let shown = || path.display().to_string();
-    let text = std::fs::read_to_string(path).map_err(|source| StatusError::Read { path: shown(), source })?;
-    let mut lines = text.lines();
-    let header: Vec<&str> = lines.next().ok_or_else(|| StatusError::NoHeader { path: shown() })?.split(',').collect();
-    let column = |column: &'static str| {
-        header.iter().position(|h| h.trim() == column).ok_or_else(|| StatusError::NoColumn { path: shown(), column })
-    };
-    let (t, state, keyframe) = (column("t_source_s")?, column("state")?, column("keyframe")?);
-    let mut frames = Vec::new();
-    for (n, line) in lines.enumerate() {
-        if line.trim().is_empty() {
-            continue;
-        }
-        let fields: Vec<&str> = line.split(',').collect();
-        let field = |index: usize, column: &'static str| {
-            fields.get(index).map(|f| f.trim()).ok_or_else(|| StatusError::Field {
-                path: shown(),
-                line: n + 2,
-                column,
-                problem: format!("missing ({} fields, the header has {})", fields.len(), header.len()),
-            })
-        };
-        let t_text = field(t, "t_source_s")?;
-        let t_s: f64 = t_text.parse().ok().filter(|t: &f64| t.is_finite()).ok_or_else(|| StatusError::Field {
-            path: shown(),
-            line: n + 2,
-            column: "t_source_s",
-            problem: format!("`{t_text}` is not a time in seconds"),
-        })?;
-        frames.push(ReportedFrame {
-            t_s,
-            ok: field(state, "state")? == "ok",
-            keyframe: !field(keyframe, "keyframe")?.is_empty(),
-        });
-    }
-    Ok(frames)
-}
-
-/// The pose of `poses` (sorted by time) nearest to `t_s`, if one is within `max_dt_s`.
+/// The pose of `poses` nearest to `t_s`, if one is within `max_dt_s`.
 fn pose_near(poses: &[StampedPose], t_s: f64, max_dt_s: f64) -> Option<Isometry3<f64>> {
-    let k = poses.partition_point(|p| p.t_s < t_s);
-    [k.checked_sub(1), Some(k)]
-        .into_iter()
-        .flatten()
-        .filter_map(|i| poses.get(i))
-        .filter(|p| (p.t_s - t_s).abs() <= max_dt_s)
-        .min_by(|a, b| (a.t_s - t_s).abs().total_cmp(&(b.t_s - t_s).abs()))
-        .map(|p| p.world_from_camera)
+    pose_nearest_in_time(poses, t_s, max_dt_s).map(|p| p.world_from_camera)
 }
 
-/// Judges each `Ok` frame of `frames` (in time order) against the last keyframe before it: its position relative
+/// Judges each `Ok` frame of the run's quality log (`bdis_core::formats::quality`, in time order) against the last keyframe before it: its position relative
 /// to that keyframe, from `est` and from `gt` (poses matched by time within `max_dt_s`). The keyframe's estimated
 /// pose is taken from `keyframes` where it is there (the run's `keyframes.tum`: the keyframe's own pose, which
 /// the frames after it were tracked against), else from `est` at its time (where the written trajectory may have
@@ -147,10 +83,14 @@ pub fn judge_ok_frames(
     gt: &[StampedPose],
     est: &[StampedPose],
     keyframes: &[StampedPose],
-    frames: &[ReportedFrame],
+    log: &QualityLog,
     max_dt_s: f64,
     bar: StatusBar,
 ) -> Result<StatusHonesty, StatusError> {
+    if !log.logs_keyframes {
+        return Err(StatusError::KeyframesNotLogged);
+    }
+    let frames = &log.lines;
     let mut steps: Vec<f64> = gt
         .windows(2)
         .map(|w| (w[1].world_from_camera.translation.vector - w[0].world_from_camera.translation.vector).norm())
@@ -163,20 +103,20 @@ pub fn judge_ok_frames(
     let mut honesty = StatusHonesty {
         bar,
         min_travel,
-        ok_frames: frames.iter().filter(|f| f.ok).count(),
+        ok_frames: frames.iter().filter(|f| f.state == ReportedState::Ok).count(),
         judged: 0,
         worst_error_of_travel: 0.0,
         wrong_ok: Vec::new(),
     };
     let mut keyframe_t_s = None;
     for frame in frames {
-        if frame.keyframe {
-            keyframe_t_s = Some(frame.t_s);
+        if frame.keyframe.is_some() {
+            keyframe_t_s = Some(frame.t_source_s);
             continue;
         }
-        let Some(k) = keyframe_t_s.filter(|_| frame.ok) else { continue };
+        let Some(k) = keyframe_t_s.filter(|_| frame.state == ReportedState::Ok) else { continue };
         let relative = |keyframe: Option<Isometry3<f64>>, poses: &[StampedPose]| {
-            let (a, b) = (keyframe?, pose_near(poses, frame.t_s, max_dt_s)?);
+            let (a, b) = (keyframe?, pose_near(poses, frame.t_source_s, max_dt_s)?);
             Some((a.inverse() * b).translation.vector)
         };
         let estimated_keyframe = pose_near(keyframes, k, max_dt_s).or_else(|| pose_near(est, k, max_dt_s));
@@ -193,7 +133,7 @@ pub fn judge_ok_frames(
         honesty.judged += 1;
         honesty.worst_error_of_travel = honesty.worst_error_of_travel.max(error_of_travel);
         if error_of_travel > bar.max_error_of_travel {
-            honesty.wrong_ok.push(WrongOk { t_s: frame.t_s, keyframe_t_s: k, travelled, error_of_travel });
+            honesty.wrong_ok.push(WrongOk { t_s: frame.t_source_s, keyframe_t_s: k, travelled, error_of_travel });
         }
     }
     Ok(honesty)
@@ -202,6 +142,7 @@ pub fn judge_ok_frames(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use bdis_core::formats::quality::QualityLine;
     use nalgebra::{Translation3, UnitQuaternion, Vector3};
 
     /// A straight path at 1 unit a frame, 30 frames a second.
@@ -217,8 +158,17 @@ mod tests {
             .collect()
     }
 
-    fn frames(n: usize, keyframes: &[usize], ok: impl Fn(usize) -> bool) -> Vec<ReportedFrame> {
-        (0..n).map(|i| ReportedFrame { t_s: i as f64 / 30.0, ok: ok(i), keyframe: keyframes.contains(&i) }).collect()
+    fn frames(n: usize, keyframes: &[usize], ok: impl Fn(usize) -> bool) -> QualityLog {
+        let lines = (0..n)
+            .map(|i| QualityLine {
+                frame_seq: i as u64,
+                t_source_s: i as f64 / 30.0,
+                state: if ok(i) { ReportedState::Ok } else { ReportedState::Uncertain },
+                doubt: None,
+                keyframe: keyframes.iter().position(|&k| k == i).map(|k| k as u64),
+            })
+            .collect();
+        QualityLog { lines, logs_keyframes: true }
     }
 
     #[test]
@@ -284,24 +234,10 @@ mod tests {
     }
 
     #[test]
-    fn a_quality_file_with_a_bad_time_is_refused_naming_the_line_and_field() {
-        let dir = std::env::temp_dir().join(format!("bdis-eval-status-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
-        let path = dir.join("tracking-quality.csv");
-        std::fs::write(&path, "frame_seq,t_source_s,state,doubt,keyframe\n0,0.000000,ok,,0\n1,zero,ok,,\n").unwrap();
-        let message = read_quality_csv(&path).unwrap_err().to_string();
-        assert!(message.contains("line 3") && message.contains("t_source_s") && message.contains("zero"), "{message}");
-        std::fs::write(
-            &path,
-            "frame_seq,t_source_s,state,doubt,keyframe\n0,0.000000,ok,,0\n1,0.033333,uncertain,low-contrast,\n",
-        )
-        .unwrap();
-        let frames = read_quality_csv(&path).unwrap();
-        assert_eq!(frames.len(), 2);
-        assert!(frames[0].ok && frames[0].keyframe && !frames[1].ok && !frames[1].keyframe);
-        std::fs::write(&path, "frame_seq,state\n").unwrap();
-        let message = read_quality_csv(&path).unwrap_err().to_string();
-        assert!(message.contains("t_source_s"), "{message}");
-        std::fs::remove_dir_all(&dir).unwrap();
+    fn a_log_without_keyframes_is_refused_not_judged_as_all_clear() {
+        let mut log = frames(10, &[0], |_| true);
+        log.logs_keyframes = false;
+        let refused = judge_ok_frames(&straight(10), &straight(10), &[], &log, 0.01, StatusBar::default());
+        assert!(matches!(refused, Err(StatusError::KeyframesNotLogged)), "{refused:?}");
     }
 }

@@ -25,9 +25,9 @@ pub enum ViewerError {
     File { path: PathBuf, what: String },
     #[error("{dir}: nothing to show: neither map.bin nor trajectory.tum is there (is it a run folder?)")]
     NothingToShow { dir: PathBuf },
-    /// A trajectory file (the message names it and the line).
-    #[error("{0}")]
-    Trajectory(String),
+    /// A trajectory or the quality log (the message names the file and the line).
+    #[error(transparent)]
+    Format(#[from] bdis_core::formats::FormatError),
     /// The map file (its error names it).
     #[error(transparent)]
     Map(#[from] bdis_mosaic::MosaicError),

@@ -4,6 +4,7 @@
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
+use bdis_core::formats::quality::{self, read_quality_log};
 use bdis_core::formats::trajectory::read_tum;
 use serde::Serialize;
 
@@ -15,7 +16,7 @@ pub struct PathPose {
     pub t_s: f64,
     pub position: [f64; 3],
     pub orientation_xyzw: [f64; 4],
-    /// `ok`, `uncertain` or `lost`; `unknown` when the run wrote no `tracking-quality.csv`.
+    /// `ok`, `uncertain`, `lost` or `not-initialised`; `unknown` when the run wrote no `tracking-quality.csv`.
     pub state: String,
 }
 
@@ -57,26 +58,14 @@ fn read_optional(path: &Path) -> Result<Option<Vec<u8>>, ViewerError> {
 }
 
 /// The state of every frame by its time in microseconds (the key both `trajectory.tum` and the quality log
-/// round to).
+/// round to); none when the run wrote no quality log.
 fn frame_states(path: &Path) -> Result<HashMap<i64, String>, ViewerError> {
-    let Some(bytes) = read_optional(path)? else { return Ok(HashMap::new()) };
-    let text = String::from_utf8(bytes).map_err(|_| file_error(path, "not UTF-8 text"))?;
-    let mut lines = text.lines();
-    let header: Vec<&str> = lines.next().unwrap_or_default().split(',').collect();
-    let column = |name: &str| {
-        header.iter().position(|c| *c == name).ok_or_else(|| file_error(path, format!("no `{name}` column")))
-    };
-    let (t_col, state_col) = (column("t_source_s")?, column("state")?);
-    let mut states = HashMap::new();
-    for (i, line) in lines.enumerate() {
-        let fields: Vec<&str> = line.split(',').collect();
-        let at = |what: &str| file_error(path, format!("line {}: {what}", i + 2));
-        let t: f64 =
-            fields.get(t_col).and_then(|t| t.parse().ok()).ok_or_else(|| at("`t_source_s` is not a number"))?;
-        let state = fields.get(state_col).ok_or_else(|| at("no `state` field"))?;
-        states.insert(micros(t), state.to_string());
+    if !path.exists() {
+        return Ok(HashMap::new());
     }
-    Ok(states)
+    // Its errors name the file, the line and the field.
+    let log = read_quality_log(path)?;
+    Ok(log.lines.iter().map(|l| (micros(l.t_source_s), l.state.name().to_owned())).collect())
 }
 
 fn micros(t_s: f64) -> i64 {
@@ -88,7 +77,7 @@ fn read_path(path: &Path, states: &HashMap<i64, String>) -> Result<Option<Vec<Pa
         return Ok(None);
     }
     // Its errors name the file and the line.
-    let poses = read_tum(path).map_err(|e| ViewerError::Trajectory(e.to_string()))?;
+    let poses = read_tum(path)?;
     Ok(Some(
         poses
             .iter()
@@ -112,7 +101,7 @@ impl RunView {
         if !dir.is_dir() {
             return Err(file_error(dir, "not a folder"));
         }
-        let states = frame_states(&dir.join("tracking-quality.csv"))?;
+        let states = frame_states(&dir.join(quality::FILE_NAME))?;
         let path = read_path(&dir.join("trajectory.tum"), &states)?;
         let keyframes = read_path(&dir.join("keyframes.tum"), &states)?.unwrap_or_default();
         let map_file = dir.join("map.bin");

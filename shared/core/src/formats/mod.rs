@@ -1,11 +1,12 @@
 //! File formats: PFM (disparity, depth), binary PLY (maps, meshes), TUM and KITTI trajectories, the tracker's
-//! run summary (tracking.json).
+//! run summary (tracking.json), the tracker's per-frame log (tracking-quality.csv).
 
 use std::fmt;
 use std::path::{Path, PathBuf};
 
 pub mod pfm;
 pub mod ply;
+pub mod quality;
 pub mod summary;
 pub mod trajectory;
 
