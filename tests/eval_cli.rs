@@ -323,9 +323,11 @@ fn a_wrong_ok_frame_is_named_from_the_run_s_quality_log() {
     let travelled = (gt[14].world_from_camera.translation.vector - gt[10].world_from_camera.translation.vector).norm();
     let expected = 0.3 / travelled;
     assert!((wrong[0]["error_of_travel"].as_f64().unwrap() - expected).abs() < 1e-6, "{status} vs {expected}");
-    // The report names it too.
+    // The report names it too, and the plot shows it: the error of each pose, the Uncertain frame shaded,
+    // the keyframes ticked, each judged frame a dot, the one over the bar in the bar's colour.
+    let plot = run.join("status.svg");
     let out = run_with_timeout(
-        Command::new(bdis_slam()).arg("eval").args(args).arg(run.join("tracking-quality.csv")),
+        Command::new(bdis_slam()).arg("eval").args(args).arg(run.join("tracking-quality.csv")).arg("--plot").arg(&plot),
         Duration::from_secs(30),
     );
     assert!(out.status.success(), "{}", text(&out.stderr));
@@ -335,6 +337,25 @@ fn a_wrong_ok_frame_is_named_from_the_run_s_quality_log() {
             && report.contains(&format!("Ok at 0.467 s: {:.2} %", 100.0 * expected)),
         "{report}"
     );
+    let svg = std::fs::read_to_string(&plot).unwrap();
+    assert!(svg.starts_with("<svg") && svg.trim_end().ends_with("</svg>"), "{svg}");
+    let count = |needle: &str| svg.matches(needle).count();
+    let judged = status["judged"].as_u64().unwrap() as usize;
+    assert_eq!((count(r#"class="over""#), count(r#"class="judged""#)), (1, judged - 1), "{svg}");
+    // One shaded span (frame 25) and one in the legend; three keyframes and the legend's tick.
+    assert_eq!(count(r#"class="uncertain""#), 2, "{svg}");
+    assert!(svg.contains("0.833 s: uncertain (low-contrast)"), "{svg}");
+    assert_eq!(count(r#"class="keyframe""#), 4, "{svg}");
+    let polyline = svg.split(r#"<polyline points=""#).nth(1).unwrap().split('"').next().unwrap();
+    assert_eq!(polyline.split(' ').count(), 30, "a point per pose: {polyline}");
+    // A plot that cannot be written: one line naming it, and a failure.
+    let out = run_with_timeout(
+        Command::new(bdis_slam()).arg("eval").args(args).arg(&run).arg("--plot").arg(run.join("no/such/dir/p.svg")),
+        Duration::from_secs(30),
+    );
+    assert_eq!(out.status.code(), Some(1));
+    let stderr = text(&out.stderr);
+    assert!(stderr.contains("no/such/dir/p.svg: cannot write the plot") && stderr.lines().count() == 1, "{stderr}");
 
     // A line whose time is not a number: one line naming the file, the line and the field.
     let mut bad = csv.clone();

@@ -58,6 +58,11 @@ pub struct TrajArgs {
     /// under the measurement noise of any tracker).
     #[arg(long, default_value_t = 4.0, requires = "quality")]
     min_steps: f64,
+    /// Also draw it, as an SVG to look at: each pose's position error over time (with --quality, the frames not
+    /// reported `Ok` shaded, the keyframes ticked, and a second panel with each judged frame against the
+    /// honesty bar).
+    #[arg(long, value_name = "FILE.svg")]
+    plot: Option<PathBuf>,
     /// Print JSON instead of the report.
     #[arg(long)]
     json: bool,
@@ -163,6 +168,23 @@ pub fn eval(command: EvalCommand) -> Result<()> {
                 }
                 None => None,
             };
+            if let Some(plot) = &a.plot {
+                let errors = bdis_eval::traj::position_errors(&gt, &est, a.max_dt)?;
+                let title = a.est.display().to_string();
+                let svg = crate::eval_plot::TrajPlot {
+                    title: &title,
+                    time_unit: if a.format == "kitti" { "" } else { " s" },
+                    errors: &errors,
+                    ate_rmse: ate.translation.rmse,
+                    log: log.as_ref().map(|(_, log)| log),
+                    status: status.as_ref(),
+                }
+                .svg();
+                std::fs::write(plot, svg).with_context(|| format!("{}: cannot write the plot", plot.display()))?;
+                if !a.json {
+                    eprintln!("plot: {}", plot.display());
+                }
+            }
             if a.json {
                 println!(
                     "{}",

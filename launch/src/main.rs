@@ -10,6 +10,7 @@ mod calib_cmd;
 mod demo_cmd;
 mod eval_cmd;
 mod eval_masks;
+mod eval_plot;
 mod fields;
 mod map_cmd;
 mod plan;

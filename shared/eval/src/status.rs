@@ -57,6 +57,15 @@ pub struct StatusHonesty {
     pub worst_error_of_travel: f64,
     /// The judged frames over the bar, in time order.
     pub wrong_ok: Vec<WrongOk>,
+    /// Every judged frame, in time order (for a plot: `eval traj --plot`).
+    pub judged_frames: Vec<JudgedFrame>,
+}
+
+/// A judged `Ok` frame: its time, seconds, and its position error relative to its keyframe over the travel since.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct JudgedFrame {
+    pub t_s: f64,
+    pub error_of_travel: f64,
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -107,6 +116,7 @@ pub fn judge_ok_frames(
         judged: 0,
         worst_error_of_travel: 0.0,
         wrong_ok: Vec::new(),
+        judged_frames: Vec::new(),
     };
     let mut keyframe_t_s = None;
     for frame in frames {
@@ -131,6 +141,7 @@ pub fn judge_ok_frames(
         }
         let error_of_travel = (estimate - truth).norm() / travelled;
         honesty.judged += 1;
+        honesty.judged_frames.push(JudgedFrame { t_s: frame.t_source_s, error_of_travel });
         honesty.worst_error_of_travel = honesty.worst_error_of_travel.max(error_of_travel);
         if error_of_travel > bar.max_error_of_travel {
             honesty.wrong_ok.push(WrongOk { t_s: frame.t_source_s, keyframe_t_s: k, travelled, error_of_travel });
@@ -191,6 +202,8 @@ mod tests {
         // Judged: frames 8–15 after keyframe 4 (4 to 11 travelled), 21–29 after keyframe 16 (the Uncertain 20
         // is not), none after keyframe 0 (frames 1–3 are under the bar's travel).
         assert_eq!(honesty.judged, 8 + 9, "{honesty:?}");
+        assert_eq!(honesty.judged_frames.len(), honesty.judged);
+        assert!(honesty.judged_frames.iter().any(|j| j.t_s == wrong.t_s && j.error_of_travel == wrong.error_of_travel));
     }
 
     /// A keyframe whose written pose was bridged (made under a veil): judged against its own pose, the frames

@@ -198,6 +198,34 @@ pub fn ate(gt: &[StampedPose], est: &[StampedPose], max_dt_s: f64) -> Result<Ate
     })
 }
 
+/// A matched pose's position error after the ATE's alignment.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct PositionError {
+    /// The estimate's time stamp, seconds.
+    pub t_s: f64,
+    /// In the trajectory's unit.
+    pub error: f64,
+}
+
+/// The error of every matched pose of `est` after the SE(3) alignment [`ate`] uses, in the estimate's time order:
+/// where along the path the ATE comes from.
+pub fn position_errors(
+    gt: &[StampedPose],
+    est: &[StampedPose],
+    max_dt_s: f64,
+) -> Result<Vec<PositionError>, TrajError> {
+    let gt_from_est = align_se3(gt, est, max_dt_s)?;
+    Ok(associate(gt, est, max_dt_s)
+        .into_iter()
+        .map(|(i, j)| PositionError {
+            t_s: est[j].t_s,
+            error: (Point3::from(gt[i].world_from_camera.translation.vector)
+                - gt_from_est * Point3::from(est[j].world_from_camera.translation.vector))
+            .norm(),
+        })
+        .collect())
+}
+
 /// RPE over steps of `delta_s` seconds between matched poses (each pose paired with the first one at least
 /// `delta_s` later).
 pub fn rpe(gt: &[StampedPose], est: &[StampedPose], max_dt_s: f64, delta_s: f64) -> Result<Rpe, TrajError> {
@@ -331,6 +359,12 @@ mod tests {
         let expected = sigma * 3f64.sqrt();
         assert_eq!(a.pairs, 4000);
         assert!((a.translation.rmse - expected).abs() < 0.03 * expected, "{} vs {expected}", a.translation.rmse);
+        // Per pose, the same errors: in the estimate's time order, and their RMS is the ATE.
+        let each = position_errors(&gt, &est, 0.01).unwrap();
+        assert_eq!(each.len(), 4000);
+        assert!(each.windows(2).all(|w| w[0].t_s < w[1].t_s) && each[0].t_s == est[0].t_s);
+        let rms = (each.iter().map(|e| e.error * e.error).sum::<f64>() / each.len() as f64).sqrt();
+        assert!((rms - a.translation.rmse).abs() < 1e-12, "{rms} vs {}", a.translation.rmse);
     }
 
     #[test]
