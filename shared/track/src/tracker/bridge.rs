@@ -3,9 +3,11 @@
 //! coasted it. Live, that pose is the best there is and goes out flagged. Once the frames after the veil are
 //! tracked again, the trajectory written at the end (which bundle adjustment's corrections also reach) bridges
 //! the veil instead: the smoothest path between the clear frames on both sides, leaving each side at the
-//! speed it was moving and turning at the rate it was turning. The veiled frames' own poses are not weighed in:
-//! a veil's error is not noise that an average would remove but a shift that follows the haze (at 320×240;
-//! at 640×480 a colon flight's were within 0.02 mm, closer than the bridge: BENCHMARKS.md).
+//! speed it was moving and turning at the rate it was turning. The veiled frames' own positions are kept only
+//! where they agree with the bridge as well as bridges agree with the clear frames near it: a veil's error is
+//! mostly not noise that an average would remove but a shift that follows the haze (at 320×240), yet where
+//! the veiled frames were measured well (a colon flight at 640×480: within 0.02 mm) they are closer than any
+//! curve through the veil (BENCHMARKS.md).
 
 use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 
@@ -160,17 +162,25 @@ impl Ends {
     }
 }
 
-/// At most this many runs of clear frames are scored on each side of a bridge ([`turn_near`]): a run starting at
+/// At most this many runs of clear frames are scored on each side of a bridge ([`near_runs`]): a run starting at
 /// every frame while there are no more, evenly spaced beyond, so the choice costs a bounded number of bridges
 /// however long a run of lost frames is.
 const MAX_RUNS_PER_SIDE: usize = 128;
 
-/// Which way of turning predicts this footage's own clear frames better, near the bridge from `a` to `b`: each
-/// run of clear frames as long as the bridge, within twice its length before `a` or after `b`, is bridged from
-/// its own ends both ways, and the two are scored by their orientations' squared error against the frames'
-/// measured ones. The motion the veil hides is most like the motion around it; the cubic where nothing says
-/// otherwise.
-fn turn_near(t_s: &[f64], world_from_camera: &[Isometry3<f64>], views: &[View], a: usize, b: usize) -> Turn {
+/// What the footage's own clear frames near a bridge say about bridging it.
+struct NearRuns {
+    /// The way of turning that predicts them better.
+    turn: Turn,
+    /// The mean squared distance of their positions from bridges over them: how far off a bridge of this
+    /// length is here, in position (with the clear poses' own noise). `None` when no run was near.
+    position_var: Option<f64>,
+}
+
+/// Bridges the runs of clear frames near the bridge from `a` to `b`: each run as long as the bridge, within
+/// twice its length before `a` or after `b`, is bridged from its own ends both ways and scored against the
+/// frames' measured poses. The motion the veil hides is most like the motion around it; the cubic turn where
+/// nothing says otherwise.
+fn near_runs(t_s: &[f64], world_from_camera: &[Isometry3<f64>], views: &[View], a: usize, b: usize) -> NearRuns {
     let (n, length, span) = (t_s.len(), b - a, t_s[b] - t_s[a]);
     // Clear frames before each index: whether a run is all clear in one subtraction.
     let mut clear_before = Vec::with_capacity(n + 1);
@@ -181,7 +191,7 @@ fn turn_near(t_s: &[f64], world_from_camera: &[Isometry3<f64>], views: &[View], 
     let step = (2 * length).div_ceil(MAX_RUNS_PER_SIDE).max(1);
     let before = (a.saturating_sub(3 * length)..=a.saturating_sub(length)).filter(|&j| j + length <= a);
     let after = (b..=b + 2 * length).filter(|&j| j + length < n);
-    let (mut hermite, mut steady) = (0.0, 0.0);
+    let (mut hermite, mut steady, mut position_sq, mut positions) = (0.0, 0.0, 0.0, 0usize);
     for j in before.step_by(step).chain(after.step_by(step)) {
         let e = j + length;
         let near = if e <= a { t_s[a] - t_s[j] <= 2.0 * span } else { t_s[e] - t_s[b] <= 2.0 * span };
@@ -190,23 +200,48 @@ fn turn_near(t_s: &[f64], world_from_camera: &[Isometry3<f64>], views: &[View], 
         }
         let Some(ends) = Ends::of(t_s, world_from_camera, views, j, e) else { continue };
         for i in j + 1..e {
-            let measured = &world_from_camera[i].rotation;
-            hermite += ends.pose_at(t_s, t_s[i], Turn::Hermite).rotation.angle_to(measured).powi(2);
-            steady += ends.pose_at(t_s, t_s[i], Turn::Steady).rotation.angle_to(measured).powi(2);
+            let measured = &world_from_camera[i];
+            let cubic = ends.pose_at(t_s, t_s[i], Turn::Hermite);
+            hermite += cubic.rotation.angle_to(&measured.rotation).powi(2);
+            steady += ends.pose_at(t_s, t_s[i], Turn::Steady).rotation.angle_to(&measured.rotation).powi(2);
+            position_sq += (cubic.translation.vector - measured.translation.vector).norm_squared();
+            positions += 1;
         }
     }
-    if steady < hermite { Turn::Steady } else { Turn::Hermite }
+    NearRuns {
+        turn: if steady < hermite { Turn::Steady } else { Turn::Hermite },
+        position_var: (positions > 0).then(|| position_sq / positions as f64),
+    }
 }
 
 /// Rewrites the frames strictly between `Clear` frames `a` and `b` as the smoothest path between them, leaving
 /// each end moving and turning as it was ([`Ends::pose_at`]), unless turning steadily from end to end predicts
-/// the clear frames around it better ([`turn_near`]). Slerped between the ends alone (what this was), the
+/// the clear frames around it better ([`near_runs`]). Slerped between the ends alone (what this was), the
 /// orientation under smoke over a colon flight was 1.9° off (0.06° clear; BENCHMARKS.md).
+///
+/// The veiled frames' own positions are kept instead where they stray from the bridge no further than bridges
+/// over the clear frames near it stray from those frames' poses (mean squared distance, [`NearRuns`]): nothing
+/// then says the haze shifted them, and a measured position has what a bridge cannot see (a colon flight's
+/// wobble under a 1.2 s veil at 640×480: the bridge 0.07 mm off, the tracked poses 0.02 mm). Where they stray
+/// further, the haze shifted them (at 320×240 by 0.2–1.7 mm) and the bridge stands. The orientation is the
+/// bridge's either way. A blend weighted by the two spreads was tried and lost on renders where the haze's shift
+/// is a bias, not noise (BENCHMARKS.md).
 fn bridge_span(t_s: &[f64], world_from_camera: &mut [Isometry3<f64>], views: &[View], a: usize, b: usize) {
     let Some(ends) = Ends::of(t_s, world_from_camera, views, a, b) else { return };
-    let turn = turn_near(t_s, world_from_camera, views, a, b);
+    let near = near_runs(t_s, world_from_camera, views, a, b);
+    let veiled = || (a + 1..b).filter(|&i| views[i] == View::Veiled);
+    let bridged = |i: usize| ends.pose_at(t_s, t_s[i], near.turn);
+    let strayed_sq: f64 = veiled()
+        .map(|i| (world_from_camera[i].translation.vector - bridged(i).translation.vector).norm_squared())
+        .sum();
+    let count = veiled().count();
+    let keep_measured = near.position_var.is_some_and(|var| count > 0 && strayed_sq <= var * count as f64);
     for i in a + 1..b {
-        world_from_camera[i] = ends.pose_at(t_s, t_s[i], turn);
+        let mut pose = bridged(i);
+        if keep_measured && views[i] == View::Veiled {
+            pose.translation = world_from_camera[i].translation;
+        }
+        world_from_camera[i] = pose;
     }
 }
 
@@ -366,6 +401,52 @@ mod tests {
             let u = (t_s[k] - t_s[a]) / (t_s[b] - t_s[a]);
             let steady = r_a.slerp(&r_b, u);
             assert!(poses[k].rotation.angle_to(&steady) < 1e-9, "frame {k} does not turn steadily");
+        }
+    }
+
+    /// A flight that wobbles (0.1 mm, 1.5 s a wobble) more than a cubic over a 1.2 s veil follows: the bridge
+    /// misses by 0.03 mm here, bridges over the clear frames nearby by 0.09 mm. Veiled frames measured to
+    /// 0.005 mm stray from the bridge less than that, and their positions are kept; veiled frames the haze
+    /// shifted by a millimetre stray far more, and the bridge stands.
+    #[test]
+    fn veiled_positions_are_kept_where_they_stray_no_more_than_a_bridge_misses() {
+        let n = 150;
+        let t_s: Vec<f64> = (0..n).map(|k| k as f64 / 30.0).collect();
+        let truth = |k: usize| {
+            let t = t_s[k];
+            let wobble = 0.1 * (std::f64::consts::TAU * t / 1.5).sin();
+            Isometry3::from_parts(Translation3::new(12.0 * t, wobble, 60.0 + 0.5 * wobble), UnitQuaternion::identity())
+        };
+        let veiled = |k: usize| (48..84).contains(&k);
+        let views = views(n, veiled, |_| None);
+        let error = |poses: &[Isometry3<f64>]| {
+            let sq: f64 =
+                (48..84).map(|k| (poses[k].translation.vector - truth(k).translation.vector).norm_squared()).sum();
+            (sq / 36.0).sqrt()
+        };
+        let measured_with = |off: &dyn Fn(usize) -> Vector3<f64>| -> Vec<Isometry3<f64>> {
+            let mut poses: Vec<Isometry3<f64>> = (0..n).map(truth).collect();
+            for k in (0..n).filter(|&k| veiled(k)) {
+                poses[k].translation.vector += off(k);
+            }
+            bridge_veils(&t_s, &mut poses, &views);
+            poses
+        };
+        let measured = measured_with(&|k| Vector3::x() * 0.005 * if k % 3 == 0 { 1.0 } else { -0.5 });
+        let shifted = measured_with(&|k| Vector3::y() * if k % 2 == 0 { 1.0 } else { -0.8 });
+        // The bridge alone.
+        let clear: Vec<Isometry3<f64>> = (0..n).map(truth).collect();
+        let ends = Ends::of(&t_s, &clear, &views, 47, 84).unwrap();
+        let alone: Vec<Isometry3<f64>> = (0..n).map(|k| ends.pose_at(&t_s, t_s[k], Turn::Hermite)).collect();
+        let (alone_error, shifted_error, measured_error) = (error(&alone), error(&shifted), error(&measured));
+        assert!(alone_error > 0.02, "{alone_error}");
+        assert!((shifted_error - alone_error).abs() < 1e-12, "the shifted positions were kept: {shifted_error}");
+        assert!(measured_error < 0.005 && measured_error < 0.25 * alone_error, "{measured_error} vs {alone_error}");
+        for k in 48..84 {
+            assert!(measured[k].rotation.angle_to(&alone[k].rotation) < 1e-12, "frame {k}: the bridge's orientation");
+        }
+        for k in (0..48).chain(84..n) {
+            assert_eq!(measured[k], truth(k), "clear frame {k} rewritten");
         }
     }
 
