@@ -83,11 +83,11 @@ fn pose_near(poses: &[StampedPose], t_s: f64, max_dt_s: f64) -> Option<Isometry3
     pose_nearest_in_time(poses, t_s, max_dt_s).map(|p| p.world_from_camera)
 }
 
-/// Judges each `Ok` frame of the run's quality log (`bdis_core::formats::quality`, in time order) against the last keyframe before it: its position relative
-/// to that keyframe, from `est` and from `gt` (poses matched by time within `max_dt_s`). The keyframe's estimated
-/// pose is taken from `keyframes` where it is there (the run's `keyframes.tum`: the keyframe's own pose, which
-/// the frames after it were tracked against), else from `est` at its time (where the written trajectory may have
-/// bridged it, if it was made under a veil).
+/// Judges each `Ok` frame of the run's quality log (`bdis_core::formats::quality`, in time order) against the
+/// last keyframe before it: its position relative to that keyframe, from `est` and from `gt` (poses matched by
+/// time within `max_dt_s`). The keyframe's estimated pose is taken from `keyframes` where it is there (the run's
+/// `keyframes.tum`: the keyframe's own pose, which the frames after it were tracked against), else from `est` at
+/// its time (where the written trajectory may have bridged it, if it was made under a veil).
 pub fn judge_ok_frames(
     gt: &[StampedPose],
     est: &[StampedPose],

@@ -149,9 +149,13 @@ pub struct Rpe {
 /// Camera positions of time-matched poses: (estimate, ground truth).
 type MatchedPositions = (Vec<Point3<f64>>, Vec<Point3<f64>>);
 
-/// The camera positions of the time-matched poses, at least 3 pairs.
-fn matched_positions(gt: &[StampedPose], est: &[StampedPose], max_dt_s: f64) -> Result<MatchedPositions, TrajError> {
-    let pairs = associate(gt, est, max_dt_s);
+/// The camera positions of the time-matched poses `pairs` (from [`associate`] with `max_dt_s`), at least 3.
+fn matched_positions(
+    gt: &[StampedPose],
+    est: &[StampedPose],
+    pairs: &[(usize, usize)],
+    max_dt_s: f64,
+) -> Result<MatchedPositions, TrajError> {
     if pairs.len() < 3 {
         return Err(TrajError::TooFewPairs { pairs: pairs.len(), max_dt_s });
     }
@@ -163,7 +167,7 @@ fn matched_positions(gt: &[StampedPose], est: &[StampedPose], max_dt_s: f64) -> 
 /// `gt_from_est`: the SE(3) alignment of `est` onto `gt` that the ATE uses (e.g. to bring a map built with the
 /// estimated poses into the ground truth's frame).
 pub fn align_se3(gt: &[StampedPose], est: &[StampedPose], max_dt_s: f64) -> Result<Isometry3<f64>, TrajError> {
-    let (src, dst) = matched_positions(gt, est, max_dt_s)?;
+    let (src, dst) = matched_positions(gt, est, &associate(gt, est, max_dt_s), max_dt_s)?;
     umeyama_se3(&src, &dst)
 }
 
@@ -179,7 +183,7 @@ pub fn align_first(gt: &[StampedPose], est: &[StampedPose], max_dt_s: f64) -> Re
 
 /// ATE of `est` against `gt` after SE(3) alignment (`evo_ape tum gt est -a`).
 pub fn ate(gt: &[StampedPose], est: &[StampedPose], max_dt_s: f64) -> Result<Ate, TrajError> {
-    let (src, dst) = matched_positions(gt, est, max_dt_s)?;
+    let (src, dst) = matched_positions(gt, est, &associate(gt, est, max_dt_s), max_dt_s)?;
     let fit = umeyama(&src, &dst)?;
     let gt_from_est = fit.rigid();
     let mut errors: Vec<f64> = src.iter().zip(&dst).map(|(s, d)| (d - gt_from_est * s).norm()).collect();
@@ -214,15 +218,13 @@ pub fn position_errors(
     est: &[StampedPose],
     max_dt_s: f64,
 ) -> Result<Vec<PositionError>, TrajError> {
-    let gt_from_est = align_se3(gt, est, max_dt_s)?;
-    Ok(associate(gt, est, max_dt_s)
-        .into_iter()
-        .map(|(i, j)| PositionError {
-            t_s: est[j].t_s,
-            error: (Point3::from(gt[i].world_from_camera.translation.vector)
-                - gt_from_est * Point3::from(est[j].world_from_camera.translation.vector))
-            .norm(),
-        })
+    let pairs = associate(gt, est, max_dt_s);
+    let (src, dst) = matched_positions(gt, est, &pairs, max_dt_s)?;
+    let gt_from_est = umeyama_se3(&src, &dst)?;
+    Ok(pairs
+        .iter()
+        .zip(src.iter().zip(&dst))
+        .map(|(&(_, j), (s, d))| PositionError { t_s: est[j].t_s, error: (d - gt_from_est * s).norm() })
         .collect())
 }
 
