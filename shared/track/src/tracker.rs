@@ -476,6 +476,8 @@ impl Tracker {
         if let (Some(r), Some(pose)) = (self.reference_kf, self.current.camera_from_world.filter(|_| tracked)) {
             let rel = pose * self.map.keyframes[r].camera_from_world.inverse();
             let view = match result.quality.doubt {
+                // `last_coasted` is this frame's by now: the motion model's prediction, not a measurement.
+                Some(Doubt::LowContrast) if self.last_coasted => bridge::View::Coasted,
                 Some(Doubt::LowContrast) => bridge::View::Veiled,
                 // A map still settling doubts the live pose, not the written one (the keyframes' final poses
                 // re-express it); a detached segment's frames are right relative to each other, which is what a
@@ -584,12 +586,10 @@ impl Tracker {
             .iter()
             .map(|r| (r.camera_from_reference * self.map.keyframe_pose(r.reference)).inverse())
             .collect();
-        if self.records.iter().any(|r| matches!(r.view, bridge::View::Veiled | bridge::View::Lost)) {
-            let t_s: Vec<f64> = self.records.iter().map(|r| r.t_ns as f64 * 1e-9).collect();
-            let views: Vec<bridge::View> = self.records.iter().map(|r| r.view).collect();
-            bridge::bridge_veils(&t_s, &mut poses, &views);
-            bridge::bridge_losses(&t_s, &mut poses, &views);
-        }
+        let t_s: Vec<f64> = self.records.iter().map(|r| r.t_ns as f64 * 1e-9).collect();
+        let views: Vec<bridge::View> = self.records.iter().map(|r| r.view).collect();
+        bridge::bridge_veils(&t_s, &mut poses, &views);
+        bridge::bridge_losses(&t_s, &mut poses, &views);
         self.records.iter().zip(poses).map(|(r, pose)| (r.t_ns, pose, r.view == bridge::View::Lost)).collect()
     }
 

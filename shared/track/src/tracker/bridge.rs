@@ -27,26 +27,40 @@ pub(super) enum View {
     Hazy,
     /// Tracked but doubted for a reason other than a veil (`Uncertain`).
     Doubted,
-    /// Seen through a veil (doubted for low contrast).
+    /// Seen through a veil (doubted for low contrast), and measured there.
     Veiled,
+    /// Under a veil too thick to measure through: the motion model's prediction carried the pose (coasted). Its
+    /// position is an extrapolation from one side, which a bridge, made from both, always replaces.
+    Coasted,
     /// Lost: extrapolated, not tracked.
     Lost,
 }
 
-/// Bridges every run of `Veiled` frames that has a `Clear` frame on both sides. The bridge also takes in the
-/// `Hazy` and `Doubted` frames just before the veil (the haze coming down, before it was thick enough to doubt)
-/// and the `Doubted` frames just after it (tracking picking up again: the first frames after a veil are often
-/// doubted, and a bridge that ended on one would take its end and its velocity from a pose nobody trusts), but
-/// no longer an aftermath than the veil itself: past that the doubted frames' own poses say more than a curve
-/// through the veil would. `Lost` frames after the veil are taken in too, when tracking resumes after them. The
-/// veil lifts only once the view is clear, so no hazy frame follows one. `t_s` are the frames' times (s),
-/// `world_from_camera` their poses, rewritten in place.
+impl View {
+    /// Whether the frame's pose was measured in its own images and not doubted for its fit: clear, hazy or
+    /// veiled. A veil's doubt is a shift the haze gives every measurement, bounded; the other doubts say the
+    /// pose itself may be wrong (few inliers, no consensus, a jerk's priorless pose), and coasted and lost
+    /// frames were not measured at all.
+    pub(super) fn is_sound_measurement(self) -> bool {
+        matches!(self, Self::Clear | Self::Hazy | Self::Veiled)
+    }
+}
+
+/// Bridges every run of `Veiled` and `Coasted` frames that has a `Clear` frame on both sides. The bridge also
+/// takes in the `Hazy` and `Doubted` frames just before the veil (the haze coming down, before it was thick
+/// enough to doubt) and the `Doubted` frames just after it (tracking picking up again: the first frames after a
+/// veil are often doubted, and a bridge that ended on one would take its end and its velocity from a pose
+/// nobody trusts), but no longer an aftermath than the veil itself: past that the doubted frames' own poses say
+/// more than a curve through the veil would. `Lost` frames after the veil are taken in too, when tracking
+/// resumes after them. The veil lifts only once the view is clear, so no hazy frame follows one. `t_s` are the
+/// frames' times (s), `world_from_camera` their poses, rewritten in place.
 pub(super) fn bridge_veils(t_s: &[f64], world_from_camera: &mut [Isometry3<f64>], views: &[View]) {
     let n = t_s.len();
     let clear = |k: usize| views[k] == View::Clear;
+    let veiled = |k: usize| matches!(views[k], View::Veiled | View::Coasted);
     let mut k = 0;
     while k < n {
-        if views[k] != View::Veiled {
+        if !veiled(k) {
             k += 1;
             continue;
         }
@@ -54,7 +68,7 @@ pub(super) fn bridge_veils(t_s: &[f64], world_from_camera: &mut [Isometry3<f64>]
         while start > 0 && matches!(views[start - 1], View::Hazy | View::Doubted) {
             start -= 1;
         }
-        while k < n && views[k] == View::Veiled {
+        while k < n && veiled(k) {
             k += 1;
         }
         // The aftermath: doubted frames, for no longer than the veil lasted; lost frames, however long (their
@@ -138,7 +152,7 @@ impl Ends {
         // Where an end has too few clear frames for its motion: the chord and the steady turn.
         let (chord, steady) = ((p_b - p_a) / span, turn / span);
         let motion = |from: usize, towards_past: bool| {
-            motion_at(t_s, world_from_camera, views, from, towards_past)
+            motion_at(t_s, world_from_camera, views, from, towards_past, |v| v == View::Clear)
                 .map_or((chord, steady), |m| (m.velocity, m.angular))
         };
         let ((v_a, w_a), (v_b, w_b)) = (motion(a, true), motion(b, false));
@@ -219,17 +233,22 @@ fn near_runs(t_s: &[f64], world_from_camera: &[Isometry3<f64>], views: &[View], 
 /// the clear frames around it better ([`near_runs`]). Slerped between the ends alone (what this was), the
 /// orientation under smoke over a colon flight was 1.9° off (0.06° clear; BENCHMARKS.md).
 ///
-/// The veiled frames' own positions are kept instead where they stray from the bridge no further than bridges
-/// over the clear frames near it stray from those frames' poses (mean squared distance, [`NearRuns`]): nothing
-/// then says the haze shifted them, and a measured position has what a bridge cannot see (a colon flight's
-/// wobble under a 1.2 s veil at 640×480: the bridge 0.07 mm off, the tracked poses 0.02 mm). Where they stray
-/// further, the haze shifted them (at 320×240 by 0.2–1.7 mm) and the bridge stands. The orientation is the
-/// bridge's either way. A blend weighted by the two spreads was tried and lost on renders where the haze's shift
-/// is a bias, not noise (BENCHMARKS.md).
+/// The veiled frames' own measured positions are kept instead where they stray from the bridge no further than
+/// bridges over the clear frames near it stray from those frames' poses (mean squared distance,
+/// [`NearRuns`]): nothing then says the haze shifted them, and a measured position has what a bridge cannot
+/// see (a colon flight's wobble under a 1.2 s veil at 640×480: the bridge 0.07 mm off, the tracked poses
+/// 0.02 mm). Where they stray further, the haze shifted them (at 320×240 by 0.2–1.7 mm) and the bridge stands.
+/// The orientation is the bridge's either way. A blend weighted by the two spreads was tried and lost on
+/// renders where the haze's shift is a bias, not noise (BENCHMARKS.md).
+///
+/// Coasted frames are no measurement: they are written as the bridge either way. They do count in the
+/// comparison, as the veil's: a veil thick enough to coast through shifted the frames measured beside it too
+/// (left out, the positions of more such veils were kept, and the colon renders under a cloud at 320×240 came
+/// out 2–8 % worse; BENCHMARKS.md).
 fn bridge_span(t_s: &[f64], world_from_camera: &mut [Isometry3<f64>], views: &[View], a: usize, b: usize) {
     let Some(ends) = Ends::of(t_s, world_from_camera, views, a, b) else { return };
     let near = near_runs(t_s, world_from_camera, views, a, b);
-    let veiled = || (a + 1..b).filter(|&i| views[i] == View::Veiled);
+    let veiled = || (a + 1..b).filter(|&i| matches!(views[i], View::Veiled | View::Coasted));
     let bridged = |i: usize| ends.pose_at(t_s, t_s[i], near.turn);
     let strayed_sq: f64 = veiled()
         .map(|i| (world_from_camera[i].translation.vector - bridged(i).translation.vector).norm_squared())
@@ -245,6 +264,31 @@ fn bridge_span(t_s: &[f64], world_from_camera: &mut [Isometry3<f64>], views: &[V
     }
 }
 
+/// Where the camera is at time `t` (s) if it kept the motion it had at the last frame soundly measured in its
+/// own images ([`View::is_sound_measurement`]): that frame's pose carried on at its motion ([`motion_at`] over
+/// the sound frames before it: a slope, not one frame's step, whose jitter a long gap would multiply), or left
+/// where it was when too few frames give a motion. `None` when no frame was soundly measured. Dead reckoning's
+/// error grows with the time it is carried over, and a veiled frame is off by no more than the haze shifts it,
+/// so the last sound frame is the place to carry on from, veiled or not (a colon flight that turned under a
+/// 1.1 s veil: 16° off carried on from the last clear frame, 1.6° from the last veiled one; BENCHMARKS.md).
+pub(super) fn carried_on(
+    t_s: &[f64],
+    world_from_camera: &[Isometry3<f64>],
+    views: &[View],
+    t: f64,
+) -> Option<Isometry3<f64>> {
+    let last = views.iter().rposition(|v| v.is_sound_measurement())?;
+    let world_from_last = world_from_camera[last];
+    let Some(motion) = motion_at(t_s, world_from_camera, views, last, true, View::is_sound_measurement) else {
+        return Some(world_from_last);
+    };
+    let dt = (t - t_s[last]).max(0.0);
+    Some(Isometry3::from_parts(
+        (world_from_last.translation.vector + motion.velocity * dt).into(),
+        UnitQuaternion::from_scaled_axis(motion.angular * dt) * world_from_last.rotation,
+    ))
+}
+
 /// The motion at a clear frame, from the clear frames next to it on one side.
 #[derive(Debug, Clone, Copy)]
 pub(super) struct Motion {
@@ -254,19 +298,21 @@ pub(super) struct Motion {
     pub angular: Vector3<f64>,
 }
 
-/// The motion at `Clear` frame `from`, from the clear frames within [`VELOCITY_WINDOW_S`] of it on one side
-/// (`towards_past`: before it): the least-squares slope of position over time through them (a slope through
-/// many frames, not a difference of two, so the frames' own jitter does not bend what is made of it), and the
-/// rotation across the window over its time. `None` with fewer than three such frames.
+/// The motion at frame `from`, from the frames within [`VELOCITY_WINDOW_S`] of it on one side (`towards_past`:
+/// before it) that run without a break of frames whose view is not `usable`: the least-squares slope of
+/// position over time through them (a slope through many frames, not a difference of two, so the frames' own
+/// jitter does not bend what is made of it), and the rotation across the window over its time. `None` with
+/// fewer than three such frames.
 pub(super) fn motion_at(
     t_s: &[f64],
     world_from_camera: &[Isometry3<f64>],
     views: &[View],
     from: usize,
     towards_past: bool,
+    usable: impl Fn(View) -> bool,
 ) -> Option<Motion> {
     let n = t_s.len();
-    let clear = |k: usize| views[k] == View::Clear;
+    let clear = |k: usize| usable(views[k]);
     let mut far = from;
     loop {
         let next = if towards_past { far.checked_sub(1) } else { Some(far + 1).filter(|&j| j < n) };
@@ -298,237 +344,4 @@ pub(super) fn motion_at(
 }
 
 #[cfg(test)]
-mod tests {
-    use super::*;
-
-    /// A camera moving at constant speed while turning steadily, sampled at 30 Hz.
-    fn steady(k: usize) -> Isometry3<f64> {
-        let t = k as f64 / 30.0;
-        Isometry3::from_parts(
-            Translation3::new(10.0 * t, -4.0 * t, 60.0 + 2.0 * t),
-            UnitQuaternion::from_scaled_axis(Vector3::new(0.0, 0.05 * t, 0.02 * t)),
-        )
-    }
-
-    fn views(n: usize, veiled: impl Fn(usize) -> bool, other: impl Fn(usize) -> Option<View>) -> Vec<View> {
-        (0..n).map(|k| if veiled(k) { View::Veiled } else { other(k).unwrap_or(View::Clear) }).collect()
-    }
-
-    /// The truth, with the frames `off` shifted by millimetres, alternately (a haze's shifts, a doubted pose).
-    fn shifted(n: usize, off: impl Fn(usize) -> bool) -> Vec<Isometry3<f64>> {
-        (0..n)
-            .map(|k| {
-                let mm = if off(k) { if k % 2 == 0 { 1.5 } else { -1.0 } } else { 0.0 };
-                Isometry3::from_parts(Translation3::new(mm, 0.5 * mm, 0.0), UnitQuaternion::identity()) * steady(k)
-            })
-            .collect()
-    }
-
-    fn on_the_motion(poses: &[Isometry3<f64>], frames: std::ops::Range<usize>) {
-        for k in frames {
-            let error = (poses[k].translation.vector - steady(k).translation.vector).norm();
-            assert!(error < 1e-9, "frame {k}: {error} mm off the steady motion");
-            assert!(poses[k].rotation.angle_to(&steady(k).rotation) < 1e-9, "frame {k}");
-        }
-    }
-
-    #[test]
-    fn a_veil_over_steady_motion_is_bridged_onto_the_motion_and_clear_frames_are_kept() {
-        let n = 60;
-        let t_s: Vec<f64> = (0..n).map(|k| k as f64 / 30.0).collect();
-        let veiled = |k: usize| (20..35).contains(&k);
-        let mut poses = shifted(n, veiled);
-        bridge_veils(&t_s, &mut poses, &views(n, veiled, |_| None));
-        on_the_motion(&poses, 0..n);
-    }
-
-    /// A scope swinging to and fro (±17°, 4 s a swing) while it drifts sideways, veiled for 1.2 s across the
-    /// swing's far end: the bridge leaves each side turning as it was, so it follows the swing through the veil.
-    /// A slerp between the ends (both at 10°) held still there and was 7° off.
-    #[test]
-    fn a_veil_over_a_pan_keeps_the_turn_of_both_sides() {
-        let n = 90;
-        let t_s: Vec<f64> = (0..n).map(|k| k as f64 / 30.0).collect();
-        let swing = |k: usize| {
-            let t = t_s[k];
-            Isometry3::from_parts(
-                Translation3::new(10.0 * t, 0.0, 60.0),
-                UnitQuaternion::from_scaled_axis(
-                    Vector3::y() * 17f64.to_radians() * (0.5 * std::f64::consts::PI * t).sin(),
-                ),
-            )
-        };
-        let veiled = |k: usize| (12..48).contains(&k);
-        // Under the veil, the measured orientations are off by 5°.
-        let off = UnitQuaternion::from_scaled_axis(Vector3::x() * 5f64.to_radians());
-        let mut poses: Vec<Isometry3<f64>> = (0..n)
-            .map(|k| {
-                if veiled(k) { Isometry3::from_parts(swing(k).translation, off * swing(k).rotation) } else { swing(k) }
-            })
-            .collect();
-        bridge_veils(&t_s, &mut poses, &views(n, veiled, |_| None));
-        let worst_deg =
-            (30..66).map(|k| poses[k].rotation.angle_to(&swing(k).rotation).to_degrees()).fold(0.0, f64::max);
-        assert!(worst_deg < 1.0, "the bridge's orientation is up to {worst_deg:.2}° off the swing");
-        for k in (0..12).chain(48..n) {
-            assert_eq!(poses[k], swing(k), "clear frame {k} rewritten");
-        }
-    }
-
-    /// The renderer's pan (±17°, 0.8 s a swing) veiled for 1.3 s: no bridge can follow a swing and a half it
-    /// does not see, and a cubic sent off at the end rates (up to 130°/s) would overshoot by more than the
-    /// swing. The clear frames around say so, and the bridge turns steadily from end to end.
-    #[test]
-    fn a_veil_over_swings_faster_than_it_turns_steadily() {
-        let n = 150;
-        let t_s: Vec<f64> = (0..n).map(|k| k as f64 / 30.0).collect();
-        let swing = |t: f64| 17f64.to_radians() * (2.5 * std::f64::consts::PI * t).sin();
-        let truth: Vec<Isometry3<f64>> = t_s
-            .iter()
-            .map(|&t| {
-                Isometry3::from_parts(
-                    Translation3::new(10.0 * t, 0.0, 60.0),
-                    UnitQuaternion::from_scaled_axis(Vector3::y() * swing(t)),
-                )
-            })
-            .collect();
-        let veiled = |k: usize| (63..101).contains(&k);
-        let mut poses = truth.clone();
-        bridge_veils(&t_s, &mut poses, &views(n, veiled, |_| None));
-        let (a, b) = (62, 101);
-        let (r_a, r_b) = (truth[a].rotation, truth[b].rotation);
-        for k in a + 1..b {
-            let u = (t_s[k] - t_s[a]) / (t_s[b] - t_s[a]);
-            let steady = r_a.slerp(&r_b, u);
-            assert!(poses[k].rotation.angle_to(&steady) < 1e-9, "frame {k} does not turn steadily");
-        }
-    }
-
-    /// A flight that wobbles (0.1 mm, 1.5 s a wobble) more than a cubic over a 1.2 s veil follows: the bridge
-    /// misses by 0.03 mm here, bridges over the clear frames nearby by 0.09 mm. Veiled frames measured to
-    /// 0.005 mm stray from the bridge less than that, and their positions are kept; veiled frames the haze
-    /// shifted by a millimetre stray far more, and the bridge stands.
-    #[test]
-    fn veiled_positions_are_kept_where_they_stray_no_more_than_a_bridge_misses() {
-        let n = 150;
-        let t_s: Vec<f64> = (0..n).map(|k| k as f64 / 30.0).collect();
-        let truth = |k: usize| {
-            let t = t_s[k];
-            let wobble = 0.1 * (std::f64::consts::TAU * t / 1.5).sin();
-            Isometry3::from_parts(Translation3::new(12.0 * t, wobble, 60.0 + 0.5 * wobble), UnitQuaternion::identity())
-        };
-        let veiled = |k: usize| (48..84).contains(&k);
-        let views = views(n, veiled, |_| None);
-        let error = |poses: &[Isometry3<f64>]| {
-            let sq: f64 =
-                (48..84).map(|k| (poses[k].translation.vector - truth(k).translation.vector).norm_squared()).sum();
-            (sq / 36.0).sqrt()
-        };
-        let measured_with = |off: &dyn Fn(usize) -> Vector3<f64>| -> Vec<Isometry3<f64>> {
-            let mut poses: Vec<Isometry3<f64>> = (0..n).map(truth).collect();
-            for k in (0..n).filter(|&k| veiled(k)) {
-                poses[k].translation.vector += off(k);
-            }
-            bridge_veils(&t_s, &mut poses, &views);
-            poses
-        };
-        let measured = measured_with(&|k| Vector3::x() * 0.005 * if k % 3 == 0 { 1.0 } else { -0.5 });
-        let shifted = measured_with(&|k| Vector3::y() * if k % 2 == 0 { 1.0 } else { -0.8 });
-        // The bridge alone.
-        let clear: Vec<Isometry3<f64>> = (0..n).map(truth).collect();
-        let ends = Ends::of(&t_s, &clear, &views, 47, 84).unwrap();
-        let alone: Vec<Isometry3<f64>> = (0..n).map(|k| ends.pose_at(&t_s, t_s[k], Turn::Hermite)).collect();
-        let (alone_error, shifted_error, measured_error) = (error(&alone), error(&shifted), error(&measured));
-        assert!(alone_error > 0.02, "{alone_error}");
-        assert!((shifted_error - alone_error).abs() < 1e-12, "the shifted positions were kept: {shifted_error}");
-        assert!(measured_error < 0.005 && measured_error < 0.25 * alone_error, "{measured_error} vs {alone_error}");
-        for k in 48..84 {
-            assert!(measured[k].rotation.angle_to(&alone[k].rotation) < 1e-12, "frame {k}: the bridge's orientation");
-        }
-        for k in (0..48).chain(84..n) {
-            assert_eq!(measured[k], truth(k), "clear frame {k} rewritten");
-        }
-    }
-
-    #[test]
-    fn doubted_frames_around_a_veil_are_bridged_but_not_an_aftermath_longer_than_the_veil() {
-        let n = 80;
-        let t_s: Vec<f64> = (0..n).map(|k| k as f64 / 30.0).collect();
-        // Hazy and doubted frames before the veil, doubted ones after it: all off, all bridged.
-        let veiled = |k: usize| (20..35).contains(&k);
-        let other = |k: usize| match k {
-            17 => Some(View::Hazy),
-            18 | 19 | 35 | 36 => Some(View::Doubted),
-            _ => None,
-        };
-        let mut poses = shifted(n, |k| (17..37).contains(&k));
-        bridge_veils(&t_s, &mut poses, &views(n, veiled, other));
-        on_the_motion(&poses, 0..n);
-        // An aftermath twice as long as the veil: doubted frames' own poses are kept, and with no clear frame
-        // to end on the veil is not bridged.
-        let veiled = |k: usize| (20..25).contains(&k);
-        let other = |k: usize| (25..35).contains(&k).then_some(View::Doubted);
-        let original = shifted(n, |k| (20..35).contains(&k));
-        let mut poses = original.clone();
-        bridge_veils(&t_s, &mut poses, &views(n, veiled, other));
-        assert_eq!(poses, original);
-        // Lost frames after a veil, then tracking again: bridged whatever their number.
-        let veiled = |k: usize| (20..25).contains(&k);
-        let other = |k: usize| (25..45).contains(&k).then_some(View::Lost);
-        let mut poses = shifted(n, |k| (20..45).contains(&k));
-        bridge_veils(&t_s, &mut poses, &views(n, veiled, other));
-        on_the_motion(&poses, 0..n);
-    }
-
-    #[test]
-    fn a_veil_without_a_clear_frame_on_both_sides_is_left_as_it_was() {
-        let n = 20;
-        let t_s: Vec<f64> = (0..n).map(|k| k as f64 / 30.0).collect();
-        let original = shifted(n, |k| k % 3 == 0);
-        // At the end of the sequence, followed by lost frames to the end, at the start.
-        for views in [
-            views(n, |k| k >= 15, |_| None),
-            views(n, |k| (5..9).contains(&k), |k| (k >= 9).then_some(View::Lost)),
-            views(n, |k| k < 4, |_| None),
-        ] {
-            let mut poses = original.clone();
-            bridge_veils(&t_s, &mut poses, &views);
-            assert_eq!(poses, original);
-        }
-    }
-
-    /// A run of lost frames between tracked ones, after a loop moved the later side (a detached segment tied
-    /// back): the lost frames were written where the motion model extrapolated them, 40 mm from where tracking
-    /// resumed; bridged, they lie on the motion between the two sides. Lost frames at the end, or after a
-    /// veil's own bridge, are left to it.
-    #[test]
-    fn lost_frames_between_tracked_ones_are_bridged_and_others_left_as_they_were() {
-        let n = 60;
-        let t_s: Vec<f64> = (0..n).map(|k| k as f64 / 30.0).collect();
-        let lost = |k: usize| (20..30).contains(&k);
-        let extrapolated =
-            Isometry3::from_parts(Translation3::new(40.0, 0.0, 0.0), UnitQuaternion::identity()) * steady(19);
-        let mut poses: Vec<Isometry3<f64>> = (0..n).map(|k| if lost(k) { extrapolated } else { steady(k) }).collect();
-        let views: Vec<View> = (0..n).map(|k| if lost(k) { View::Lost } else { View::Clear }).collect();
-        bridge_losses(&t_s, &mut poses, &views);
-        on_the_motion(&poses, 0..n);
-        // Lost to the end: nothing to bridge to.
-        let views: Vec<View> = (0..n).map(|k| if k >= 40 { View::Lost } else { View::Clear }).collect();
-        let original = shifted(n, |k| k >= 40);
-        let mut poses = original.clone();
-        bridge_losses(&t_s, &mut poses, &views);
-        assert_eq!(poses, original);
-        // After a veil: the veil's bridge takes the lost frames in, and the bridge of losses leaves them.
-        let views: Vec<View> = (0..n)
-            .map(|k| match k {
-                20..30 => View::Veiled,
-                30..35 => View::Lost,
-                _ => View::Clear,
-            })
-            .collect();
-        let original = shifted(n, |k| (20..35).contains(&k));
-        let mut poses = original.clone();
-        bridge_losses(&t_s, &mut poses, &views);
-        assert_eq!(poses, original);
-    }
-}
+mod tests;

@@ -4,7 +4,7 @@
 use super::{FrameResult, Tracker, TrackingState, bridge, relocalise};
 use crate::map::{KfId, PointId};
 use crate::tracker::quality::{Doubt, PoseMethod};
-use nalgebra::{Isometry3, UnitQuaternion};
+use nalgebra::Isometry3;
 
 /// How long relocalisation gets to find a known place in frames it could have started a map from, before the
 /// tracker begins a new map segment there ([`Tracker::restart`]). Relocalisation finds a place it knows in the
@@ -70,17 +70,15 @@ impl Tracker {
         result.quality.inliers = result.inliers as u32;
     }
 
-    /// Where the camera is at `t_ns` if it kept the motion it had at the last clear frame (tracked without
-    /// doubt, not hazy): the motion over [`bridge::VELOCITY_WINDOW_S`] of clear frames, as a veil's bridge takes
-    /// it, not one frame's step, whose jitter a long gap would multiply. The last tracked pose when there is no
-    /// such motion; the identity before any.
+    /// Where the camera is at `t_ns` if it kept the motion it had at the last frame measured in its own images
+    /// ([`bridge::carried_on`]); the last tracked pose when no record was measured; the identity before any.
     fn dead_reckoned(&self, t_ns: u64) -> Isometry3<f64> {
-        let Some(last) = self.records.iter().rposition(|r| r.view == bridge::View::Clear) else {
-            return self
-                .last_from_reference
-                .map_or_else(Isometry3::identity, |(r, rel)| rel * self.map.keyframe_pose(r));
+        let last_tracked =
+            || self.last_from_reference.map_or_else(Isometry3::identity, |(r, rel)| rel * self.map.keyframe_pose(r));
+        let Some(last) = self.records.iter().rposition(|r| r.view.is_sound_measurement()) else {
+            return last_tracked();
         };
-        // The window and a frame more: enough records for the motion at the last clear one.
+        // The window and a frame more: enough records for the motion at the last measured one.
         let t_last = self.records[last].t_ns;
         let first = self.records[..last]
             .iter()
@@ -91,17 +89,7 @@ impl Tracker {
         let poses: Vec<Isometry3<f64>> =
             tail.iter().map(|r| (r.camera_from_reference * self.map.keyframe_pose(r.reference)).inverse()).collect();
         let views: Vec<bridge::View> = tail.iter().map(|r| r.view).collect();
-        let end = tail.len() - 1;
-        let world_from_last = poses[end];
-        let Some(motion) = bridge::motion_at(&t_s, &poses, &views, end, true) else {
-            return world_from_last.inverse();
-        };
-        let dt = t_ns.saturating_sub(t_last) as f64 * 1e-9;
-        let world_from_camera = Isometry3::from_parts(
-            (world_from_last.translation.vector + motion.velocity * dt).into(),
-            UnitQuaternion::from_scaled_axis(motion.angular * dt) * world_from_last.rotation,
-        );
-        world_from_camera.inverse()
+        bridge::carried_on(&t_s, &poses, &views, t_ns as f64 * 1e-9).map_or_else(last_tracked, |pose| pose.inverse())
     }
 
     /// The first keyframe of the detached segment the tracker is on (0 when it is not detached): the local map
