@@ -158,6 +158,9 @@ pub struct Tracker {
     clear_view: keyframe::ClearView,
     /// Whether the last frame was posed by the motion model alone through a veil ([`Self::coast`]).
     last_coasted: bool,
+    /// Whether `velocity` is an external motion prior for the current frame ([`Self::set_motion_prior`]).
+    external_prior: bool,
+    reckoning: segment::ReckoningScratch,
     /// Frames since the last tracked one that had the features to begin a map from and that relocalisation
     /// could not place.
     unplaced_frames: u64,
@@ -243,22 +246,13 @@ impl Tracker {
             place_contrast: f32::NAN,
             clear_view: keyframe::ClearView::default(),
             last_coasted: false,
+            external_prior: false,
+            reckoning: segment::ReckoningScratch::default(),
             unplaced_frames: 0,
             detached: None,
             confirmed_inliers: 0,
             last_doubt: None,
         })
-    }
-
-    /// Replaces the constant-velocity prediction for the next frame with `next_from_last`, the camera's motion
-    /// from the last frame to the next (an external sensor, such as a robot arm's kinematics, can give one).
-    /// The prediction only seeds the search: the frame is still checked by appearance, so a wrong prior is
-    /// rejected rather than followed (`TrackingQuality::prior_rejected`). No effect before tracking has a
-    /// velocity (the first frames, after a loss).
-    pub fn set_motion_prior(&mut self, next_from_last: Isometry3<f64>) {
-        if self.velocity.is_some() {
-            self.velocity = Some(next_from_last);
-        }
     }
 
     pub fn state(&self) -> TrackingState {
@@ -476,7 +470,6 @@ impl Tracker {
         if let (Some(r), Some(pose)) = (self.reference_kf, self.current.camera_from_world.filter(|_| tracked)) {
             let rel = pose * self.map.keyframes[r].camera_from_world.inverse();
             let view = match result.quality.doubt {
-                // `last_coasted` is this frame's by now: the motion model's prediction, not a measurement.
                 Some(Doubt::LowContrast) if self.last_coasted => bridge::View::Coasted,
                 Some(Doubt::LowContrast) => bridge::View::Veiled,
                 // A map still settling doubts the live pose, not the written one (the keyframes' final poses
@@ -505,6 +498,7 @@ impl Tracker {
             self.last_from_reference = Some((r, rel));
         }
         self.last.copy_from(&self.current);
+        self.external_prior = false;
         if !tracked {
             self.last.camera_from_world = None;
         }

@@ -152,7 +152,7 @@ impl Ends {
         // Where an end has too few clear frames for its motion: the chord and the steady turn.
         let (chord, steady) = ((p_b - p_a) / span, turn / span);
         let motion = |from: usize, towards_past: bool| {
-            motion_at(t_s, world_from_camera, views, from, towards_past, |v| v == View::Clear)
+            motion_at(t_s, world_from_camera, views, from, towards_past)
                 .map_or((chord, steady), |m| (m.velocity, m.angular))
         };
         let ((v_a, w_a), (v_b, w_b)) = (motion(a, true), motion(b, false));
@@ -265,12 +265,17 @@ fn bridge_span(t_s: &[f64], world_from_camera: &mut [Isometry3<f64>], views: &[V
 }
 
 /// Where the camera is at time `t` (s) if it kept the motion it had at the last frame soundly measured in its
-/// own images ([`View::is_sound_measurement`]): that frame's pose carried on at its motion ([`motion_at`] over
-/// the sound frames before it: a slope, not one frame's step, whose jitter a long gap would multiply), or left
-/// where it was when too few frames give a motion. `None` when no frame was soundly measured. Dead reckoning's
-/// error grows with the time it is carried over, and a veiled frame is off by no more than the haze shifts it,
-/// so the last sound frame is the place to carry on from, veiled or not (a colon flight that turned under a
-/// 1.1 s veil: 16° off carried on from the last clear frame, 1.6° from the last veiled one; BENCHMARKS.md).
+/// own images ([`View::is_sound_measurement`]): that frame's pose carried on at the mean twist, in the camera's
+/// own frame, of the sound frames within [`VELOCITY_WINDOW_S`] before it (ORB-SLAM2's constant velocity, over
+/// a window rather than one step, whose jitter a long gap would multiply); left where it was when fewer than
+/// three frames give a motion. `None` when no frame was soundly measured.
+///
+/// From the last sound frame, veiled or not: dead reckoning's error grows with the time it is carried over, and
+/// a veiled frame is off by no more than the haze shifts it (a colon flight that turned under a 1.1 s veil: a
+/// segment begun 16° off carried on from the last clear frame, 1.7° from the last veiled one). A twist in the
+/// camera's frame rather than a world velocity and turn rate: a scope that turns along a bend moves along an
+/// arc, and on the coasted frames of five colon renders under smoke the twist left the ATE lower on all but one
+/// (BENCHMARKS.md).
 pub(super) fn carried_on(
     t_s: &[f64],
     world_from_camera: &[Isometry3<f64>],
@@ -278,41 +283,43 @@ pub(super) fn carried_on(
     t: f64,
 ) -> Option<Isometry3<f64>> {
     let last = views.iter().rposition(|v| v.is_sound_measurement())?;
-    let world_from_last = world_from_camera[last];
-    let Some(motion) = motion_at(t_s, world_from_camera, views, last, true, View::is_sound_measurement) else {
-        return Some(world_from_last);
-    };
+    let mut first = last;
+    while first > 0 && views[first - 1].is_sound_measurement() && t_s[last] - t_s[first - 1] <= VELOCITY_WINDOW_S {
+        first -= 1;
+    }
+    let span = t_s[last] - t_s[first];
+    let camera_from_world = world_from_camera[last].inverse();
+    if last - first < 2 || span <= 0.0 {
+        return Some(world_from_camera[last]);
+    }
+    // The mean twist over the window, in the camera's frame: C_last · C_first⁻¹ per second.
+    let twist = crate::loop_closing::log_se3(&(camera_from_world * world_from_camera[first])) / span;
     let dt = (t - t_s[last]).max(0.0);
-    Some(Isometry3::from_parts(
-        (world_from_last.translation.vector + motion.velocity * dt).into(),
-        UnitQuaternion::from_scaled_axis(motion.angular * dt) * world_from_last.rotation,
-    ))
+    Some((crate::geometry::exp_se3(&(twist * dt)) * camera_from_world).inverse())
 }
 
 /// The motion at a clear frame, from the clear frames next to it on one side.
 #[derive(Debug, Clone, Copy)]
-pub(super) struct Motion {
+struct Motion {
     /// World position per second.
     pub velocity: Vector3<f64>,
     /// World rotation per second (axis × angle).
     pub angular: Vector3<f64>,
 }
 
-/// The motion at frame `from`, from the frames within [`VELOCITY_WINDOW_S`] of it on one side (`towards_past`:
-/// before it) that run without a break of frames whose view is not `usable`: the least-squares slope of
-/// position over time through them (a slope through many frames, not a difference of two, so the frames' own
-/// jitter does not bend what is made of it), and the rotation across the window over its time. `None` with
-/// fewer than three such frames.
-pub(super) fn motion_at(
+/// The motion at `Clear` frame `from`, from the clear frames within [`VELOCITY_WINDOW_S`] of it on one side
+/// (`towards_past`: before it): the least-squares slope of position over time through them (a slope through
+/// many frames, not a difference of two, so the frames' own jitter does not bend what is made of it), and the
+/// rotation across the window over its time. `None` with fewer than three such frames.
+fn motion_at(
     t_s: &[f64],
     world_from_camera: &[Isometry3<f64>],
     views: &[View],
     from: usize,
     towards_past: bool,
-    usable: impl Fn(View) -> bool,
 ) -> Option<Motion> {
     let n = t_s.len();
-    let clear = |k: usize| usable(views[k]);
+    let clear = |k: usize| views[k] == View::Clear;
     let mut far = from;
     loop {
         let next = if towards_past { far.checked_sub(1) } else { Some(far + 1).filter(|&j| j < n) };

@@ -15,6 +15,15 @@ pub const RESTART_AFTER_S: f64 = 0.3;
 /// bar for a pose found against a keyframe's points (§5.7).
 const TIED_BACK_INLIERS: usize = relocalise::PRIORLESS_INLIERS;
 
+/// Reusable buffers of dead reckoning ([`Tracker::dead_reckoned`]): the last records' times, world poses and
+/// views, over the window the motion is measured on.
+#[derive(Debug, Default)]
+pub(super) struct ReckoningScratch {
+    t_s: Vec<f64>,
+    poses: Vec<Isometry3<f64>>,
+    views: Vec<bridge::View>,
+}
+
 #[derive(Debug, Clone, Copy)]
 pub(super) struct Detachment {
     /// The segment's first keyframe: keyframes from it on are the segment's.
@@ -35,9 +44,10 @@ impl Tracker {
     /// Begins a new map segment at the current frame, lost for [`RESTART_AFTER_S`] in frames relocalisation could
     /// not place: the scope has gone on into tissue the map does not hold (a fast flight through smoke, a jerk
     /// into new tissue), where relocalisation, which looks for known places only, would never find it. The
-    /// segment is placed where the motion at the last clear frame, carried on, puts the camera (not the frames
-    /// since: through a veil they follow the smoke), and tied into the keyframe tree under the last reference
-    /// keyframe, so that loop closing can correct it like any other keyframe. Its frames are `Uncertain`,
+    /// segment is placed where the motion at the last frame soundly measured (veiled frames included: the haze
+    /// shifts them by a bounded amount, while dead reckoning's error grows with its gap), carried on, puts the
+    /// camera ([`Self::dead_reckoned`]), and tied into the keyframe tree under the last reference keyframe, so
+    /// that loop closing can correct it like any other keyframe. Its frames are `Uncertain`,
     /// [`Doubt::Detached`], until it is tied back to the older map.
     pub(super) fn restart(&mut self, result: &mut FrameResult) {
         let pose = self.dead_reckoned(result.t_ns);
@@ -72,24 +82,27 @@ impl Tracker {
 
     /// Where the camera is at `t_ns` if it kept the motion it had at the last frame measured in its own images
     /// ([`bridge::carried_on`]); the last tracked pose when no record was measured; the identity before any.
-    fn dead_reckoned(&self, t_ns: u64) -> Isometry3<f64> {
+    /// Allocates nothing once the scratch has held a window's records.
+    pub(super) fn dead_reckoned(&mut self, t_ns: u64) -> Isometry3<f64> {
         let last_tracked =
-            || self.last_from_reference.map_or_else(Isometry3::identity, |(r, rel)| rel * self.map.keyframe_pose(r));
-        let Some(last) = self.records.iter().rposition(|r| r.view.is_sound_measurement()) else {
-            return last_tracked();
-        };
+            self.last_from_reference.map_or_else(Isometry3::identity, |(r, rel)| rel * self.map.keyframe_pose(r));
+        let Some(last) = self.records.iter().rposition(|r| r.view.is_sound_measurement()) else { return last_tracked };
         // The window and a frame more: enough records for the motion at the last measured one.
         let t_last = self.records[last].t_ns;
         let first = self.records[..last]
             .iter()
             .rposition(|r| t_last.saturating_sub(r.t_ns) as f64 * 1e-9 > bridge::VELOCITY_WINDOW_S)
             .unwrap_or(0);
-        let tail = &self.records[first..=last];
-        let t_s: Vec<f64> = tail.iter().map(|r| r.t_ns as f64 * 1e-9).collect();
-        let poses: Vec<Isometry3<f64>> =
-            tail.iter().map(|r| (r.camera_from_reference * self.map.keyframe_pose(r.reference)).inverse()).collect();
-        let views: Vec<bridge::View> = tail.iter().map(|r| r.view).collect();
-        bridge::carried_on(&t_s, &poses, &views, t_ns as f64 * 1e-9).map_or_else(last_tracked, |pose| pose.inverse())
+        let s = &mut self.reckoning;
+        s.t_s.clear();
+        s.poses.clear();
+        s.views.clear();
+        for r in &self.records[first..=last] {
+            s.t_s.push(r.t_ns as f64 * 1e-9);
+            s.poses.push((r.camera_from_reference * self.map.keyframe_pose(r.reference)).inverse());
+            s.views.push(r.view);
+        }
+        bridge::carried_on(&s.t_s, &s.poses, &s.views, t_ns as f64 * 1e-9).map_or(last_tracked, |pose| pose.inverse())
     }
 
     /// The first keyframe of the detached segment the tracker is on (0 when it is not detached): the local map
