@@ -274,8 +274,8 @@ fn bridge_span(t_s: &[f64], world_from_camera: &mut [Isometry3<f64>], views: &[V
 /// a veiled frame is off by no more than the haze shifts it (a colon flight that turned under a 1.1 s veil: a
 /// segment begun 16° off carried on from the last clear frame, 1.7° from the last veiled one). A twist in the
 /// camera's frame rather than a world velocity and turn rate: a scope that turns along a bend moves along an
-/// arc, and on the coasted frames of five colon renders under smoke the twist left the ATE lower on all but one
-/// (BENCHMARKS.md).
+/// arc, and over seven colon renders under smoke the twist's ATE was lower than or equal to the world
+/// velocity's on all but one (BENCHMARKS.md).
 pub(super) fn carried_on(
     t_s: &[f64],
     world_from_camera: &[Isometry3<f64>],
