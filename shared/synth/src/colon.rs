@@ -47,7 +47,9 @@ impl Colon {
 
     /// Wall radius at height z and angle θ.
     pub fn radius(&self, z: f64, theta: f64) -> f64 {
-        let phase = (z / self.fold_spacing_mm).rem_euclid(1.0) - 0.5;
+        // `x - floor(x)` is `x.rem_euclid(1.0)` to the bit (one rounding of the same real number), without fmod.
+        let folds = z / self.fold_spacing_mm;
+        let phase = (folds - crate::floor(folds)) - 0.5;
         // A fold is a smooth inward ring a few mm wide; its depth varies a little around the circumference.
         let fold = (-(phase * self.fold_spacing_mm).powi(2) / (2.0 * 3.0f64.powi(2))).exp();
         // Noise over (cos θ, sin θ) is periodic around the tube: no seam in the wall.
@@ -55,8 +57,13 @@ impl Colon {
         let fold_depth = self.fold_depth * (0.8 + 0.4 * value_noise(self.seed ^ 11, 2.0 * c + z / 20.0, 2.0 * s));
         let k = self.radius_mm / 6.0;
         let bumps = self.bump_mm * (value_noise(self.seed ^ 7, k * c + z / 6.0, k * s - z / 9.0) - 0.5) * 2.0;
-        // Breathing narrows the tube where its share is positive.
-        let swell = self.swell.mm * crate::breathing::tube_share(z, theta, self.swell.wavelength_mm);
+        // Breathing narrows the tube where its share is positive. Still tissue skips the share's two cosines (the
+        // march's costliest terms); the radius is the same to the bit, as `r - 0·share` is `r`.
+        let swell = if self.swell.mm == 0.0 {
+            0.0
+        } else {
+            self.swell.mm * crate::breathing::tube_share(z, theta, self.swell.wavelength_mm)
+        };
         self.radius_mm * (1.0 - fold_depth * fold) + bumps - swell
     }
 
