@@ -57,8 +57,8 @@ impl Colon {
         let fold_depth = self.fold_depth * (0.8 + 0.4 * value_noise(self.seed ^ 11, 2.0 * c + z / 20.0, 2.0 * s));
         let k = self.radius_mm / 6.0;
         let bumps = self.bump_mm * (value_noise(self.seed ^ 7, k * c + z / 6.0, k * s - z / 9.0) - 0.5) * 2.0;
-        // Breathing narrows the tube where its share is positive. Still tissue skips the share's two cosines (the
-        // march's costliest terms); the radius is the same to the bit, as `r - 0·share` is `r`.
+        // Breathing narrows the tube where its share is positive. Still tissue skips the share's two cosines (an
+        // eighth of a render's time); the radius is the same to the bit, as `r - 0·share` is `r`.
         let swell = if self.swell.mm == 0.0 {
             0.0
         } else {

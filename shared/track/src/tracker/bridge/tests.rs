@@ -151,8 +151,8 @@ fn veiled_positions_are_kept_where_they_stray_no_more_than_a_bridge_misses() {
     }
 }
 
-/// In a veil over the [`wobbling`] flight whose measured positions are kept, the frames coasted through it (extrapolations, not
-/// measurements) are written as the bridge.
+/// In a veil over the [`wobbling`] flight whose measured positions are kept, the frames coasted through it
+/// (extrapolations, not measurements) are written as the bridge.
 #[test]
 fn coasted_frames_in_a_kept_veil_are_bridged() {
     let n = 150;
