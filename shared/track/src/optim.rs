@@ -7,6 +7,9 @@
 use crate::geometry::{CameraFromWorld, RectifiedCamera, skew, update};
 use nalgebra::{DMatrix, DVector, Matrix3, Matrix3x6, Matrix6, Point3, SMatrix, Vector3, Vector6};
 
+mod pose;
+pub use pose::PoseOptimizer;
+
 /// χ² thresholds (95 %) of 2 and 3 degrees of freedom: outlier classification.
 pub const CHI2_MONO: f64 = 5.991;
 pub const CHI2_STEREO: f64 = 7.815;
@@ -15,6 +18,23 @@ pub const CHI2_STEREO: f64 = 7.815;
 /// with ORB-SLAM2's).
 pub const HUBER_MONO: f64 = 2.447_651_936_039_926;
 pub const HUBER_STEREO_POSE: f64 = 2.795_532_111_925_299;
+/// The largest influence one measurement may have on a pose (Cook's distance): how far the pose the other
+/// measurements give lies from the pose fitted with it, in the other measurements' own information
+/// (`Δᵀ H₍ᵢ₎ Δ`, `Δ = H₍ᵢ₎⁻¹ Jᵢᵀ Ωᵢ eᵢ`). A spurious stereo point a tenth of the scene's depth from the camera,
+/// say, pins down a hover's weak direction (sideways and a turn) alone: the fit follows it a millimetre off and
+/// its residual stays within the χ² gate, so the gate cannot see it, but the others put the pose far outside
+/// the ellipsoid of the fit. A true point as near, which agrees with them, moves the pose little and stays.
+/// The bound is χ²'s 95 % quantile with the pose's 6 degrees of freedom; in units of the measurements' σ, so
+/// footage in metres or millimetres, at any image size, is judged alike.
+pub const MAX_INFLUENCE: f64 = 12.59;
+
+/// The fewest inliers among which one measurement's influence is judged: with fewer each of them moves the pose
+/// (and the tracker, which needs 30 to hold a frame, is losing it anyway).
+const MIN_JUDGED_INLIERS: usize = 20;
+
+/// How many measurements one pose optimisation may leave out for their influence (each is a solve again).
+const MAX_EXCLUDED: usize = 3;
+
 /// Huber width of stereo edges in bundle adjustment: √7.815.
 pub const HUBER_STEREO_BA: f64 = 2.795_532_111_925_299;
 
@@ -169,129 +189,6 @@ pub fn point_jacobian(
     let pc = pose * x_w;
     let (_, j) = residual_and_jacobian(cam, &pc, obs);
     j * pose.rotation.to_rotation_matrix().matrix()
-}
-
-/// Reusable buffers of the pose-only optimisation.
-#[derive(Debug, Default)]
-pub struct PoseOptimizer {
-    chi2: Vec<f64>,
-    /// Σ JᵀΩJ over the inliers at the final pose of the last optimisation (twist order ω, υ).
-    information: Matrix6<f64>,
-}
-
-impl PoseOptimizer {
-    /// Room for `edges` edges, so that optimising a frame with more links than any before allocates nothing.
-    pub fn with_capacity(edges: usize) -> Self {
-        Self { chi2: Vec::with_capacity(edges), information: Matrix6::zeros() }
-    }
-
-    /// The Gauss–Newton information of the last optimised pose over its inliers (twist ω, υ; υ is the camera
-    /// centre's displacement in the camera frame, to first order). Its inverse is the pose's covariance in units
-    /// of the measurements' σ: how well the images pin the pose down.
-    pub fn information(&self) -> &Matrix6<f64> {
-        &self.information
-    }
-
-    /// χ² of every edge of the last optimisation at its final pose (outliers included).
-    pub fn chi2(&self) -> &[f64] {
-        &self.chi2
-    }
-
-    /// Optimises `pose` against fixed world points (§5.5): 4 rounds of 10 LM iterations, each round from the
-    /// initial pose, edges re-classified after each round (χ² > 5.991 / 7.815 → outlier, excluded next round,
-    /// and they may come back), no robust kernel in round 4. `outlier` is read as the starting classification
-    /// and written with the final one. Returns the number of inliers (0 with fewer than 3 edges, pose unchanged).
-    pub fn optimize(
-        &mut self,
-        cam: &RectifiedCamera,
-        pose: &mut CameraFromWorld,
-        points: &[Point3<f64>],
-        observations: &[Observation],
-        outlier: &mut [bool],
-    ) -> usize {
-        let n = points.len();
-        self.information = Matrix6::zeros();
-        if n < 3 {
-            return 0;
-        }
-        let initial = *pose;
-        let mut best = initial;
-        self.chi2.clear();
-        self.chi2.resize(n, 0.0);
-        for round in 0..4 {
-            let robust = round < 3;
-            let mut current = initial;
-            let cost = |t: &CameraFromWorld, outlier: &[bool]| -> f64 {
-                let mut c = 0.0;
-                for i in 0..n {
-                    if outlier[i] {
-                        continue;
-                    }
-                    let x2 = chi2(cam, t, &points[i], &observations[i]);
-                    let delta = if observations[i].is_stereo() { HUBER_STEREO_POSE } else { HUBER_MONO };
-                    c += robust_cost(x2, delta, robust);
-                }
-                c
-            };
-            let mut damping = Damping::new();
-            let mut current_cost = cost(&current, outlier);
-            for _ in 0..10 {
-                let (mut h, mut b) = (Matrix6::<f64>::zeros(), Vector6::<f64>::zeros());
-                for i in 0..n {
-                    if outlier[i] {
-                        continue;
-                    }
-                    let pc = current * points[i];
-                    if pc.z <= 0.0 {
-                        continue;
-                    }
-                    let obs = &observations[i];
-                    let (e, jp) = residual_and_jacobian(cam, &pc, obs);
-                    let j = jp * point_jacobian_pose(&pc);
-                    let x2 = e.norm_squared() * obs.inv_sigma2;
-                    let delta = if obs.is_stereo() { HUBER_STEREO_POSE } else { HUBER_MONO };
-                    let w = obs.inv_sigma2 * if robust { huber_weight(x2, delta) } else { 1.0 };
-                    h += j.transpose() * j * w;
-                    b += j.transpose() * e * w;
-                }
-                damping.start((0..6).map(|k| h[(k, k)]).fold(0.0, f64::max));
-                let accepted = damping.step(current_cost, |add| {
-                    let mut hd = h;
-                    for k in 0..6 {
-                        hd[(k, k)] += add(h[(k, k)]);
-                    }
-                    let step = hd.cholesky().map(|c| c.solve(&(-b)))?;
-                    let candidate = update(&step, &current);
-                    Some((cost(&candidate, outlier), candidate))
-                });
-                let Some((c, candidate)) = accepted else { break };
-                current = candidate;
-                current_cost = c;
-            }
-            // Classify every edge, excluded ones included.
-            for i in 0..n {
-                let x2 = chi2(cam, &current, &points[i], &observations[i]);
-                self.chi2[i] = x2;
-                // A NaN χ² (degenerate point) is an outlier too.
-                outlier[i] = x2.is_nan() || x2 > observations[i].chi2_threshold();
-            }
-            best = current;
-        }
-        *pose = best;
-        for i in 0..n {
-            if outlier[i] {
-                continue;
-            }
-            let pc = best * points[i];
-            if pc.z <= 0.0 {
-                continue;
-            }
-            let (_, jp) = residual_and_jacobian(cam, &pc, &observations[i]);
-            let j = jp * point_jacobian_pose(&pc);
-            self.information += j.transpose() * j * observations[i].inv_sigma2;
-        }
-        outlier.iter().filter(|o| !**o).count()
-    }
 }
 
 /// One observation of point `point` by keyframe `pose` (indices into the problem's lists).
