@@ -224,7 +224,7 @@ impl Tracker {
             voters: Vec::with_capacity(1 << 10),
             in_view: Vec::with_capacity(1 << 12),
             searcher: Searcher::with_capacity(2 * settings.orb.n_features as usize),
-            optimizer: PoseOptimizer::with_capacity(1 << 12),
+            optimizer: PoseOptimizer::for_tracking(1 << 12),
             opt_points: Vec::with_capacity(1 << 12),
             opt_obs: Vec::with_capacity(1 << 12),
             opt_index: Vec::with_capacity(1 << 12),

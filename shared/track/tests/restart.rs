@@ -200,10 +200,19 @@ fn a_segment_placed_far_off_is_found_again_by_appearance_when_the_scope_comes_ba
             assert!(error < 0.005 * flown + 0.5, "frame {i}: Ok {error:.2} mm off after {flown:.0} mm ({doubt:?})");
         }
     }
-    // Back over the start, the segment is tied back: the last frames are `Ok`, and every frame of the segment,
-    // those tracked before the tie-back included, is where it was in the trajectory the run writes.
+    // Back over the start, the segment is tied back: none of the last frames is detached or lost, each is where
+    // an `Ok` frame must be, and the last ones are `Ok`. Between, the tie-back's correction may still be settling
+    // the map (`MapMoving`, an honest doubt: with the tracker's influence check the tie-back came at frame 178,
+    // four frames sooner than without, and the map settled by 189), and every frame of the segment, those tracked
+    // before the tie-back included, is where it was in the trajectory the run writes.
     let last = &results[results.len() - 10..];
-    assert!(last.iter().all(|r| r.1 == TrackingState::Ok), "not tied back at the end: {last:?}");
+    let tied_back = |r: &(usize, TrackingState, Option<Doubt>, Option<f64>, f64)| {
+        r.2 != Some(Doubt::Detached)
+            && matches!(r.1, TrackingState::Ok | TrackingState::Uncertain)
+            && r.3.is_some_and(|e| e < 0.005 * r.4 + 0.5)
+    };
+    assert!(last.iter().all(tied_back), "not tied back at the end: {last:?}");
+    assert!(last[5..].iter().all(|r| r.1 == TrackingState::Ok), "not settled at the end: {last:?}");
     let trajectory = tracker.trajectory();
     let segment_errors: Vec<f64> = results
         .iter()

@@ -13,16 +13,24 @@ pub struct PoseOptimizer {
     excluded: Vec<bool>,
     /// Σ JᵀΩJ over the inliers at the final pose of the last optimisation (twist order ω, υ).
     information: Matrix6<f64>,
+    /// Whether [`Self::optimize`] leaves out a measurement of too much influence ([`Self::for_tracking`]).
+    judge_influence: bool,
 }
 
 impl PoseOptimizer {
-    /// Room for `edges` edges, so that optimising a frame with more links than any before allocates nothing.
-    pub fn with_capacity(edges: usize) -> Self {
+    /// The tracker's optimiser: room for `edges` edges, so that optimising a frame with more links than any
+    /// before allocates nothing, and the influence check on. A frame's pose rests on hundreds of links of which
+    /// a stereo mismatch can be one that the fit follows; that is what the check is for. Loop closing's pose
+    /// checks ([`Self::default`]) go without it: they weigh an old map against a drifted guess, where the few
+    /// links that agree with the old map are the evidence, and leaving out the most telling of them kept a
+    /// detached segment from being tied back (`tests/restart.rs`).
+    pub fn for_tracking(edges: usize) -> Self {
         Self {
             chi2: Vec::with_capacity(edges),
             start_outlier: Vec::with_capacity(edges),
             excluded: Vec::with_capacity(edges),
             information: Matrix6::zeros(),
+            judge_influence: true,
         }
     }
 
@@ -65,7 +73,10 @@ impl PoseOptimizer {
         for attempt in 0..=MAX_EXCLUDED {
             self.solve_rounds(cam, pose, initial, points, observations, outlier);
             // Influence needs redundancy to be judged: with few inliers every one of them moves the pose.
-            if attempt == MAX_EXCLUDED || outlier.iter().filter(|o| !**o).count() < MIN_JUDGED_INLIERS {
+            if !self.judge_influence
+                || attempt == MAX_EXCLUDED
+                || outlier.iter().filter(|o| !**o).count() < MIN_JUDGED_INLIERS
+            {
                 break;
             }
             // One measurement that moves the pose far from where the others put it: its own residual is small,

@@ -147,12 +147,17 @@ fn one_measurement_that_moves_the_pose_far_from_the_others_is_left_out() {
     let solve = |points: &[Point3<f64>], observations: &[Observation]| {
         let mut pose = truth;
         let mut outlier = vec![false; points.len()];
-        PoseOptimizer::default().optimize(&cam, &mut pose, points, observations, &mut outlier);
+        PoseOptimizer::for_tracking(0).optimize(&cam, &mut pose, points, observations, &mut outlier);
         ((pose.inverse() * truth).translation.vector.norm(), outlier)
     };
     let (error, outlier) = solve(&points, &observations);
     assert!(outlier[spurious], "the spurious point was kept");
     assert!(error < 0.2 * shift, "{error} mm off, the spurious point pulls {shift} mm");
+    // Loop closing's pose checks go without the influence check: there the point stays, and pulls.
+    let mut pose = truth;
+    let mut kept = vec![false; points.len()];
+    PoseOptimizer::default().optimize(&cam, &mut pose, &points, &observations, &mut kept);
+    assert!(!kept[spurious], "the default optimiser judged influence");
     // The same point where it truly is: it agrees with the others and stays.
     let true_near = cam.project_stereo(&near);
     observations[spurious] =
