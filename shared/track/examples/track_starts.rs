@@ -18,19 +18,18 @@ use std::path::{Path, PathBuf};
 #[path = "common/sequence.rs"]
 mod sequence;
 
-fn value<'a>(a: &'a [String], flag: &str) -> Option<&'a str> {
-    a.iter().position(|x| x == flag).and_then(|i| a.get(i + 1)).map(String::as_str)
-}
-
 fn main() {
     let a: Vec<String> = std::env::args().collect();
     let dir = Path::new(&a[1]);
-    let starts: Vec<usize> =
-        value(&a, "--starts").unwrap_or("0").split(',').map(|k| k.trim().parse().expect("--starts: K,K,...")).collect();
-    let frames: usize = value(&a, "--frames").map_or(usize::MAX, |n| n.parse().expect("--frames: a count"));
-    let gt_path = value(&a, "--gt").map_or_else(|| dir.join("gt/poses.tum"), PathBuf::from);
+    let starts: Vec<usize> = sequence::value(&a, "--starts")
+        .unwrap_or("0")
+        .split(',')
+        .map(|k| k.trim().parse().expect("--starts: K,K,..."))
+        .collect();
+    let frames: usize = sequence::value(&a, "--frames").map_or(usize::MAX, |n| n.parse().expect("--frames: a count"));
+    let gt_path = sequence::value(&a, "--gt").map_or_else(|| dir.join("gt/poses.tum"), PathBuf::from);
     let gt = bdis_core::formats::trajectory::read_tum(&gt_path).unwrap();
-    let seq = sequence::Sequence::open(dir, value(&a, "--settings").map(Path::new));
+    let seq = sequence::Sequence::open(dir, sequence::value(&a, "--settings").map(Path::new));
     let (mut ates, mut scales, mut sim3s) = (Vec::new(), Vec::new(), Vec::new());
     println!("start  frames  keyframes  loops  ATE          scale error  ATE after Sim(3)  lost  uncertain");
     for &k in &starts {
@@ -55,7 +54,7 @@ fn main() {
             .into_iter()
             .map(|(t_ns, world_from_camera, _)| StampedPose { t_s: t_ns as f64 * 1e-9, world_from_camera })
             .collect();
-        if let Some(prefix) = value(&a, "--out") {
+        if let Some(prefix) = sequence::value(&a, "--out") {
             bdis_core::formats::trajectory::write_tum(Path::new(&format!("{prefix}-{k}.tum")), &est).unwrap();
         }
         let ate = bdis_eval::traj::ate(&gt, &est, 0.01).unwrap();

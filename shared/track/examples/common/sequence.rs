@@ -113,3 +113,8 @@ pub fn grey(path: &Path) -> (Vec<u8>, usize, usize) {
 pub fn grey_of(img: &image::RgbImage) -> Vec<u8> {
     bdis_core::pixel::gray_of_rgb(img.as_raw())
 }
+
+/// The word after `flag` in the arguments, if the flag is there.
+pub fn value<'a>(a: &'a [String], flag: &str) -> Option<&'a str> {
+    a.iter().position(|x| x == flag).and_then(|i| a.get(i + 1)).map(String::as_str)
+}
