@@ -49,9 +49,10 @@ impl PoseOptimizer {
     /// Optimises `pose` against fixed world points (§5.5): 4 rounds of 10 LM iterations, each round from the
     /// initial pose, edges re-classified after each round (χ² > 5.991 / 7.815 → outlier, excluded next round,
     /// and they may come back), no robust kernel in round 4. `outlier` is read as the starting classification
-    /// and written with the final one. Then the one inlier of the greatest influence ([`MAX_INFLUENCE`]), if it
-    /// is over the bound, is left out (marked an outlier) and the rounds run again from the initial pose, up to
-    /// [`MAX_EXCLUDED`] times. Returns the number of inliers (0 with fewer than 3 edges, pose unchanged).
+    /// and written with the final one. Then, in the tracker's optimiser ([`Self::for_tracking`]) only, the one
+    /// inlier of the greatest influence ([`MAX_INFLUENCE`]), if it is over the bound, is left out (marked an
+    /// outlier) and the rounds run again from the initial pose, up to [`MAX_EXCLUDED`] times. Returns the number
+    /// of inliers (0 with fewer than 3 edges, pose unchanged).
     pub fn optimize(
         &mut self,
         cam: &RectifiedCamera,
