@@ -12,6 +12,7 @@ pub mod mapper;
 pub mod optim;
 pub mod refine;
 pub mod search;
+mod stats;
 pub mod tracker;
 pub mod workers;
 
