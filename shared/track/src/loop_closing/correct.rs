@@ -105,7 +105,7 @@ pub fn close_loop(
         pairs.iter().map(|&(i, _)| k.observation(i, scales.inv_sigma2[usize::from(k.keypoints[i].octave)])).collect();
     let mut outlier = vec![false; pairs.len()];
     let mut corrected = guess;
-    let mut optimiser = PoseOptimizer::default();
+    let mut optimiser = PoseOptimizer::without_influence_check();
     let inliers = optimiser.optimize(cam, &mut corrected, &points, &observations, &mut outlier);
     if inliers < MIN_LOOP_MATCHES_AFTER_PROJECTION {
         return None;
@@ -228,7 +228,7 @@ fn own_side_pose(
     }
     let mut outlier = vec![false; points.len()];
     let mut pose = k.camera_from_world;
-    let mut optimiser = PoseOptimizer::default();
+    let mut optimiser = PoseOptimizer::without_influence_check();
     let inliers = optimiser.optimize(cam, &mut pose, &points, &observations, &mut outlier);
     (inliers >= MIN_LOOP_MATCHES_AFTER_PROJECTION).then(|| (pose, *optimiser.information()))
 }

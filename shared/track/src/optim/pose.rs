@@ -21,7 +21,7 @@ impl PoseOptimizer {
     /// The tracker's optimiser: room for `edges` edges, so that optimising a frame with more links than any
     /// before allocates nothing, and the influence check on. A frame's pose rests on hundreds of links of which
     /// a stereo mismatch can be one that the fit follows; that is what the check is for. Loop closing's pose
-    /// checks ([`Self::default`]) go without it: they weigh an old map against a drifted guess, where the few
+    /// checks ([`Self::without_influence_check`]) go without it: they weigh an old map against a drifted guess, where the few
     /// links that agree with the old map are the evidence, and leaving out the most telling of them kept a
     /// detached segment from being tied back (`tests/restart.rs`).
     pub fn for_tracking(edges: usize) -> Self {
@@ -32,6 +32,12 @@ impl PoseOptimizer {
             information: Matrix6::zeros(),
             judge_influence: true,
         }
+    }
+
+    /// An optimiser without the influence check, its buffers grown as needed: loop closing's pose checks (see
+    /// [`Self::for_tracking`] for why they go without it). The same as [`Self::default`], said outright.
+    pub fn without_influence_check() -> Self {
+        Self { judge_influence: false, ..Self::default() }
     }
 
     /// The Gauss–Newton information of the last optimised pose over its inliers (twist ω, υ; υ is the camera
