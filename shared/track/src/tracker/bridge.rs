@@ -9,10 +9,10 @@
 //! the veiled frames were measured well (a colon flight at 640×480: within 0.02 mm) they are closer than any
 //! curve through the veil (BENCHMARKS.md).
 //!
-//! Each end of a bridge is read off the clear frames beside it. Where those frames are a straight line's jitter
-//! (a hover wandering along its weak direction), the bridge leaves from where a robust line through them puts
-//! the end, at that line's slope drawn toward the chord by its own uncertainty; where they bend beyond their
-//! jitter (a colon's wobble), from the end frame itself at the least-squares slope ([`straight_line`]).
+//! Each end of a bridge is read off the clear frames beside it: the end frame's position and the slope through
+//! them, except that a frame which strays from a robust line through them further than their scatter explains
+//! is left out of both (the first clear frame after a veil can be tracked `Ok` and be half a millimetre off),
+//! where the frames lie along a line at all and do not bend beyond their jitter ([`stray_frames`]).
 
 use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 
@@ -155,20 +155,12 @@ impl Ends {
         let turn = (world_from_camera[b].rotation * r_a.inverse()).scaled_axis();
         let (motion_a, motion_b) =
             (motion_at(t_s, world_from_camera, views, a, true), motion_at(t_s, world_from_camera, views, b, false));
-        // An end whose window is a straight line's jitter starts from where the line puts it: the end frame's own
-        // position is one jittered sample of that line (and the first clear frame after a veil often the worst).
-        let line = |m: &Option<Motion>| m.as_ref().and_then(|m| m.line);
-        let (line_a, line_b) = (line(&motion_a), line(&motion_b));
-        let p_a = line_a.map_or(world_from_camera[a].translation.vector, |l| l.position);
-        let p_b = line_b.map_or(world_from_camera[b].translation.vector, |l| l.position);
+        let p_a = motion_a.map_or(world_from_camera[a].translation.vector, |m| m.position);
+        let p_b = motion_b.map_or(world_from_camera[b].translation.vector, |m| m.position);
         // Where an end has too few clear frames for its motion: the chord and the steady turn.
         let (chord, steady) = ((p_b - p_a) / span, turn / span);
-        let motion = |m: &Option<Motion>| match m {
-            None => (chord, steady),
-            Some(Motion { line: Some(line), angular, .. }) => (line.velocity_towards(&chord), *angular),
-            Some(m) => (m.velocity, m.angular),
-        };
-        let ((v_a, w_a), (v_b, w_b)) = (motion(&motion_a), motion(&motion_b));
+        let motion = |m: Option<Motion>| m.map_or((chord, steady), |m| (m.velocity, m.angular));
+        let ((v_a, w_a), (v_b, w_b)) = (motion(motion_a), motion(motion_b));
         Some(Self { a, span, p_a, p_b, v_a, v_b, r_a, turn, w_a, w_b })
     }
 
@@ -314,45 +306,26 @@ pub(super) fn carried_on(
 /// The motion at a clear frame, from the clear frames next to it on one side.
 #[derive(Debug, Clone, Copy)]
 struct Motion {
-    /// World position per second: the least-squares slope through the window.
+    /// World position per second.
     velocity: Vector3<f64>,
     /// World rotation per second (axis × angle).
     angular: Vector3<f64>,
-    /// The window as a straight line, where it shows no curvature beyond its own scatter ([`straight_line`]).
-    line: Option<Line>,
-}
-
-/// A straight line through the positions of an end's window, fitted robustly.
-#[derive(Debug, Clone, Copy)]
-struct Line {
-    /// Where the line is at the end frame's time.
+    /// Where the frame is, as its window has it: its own position, or where the line through the rest of the
+    /// window puts it when it strays ([`stray_frames`]).
     position: Vector3<f64>,
-    /// Its slope, per axis the median of the pairwise slopes (Theil–Sen): one shifted frame in seven cannot tilt it.
-    velocity: Vector3<f64>,
-    /// The slope's expected squared error, from the scatter about the least-squares line: 3 σ² / Σ (t − t̄)².
-    velocity_var: f64,
 }
 
-impl Line {
-    /// The line's slope drawn toward the bridge's chord by its own uncertainty, k = |d|² / (|d|² + var) of the
-    /// way from the chord (d the slope less the chord): a slope well outside its error stands, one within it
-    /// says little more than the chord does. A hover's clear poses wander along its weak direction, and 0.2 s of
-    /// such wander tilts a slope that a long bridge multiplies (BENCHMARKS.md).
-    fn velocity_towards(&self, chord: &Vector3<f64>) -> Vector3<f64> {
-        let d = self.velocity - chord;
-        let d2 = d.norm_squared();
-        if d2 + self.velocity_var <= 0.0 {
-            return self.velocity;
-        }
-        chord + d * (d2 / (d2 + self.velocity_var))
-    }
-}
+/// χ²'s 95 % quantile with three degrees of freedom: a position's squared distance from a line, in units of the
+/// scatter's variance per axis, beyond which it strays.
+const STRAY_CHI2: f64 = 7.815;
 
-/// The window's positions as a straight line, unless a quadratic fits them better than their scatter explains
-/// (an F-test of the quadratic term over the three axes pooled, at 95 %): a colon's wobble bends the path
-/// within 0.2 s, and a line through such a window would put the end where the camera was not, while a hover's
-/// jitter about a line is what a robust line removes. `None` with fewer than four frames (no test).
-fn straight_line(t: &[f64], p: &[Vector3<f64>], t_end: f64) -> Option<Line> {
+/// Which of a window's positions stray from it: with the window as a straight line (per axis the median of the
+/// pairwise slopes, Theil–Sen, and the median intercept, so one frame off in seven cannot tilt it), those
+/// further from it than [`STRAY_CHI2`] times the scatter about the least-squares line. `None` where no line is
+/// to be had: fewer than four frames, or a window a quadratic fits better than its scatter explains (an F-test
+/// of the quadratic term over the three axes pooled, at 95 %), as a colon's wobble bends the path within 0.2 s
+/// and its last frame is then no stray but the bend.
+fn stray_frames(t: &[f64], p: &[Vector3<f64>]) -> Option<Vec<bool>> {
     let n = t.len();
     if n < 4 {
         return None;
@@ -368,15 +341,13 @@ fn straight_line(t: &[f64], p: &[Vector3<f64>], t_end: f64) -> Option<Line> {
         rhs += basis * pi.transpose();
     }
     let quadratic = normal.cholesky()?.solve(&rhs);
-    let den = normal[(1, 1)];
     let p_mean = rhs.row(0).transpose() / count;
-    let slope = rhs.row(1).transpose() / den;
+    let slope = rhs.row(1).transpose() / normal[(1, 1)];
     let (mut rss_line, mut rss_quadratic) = (0.0, 0.0);
     for (&ti, pi) in t.iter().zip(p) {
         let dt = ti - t_mean;
         rss_line += (pi - p_mean - slope * dt).norm_squared();
-        let fitted = quadratic.transpose() * Vector3::new(1.0, dt, dt * dt);
-        rss_quadratic += (pi - fitted).norm_squared();
+        rss_quadratic += (pi - quadratic.transpose() * Vector3::new(1.0, dt, dt * dt)).norm_squared();
     }
     // F = ((RSS_line − RSS_quad) / 3) / (RSS_quad / 3(n − 3)), compared without dividing (both may be 0).
     let residual_dof = 3.0 * (count - 3.0);
@@ -384,24 +355,22 @@ fn straight_line(t: &[f64], p: &[Vector3<f64>], t_end: f64) -> Option<Line> {
     if (rss_line - rss_quadratic) * residual_dof > critical * 3.0 * rss_quadratic {
         return None;
     }
-    let mut velocity = Vector3::zeros();
-    let mut position = Vector3::zeros();
+    let (mut robust_slope, mut robust_at_mean) = (Vector3::zeros(), Vector3::zeros());
     let mut values = Vec::with_capacity(n * (n - 1) / 2);
     for axis in 0..3 {
         values.clear();
         for i in 0..n {
-            for j in i + 1..n {
-                if t[j] != t[i] {
-                    values.push((p[j][axis] - p[i][axis]) / (t[j] - t[i]));
-                }
-            }
+            values.extend((i + 1..n).filter(|&j| t[j] != t[i]).map(|j| (p[j][axis] - p[i][axis]) / (t[j] - t[i])));
         }
-        velocity[axis] = median(&mut values)?;
+        robust_slope[axis] = median(&mut values)?;
         values.clear();
-        values.extend(t.iter().zip(p).map(|(&ti, pi)| pi[axis] - velocity[axis] * (ti - t_end)));
-        position[axis] = median(&mut values)?;
+        values.extend(t.iter().zip(p).map(|(&ti, pi)| pi[axis] - robust_slope[axis] * (ti - t_mean)));
+        robust_at_mean[axis] = median(&mut values)?;
     }
-    Some(Line { position, velocity, velocity_var: rss_line / ((count - 2.0) * den) })
+    let scatter_var = rss_line / (3.0 * (count - 2.0));
+    let off_line =
+        |(&ti, pi): (&f64, &Vector3<f64>)| (pi - robust_at_mean - robust_slope * (ti - t_mean)).norm_squared();
+    Some(t.iter().zip(p).map(|x| off_line(x) > STRAY_CHI2 * scatter_var).collect())
 }
 
 /// The median of `values` (reordered), the mean of the middle two for an even count; `None` when empty.
@@ -414,11 +383,31 @@ fn median(values: &mut [f64]) -> Option<f64> {
     Some(if n % 2 == 1 { values[n / 2] } else { 0.5 * (values[n / 2 - 1] + values[n / 2]) })
 }
 
+/// The least-squares line through the positions `p` at times `t` that `keep` keeps: (mean time, mean position,
+/// slope). `None` without two distinct times kept.
+fn line_through(
+    t: &[f64],
+    p: &[Vector3<f64>],
+    keep: impl Fn(usize) -> bool,
+) -> Option<(f64, Vector3<f64>, Vector3<f64>)> {
+    let kept = || (0..t.len()).filter(|&i| keep(i));
+    let count = kept().count() as f64;
+    let t_mean = kept().map(|i| t[i]).sum::<f64>() / count;
+    let p_mean = kept().map(|i| p[i]).sum::<Vector3<f64>>() / count;
+    let (mut num, mut den) = (Vector3::zeros(), 0.0);
+    for i in kept() {
+        let dt = t[i] - t_mean;
+        num += (p[i] - p_mean) * dt;
+        den += dt * dt;
+    }
+    (den > 0.0).then(|| (t_mean, p_mean, num / den))
+}
+
 /// The motion at `Clear` frame `from`, from the clear frames within [`VELOCITY_WINDOW_S`] of it on one side
 /// (`towards_past`: before it): the least-squares slope of position over time through them (a slope through
-/// many frames, not a difference of two, so the frames' own jitter does not bend what is made of it), the
-/// rotation across the window over its time, and the window as a robust straight line where it is one
-/// ([`straight_line`]). `None` with fewer than three such frames.
+/// many frames, not a difference of two, so the frames' own jitter does not bend what is made of it), with the
+/// frames that stray ([`stray_frames`]) left out while three are kept, and the rotation across the window over
+/// its time. `None` with fewer than three such frames.
 fn motion_at(
     t_s: &[f64],
     world_from_camera: &[Isometry3<f64>],
@@ -437,30 +426,22 @@ fn motion_at(
         }
     }
     let (lo, hi) = if towards_past { (far, from) } else { (from, far) };
-    if hi - lo < 2 {
-        return None;
-    }
-    let positions: Vec<Vector3<f64>> = world_from_camera[lo..=hi].iter().map(|w| w.translation.vector).collect();
-    let times = &t_s[lo..=hi];
-    let count = positions.len() as f64;
-    let t_mean = times.iter().sum::<f64>() / count;
-    let p_mean = positions.iter().sum::<Vector3<f64>>() / count;
-    let (mut num, mut den) = (Vector3::zeros(), 0.0);
-    for (p, &t) in positions.iter().zip(times) {
-        let dt = t - t_mean;
-        num += (p - p_mean) * dt;
-        den += dt * dt;
-    }
     let span = t_s[hi] - t_s[lo];
-    if den <= 0.0 || span <= 0.0 {
+    if hi - lo < 2 || span <= 0.0 {
         return None;
     }
+    let times = &t_s[lo..=hi];
+    let positions: Vec<Vector3<f64>> = world_from_camera[lo..=hi].iter().map(|w| w.translation.vector).collect();
+    let strays = stray_frames(times, &positions).filter(|s| s.iter().filter(|&&x| !x).count() >= 3);
+    let strayed = |i: usize| strays.as_ref().is_some_and(|s| s[i]);
+    let (t_mean, p_mean, velocity) = line_through(times, &positions, |i| !strayed(i))?;
+    let position = if strayed(from - lo) {
+        p_mean + velocity * (t_s[from] - t_mean)
+    } else {
+        world_from_camera[from].translation.vector
+    };
     let turn = world_from_camera[hi].rotation * world_from_camera[lo].rotation.inverse();
-    Some(Motion {
-        velocity: num / den,
-        angular: turn.scaled_axis() / span,
-        line: straight_line(times, &positions, t_s[from]),
-    })
+    Some(Motion { velocity, angular: turn.scaled_axis() / span, position })
 }
 
 #[cfg(test)]
