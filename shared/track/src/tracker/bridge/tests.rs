@@ -316,7 +316,7 @@ fn jitter(k: usize, axis: usize) -> f64 {
 
 /// A hover creeping at 1.2 mm/s, its clear poses jittered by ±0.1 mm (the wander along a hover's weak
 /// direction), veiled for 1.1 s, and the first clear frame after the veil 0.5 mm off (tracked `Ok`, as on the
-/// renders): that frame strays from the line through its window, so the bridge leaves from where the rest of the
+/// renders): that frame strays from the line through its window, so the bridge ends where the rest of the
 /// window puts it, at their slope, and stays within 0.2 mm of the path (0.11 mm, 0.06 mm on average; with the
 /// stray in the end's position and slope, 0.84 mm, 0.51 mm on average).
 #[test]
@@ -342,7 +342,7 @@ fn a_bridge_ends_where_the_clear_frames_put_an_end_frame_that_strays_from_them()
     let end = motion_at(&t_s, &poses, &views, 63, false).unwrap();
     assert!((end.position - truth(63)).norm() < 0.2, "the end is {:.3} mm off", (end.position - truth(63)).norm());
     let start = motion_at(&t_s, &poses, &views, 29, true).unwrap();
-    assert_eq!(start.position, poses[29].translation.vector, "a frame that does not stray is where it was");
+    assert_eq!(start.position, poses[29].translation.vector, "the end before the veil is where it was");
     bridge_veils(&t_s, &mut poses, &views);
     let worst = (30..63).map(|k| (poses[k].translation.vector - truth(k)).norm()).fold(0.0, f64::max);
     assert!(worst < 0.2, "the bridge is up to {worst:.3} mm off the path");
