@@ -21,9 +21,9 @@ impl PoseOptimizer {
     /// The tracker's optimiser: room for `edges` edges, so that optimising a frame with more links than any
     /// before allocates nothing, and the influence check on. A frame's pose rests on hundreds of links of which
     /// a stereo mismatch can be one that the fit follows; that is what the check is for. Loop closing's pose
-    /// checks ([`Self::without_influence_check`]) go without it: they weigh an old map against a drifted guess, where the few
-    /// links that agree with the old map are the evidence, and leaving out the most telling of them kept a
-    /// detached segment from being tied back (`tests/restart.rs`).
+    /// checks ([`Self::without_influence_check`]) go without it: they weigh an old map against a drifted guess,
+    /// where the few links that agree with the old map are the evidence, and leaving out the most telling of them
+    /// kept a detached segment from being tied back (`tests/restart.rs`).
     pub fn for_tracking(edges: usize) -> Self {
         Self {
             chi2: Vec::with_capacity(edges),

@@ -317,9 +317,9 @@ struct Motion {
     position: Vector3<f64>,
 }
 
-/// χ²'s 95 % quantile with three degrees of freedom: a position's squared distance from a line, in units of the
-/// scatter's variance per axis, beyond which it strays.
-const STRAY_CHI2: f64 = 7.815;
+/// χ²'s 95 % quantile with three degrees of freedom (the stereo gate's, [`crate::optim::CHI2_STEREO`]): a
+/// position's squared distance from a line, in units of the scatter's variance per axis, beyond which it strays.
+const STRAY_CHI2: f64 = crate::optim::CHI2_STEREO;
 
 /// Which of a window's positions stray from it: with the window as a straight line (per axis the median of the
 /// pairwise slopes, Theil–Sen, and the median intercept, so one frame off in seven cannot tilt it), those
