@@ -70,6 +70,7 @@ fn doubt_code(doubt: Option<Doubt>) -> u32 {
         Some(Doubt::PriorlessFewInliers) => doubt::PRIORLESS_FEW_INLIERS,
         Some(Doubt::Unconfirmed) => doubt::UNCONFIRMED,
         Some(Doubt::UnconfirmedPrior) => doubt::UNCONFIRMED_PRIOR,
+        Some(Doubt::Hazy) => doubt::HAZY,
     }
 }
 

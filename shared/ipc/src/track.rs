@@ -15,7 +15,8 @@ pub mod tracking_state {
     /// why): the pose is there, and no keyframe is made from it (unless the doubt is `MAP_MOVING`: the next
     /// keyframe's adjustment is what settles the map; `DETACHED`: its keyframes are what the new segment is
     /// tracked with; `PRIORLESS_FEW_INLIERS`: in a jerk the keyframe is what the next frames hold on to; or
-    /// `LOW_CONTRAST`: a scope moving on under smoke keeps a map, with keyframes that are not published).
+    /// `LOW_CONTRAST`: a scope moving on under smoke keeps a map, with keyframes that are not published; or
+    /// `HAZY`: a haze coming down, tracked as a clear view).
     pub const UNCERTAIN: u32 = 4;
 }
 
@@ -42,8 +43,11 @@ pub mod doubt {
     /// The motion model's pose predicted from a frame doubted for its own estimate, with nothing by appearance
     /// to confirm it: the doubt carried over.
     pub const UNCONFIRMED_PRIOR: u32 = 10;
+    /// The haze coming down: less texture contrast than clear footage keeps, not yet a veil. The haze shifts
+    /// what it leaves; the frame is tracked as a clear one and its keyframes are published.
+    pub const HAZY: u32 = 11;
     /// The highest code defined: what a consumer accepts (a new doubt moves it).
-    pub const LAST: u32 = UNCONFIRMED_PRIOR;
+    pub const LAST: u32 = HAZY;
 
     /// The doubt's name as the tracker's quality log writes it (`few-inliers`, …; "" for none or an unknown
     /// code), for consumers that report it without linking the tracker.
@@ -59,6 +63,7 @@ pub mod doubt {
             PRIORLESS_FEW_INLIERS => "priorless-few-inliers",
             UNCONFIRMED => "unconfirmed",
             UNCONFIRMED_PRIOR => "unconfirmed-prior",
+            HAZY => "hazy",
             _ => "",
         }
     }

@@ -399,7 +399,13 @@ impl Tracker {
             let supported = self.state == TrackingState::Ok
                 || matches!(
                     doubt,
-                    Some(Doubt::MapMoving | Doubt::Detached | Doubt::PriorlessFewInliers | Doubt::UnconfirmedPrior)
+                    Some(
+                        Doubt::MapMoving
+                            | Doubt::Detached
+                            | Doubt::PriorlessFewInliers
+                            | Doubt::UnconfirmedPrior
+                            | Doubt::Hazy
+                    )
                 )
                 || (doubt == Some(Doubt::LowContrast) && !coasting);
             if supported && self.need_keyframe(result.inliers) {
@@ -480,7 +486,7 @@ impl Tracker {
                 {
                     bridge::View::Clear
                 }
-                Some(Doubt::MapMoving | Doubt::Detached) | None => bridge::View::Hazy,
+                Some(Doubt::MapMoving | Doubt::Detached | Doubt::Hazy) | None => bridge::View::Hazy,
                 Some(_) => bridge::View::Doubted,
             };
             self.records.push(FrameRecord { t_ns: result.t_ns, reference: r, camera_from_reference: rel, view });

@@ -130,7 +130,7 @@ fn qos_poses_buffer() -> usize {
 }
 
 /// Every doubt the tracker can give.
-const DOUBTS: [Doubt; 10] = [
+const DOUBTS: [Doubt; 11] = [
     Doubt::FewInliers,
     Doubt::LowInlierRatio,
     Doubt::IllConditioned,
@@ -141,6 +141,7 @@ const DOUBTS: [Doubt; 10] = [
     Doubt::PriorlessFewInliers,
     Doubt::Unconfirmed,
     Doubt::UnconfirmedPrior,
+    Doubt::Hazy,
 ];
 
 /// The contract's doubt names (what consumers such as the OpenIGTLink output report) are the tracker's own.

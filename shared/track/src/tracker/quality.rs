@@ -94,6 +94,14 @@ pub enum Doubt {
     /// (tried without: the doubt ran on for 47 frames after a smoke render's veil, each unconfirmed for want of
     /// a newer keyframe).
     UnconfirmedPrior,
+    /// The haze coming down: no veil yet (that takes [`MIN_CONTRAST_KEPT`]), but less contrast than clear
+    /// footage keeps ([`CONTRAST_RESTORED`] of the clearest view of its place; `Tracker::hazy`). The haze
+    /// already shifts what it leaves, and the frames are doubted for it, but nothing else changes: they are
+    /// tracked, make keyframes (published, unlike a veil's) and are written as before. On the way up the
+    /// same contrast keeps the veil down (`LowContrast`), so a frame is `Ok` only when it is as clear as clear
+    /// footage gets, whichever way the haze goes. Clear footage meets it rarely: a fast colon flight onto
+    /// plainer tissue, 8 of 200 frames (BENCHMARKS.md).
+    Hazy,
 }
 
 impl Doubt {
@@ -129,6 +137,7 @@ impl Doubt {
             Self::PriorlessFewInliers => "priorless-few-inliers",
             Self::Unconfirmed => "unconfirmed",
             Self::UnconfirmedPrior => "unconfirmed-prior",
+            Self::Hazy => "hazy",
         }
     }
 }
@@ -252,6 +261,13 @@ impl Tracker {
         };
     }
 
+    /// Whether the view is hazy ([`Doubt::Hazy`]): no veil down nor one taken as the view, yet less contrast
+    /// than [`CONTRAST_RESTORED`] of the clearest view of its place. On the way down the haze shifts what it
+    /// leaves before the veil comes down (hover seed 9: 0.05 mm a frame, BENCHMARKS.md).
+    pub(super) fn hazy(&self) -> bool {
+        self.veil == Veil::Clear && self.contrast_ratio < CONTRAST_RESTORED
+    }
+
     /// Fills the measures of `quality` from the last pose optimisation (the local map's) and the appearance
     /// consensus, and returns the doubt about the pose, if any.
     pub(super) fn assess(&mut self, quality: &mut TrackingQuality) -> Option<Doubt> {
@@ -334,6 +350,8 @@ impl Tracker {
             Some(Doubt::PriorlessFewInliers)
         } else if self.map_moved_rel > MAX_MAP_MOVE_REL {
             Some(Doubt::MapMoving)
+        } else if self.hazy() {
+            Some(Doubt::Hazy)
         } else {
             None
         }
