@@ -388,25 +388,13 @@ impl Tracker {
             if let Some(last_pose) = self.last.camera_from_world {
                 self.velocity = Some(pose * last_pose.inverse());
             }
-            // A keyframe fixes map points and the dense map at its pose: only from a pose the images support.
-            // A map still settling is the exception: the next keyframe's adjustment is what settles it. So is a
-            // jerk's priorless pose: the view has run ahead of the map, and the keyframe is what holds it. And an
-            // unconfirmed prior: the keyframe is what appearance can confirm the next frames against. And a
-            // veiled view posed on the map (not coasted): a scope that moves on under smoke otherwise leaves its
-            // map behind and is lost when the smoke clears; such a keyframe takes new points only where the
-            // last clear keyframe saw the same tissue (`create_keyframe`), so the smoke itself never enters the
-            // map.
+            // A keyframe fixes map points and the dense map at its pose: only from a pose the images support,
+            // save the doubts that keep keyframes (`Doubt::keeps_keyframes`), and a veiled view posed on the map
+            // (not coasted): a scope that moves on under smoke otherwise leaves its map behind and is lost when
+            // the smoke clears; such a keyframe takes new points only where the last clear keyframe saw the same
+            // tissue (`create_keyframe`), so the smoke itself never enters the map.
             let supported = self.state == TrackingState::Ok
-                || matches!(
-                    doubt,
-                    Some(
-                        Doubt::MapMoving
-                            | Doubt::Detached
-                            | Doubt::PriorlessFewInliers
-                            | Doubt::UnconfirmedPrior
-                            | Doubt::Hazy
-                    )
-                )
+                || doubt.is_some_and(Doubt::keeps_keyframes)
                 || (doubt == Some(Doubt::LowContrast) && !coasting);
             if supported && self.need_keyframe(result.inliers) {
                 self.create_keyframe(&mut result);

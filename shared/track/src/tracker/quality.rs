@@ -125,6 +125,19 @@ impl Doubt {
         )
     }
 
+    /// Whether a frame doubted for this still makes keyframes. A map still settling: the next keyframe's
+    /// adjustment is what settles it. A detached segment: its keyframes are what it is tracked with. A jerk's
+    /// priorless pose: the view has run ahead of the map, and the keyframe is what holds it. An unconfirmed
+    /// prior: the keyframe is what appearance can confirm the next frames against. A haze coming down: only
+    /// the status says so, the frame is tracked as a clear one. (A veil's keyframes are the tracker's own
+    /// decision: only from a frame posed on the map, not coasted.)
+    pub fn keeps_keyframes(self) -> bool {
+        matches!(
+            self,
+            Self::MapMoving | Self::Detached | Self::PriorlessFewInliers | Self::UnconfirmedPrior | Self::Hazy
+        )
+    }
+
     pub fn name(self) -> &'static str {
         match self {
             Self::FewInliers => "few-inliers",
