@@ -577,6 +577,7 @@ impl Tracker {
         let t_s: Vec<f64> = self.records.iter().map(|r| r.t_ns as f64 * 1e-9).collect();
         let views: Vec<bridge::View> = self.records.iter().map(|r| r.view).collect();
         bridge::bridge_veils(&t_s, &mut poses, &views);
+        bridge::bridge_hazes(&t_s, &mut poses, &views);
         bridge::bridge_losses(&t_s, &mut poses, &views);
         self.records.iter().zip(poses).map(|(r, pose)| (r.t_ns, pose, r.view == bridge::View::Lost)).collect()
     }

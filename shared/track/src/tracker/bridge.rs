@@ -98,20 +98,35 @@ pub(super) fn bridge_veils(t_s: &[f64], world_from_camera: &mut [Isometry3<f64>]
     }
 }
 
+/// Bridges every run of `Hazy` frames that has a `Clear` frame on both sides: a haze that came down and cleared
+/// without thickening into a veil (`Doubt::Hazy`). Its frames are shifted by the haze as a veil's are, only
+/// less, and the clear frames on both sides say more: the thin sheet over a 20 fps hover kept its contrast
+/// above the veil's half, and its hazy frames were written up to 0.8 mm off (BENCHMARKS.md, fifteenth part).
+/// Hazy frames just before a veil are its bridge's ([`bridge_veils`]); a dim view taken as the view after a
+/// veil (hazy too) follows that veil, not a clear frame, and is left as it was.
+pub(super) fn bridge_hazes(t_s: &[f64], world_from_camera: &mut [Isometry3<f64>], views: &[View]) {
+    bridge_runs_between_clear_frames(t_s, world_from_camera, views, View::Hazy);
+}
+
 /// Bridges every run of `Lost` frames that has a `Clear` frame on both sides and no veil before it (a veil's
 /// bridge takes in the lost frames after it): frames dropped, a cut in the footage, a scope taken out and put
 /// back. Live, a lost frame's pose is the motion model's extrapolation; once tracking is back, the frames on
 /// both sides say more, above all when a loop has since moved one side (a segment tied back after the loss).
 pub(super) fn bridge_losses(t_s: &[f64], world_from_camera: &mut [Isometry3<f64>], views: &[View]) {
+    bridge_runs_between_clear_frames(t_s, world_from_camera, views, View::Lost);
+}
+
+/// Bridges every run of `view` frames that has a `Clear` frame on both sides.
+fn bridge_runs_between_clear_frames(t_s: &[f64], world_from_camera: &mut [Isometry3<f64>], views: &[View], view: View) {
     let n = t_s.len();
     let mut k = 0;
     while k < n {
-        if views[k] != View::Lost {
+        if views[k] != view {
             k += 1;
             continue;
         }
         let start = k;
-        while k < n && views[k] == View::Lost {
+        while k < n && views[k] == view {
             k += 1;
         }
         if start > 0 && k < n && views[start - 1] == View::Clear && views[k] == View::Clear {

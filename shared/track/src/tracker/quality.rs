@@ -96,8 +96,10 @@ pub enum Doubt {
     UnconfirmedPrior,
     /// The haze coming down: no veil yet (that takes [`MIN_CONTRAST_KEPT`]), but less contrast than clear
     /// footage keeps ([`CONTRAST_RESTORED`] of the clearest view of its place; `Tracker::hazy`). The haze
-    /// already shifts what it leaves, and the frames are doubted for it, but nothing else changes: they are
-    /// tracked, make keyframes (published, unlike a veil's) and are written as before. On the way up the
+    /// already shifts what it leaves, and the frames are doubted for it. They are tracked as clear ones and
+    /// make keyframes (published, unlike a veil's); in the written trajectory a haze that clears without
+    /// becoming a veil is bridged from the clear frames on both sides (`bridge::bridge_hazes`), and one that
+    /// becomes a veil is part of the veil's bridge, as before. On the way up the
     /// same contrast keeps the veil down (`LowContrast`), so a frame is `Ok` only when it is as clear as clear
     /// footage gets, whichever way the haze goes. Clear footage meets it rarely: a fast colon flight onto
     /// plainer tissue, 8 of 200 frames (BENCHMARKS.md).

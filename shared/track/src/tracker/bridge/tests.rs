@@ -211,6 +211,29 @@ fn doubted_frames_around_a_veil_are_bridged_but_not_an_aftermath_longer_than_the
     on_the_motion(&poses, 0..n);
 }
 
+/// A haze that came down and cleared without a veil is bridged from the clear frames on both sides; hazy
+/// frames next to a veil, or with no clear frame after them, are not (the veil's bridge has the first, and the
+/// second are a dim view taken as the view).
+#[test]
+fn a_haze_that_never_became_a_veil_is_bridged_between_clear_frames() {
+    let n = 60;
+    let t_s: Vec<f64> = (0..n).map(|k| k as f64 / 30.0).collect();
+    let hazy = |k: usize| (20..32).contains(&k);
+    let mut poses = shifted(n, hazy);
+    bridge_hazes(&t_s, &mut poses, &views(n, |_| false, |k| hazy(k).then_some(View::Hazy)));
+    on_the_motion(&poses, 0..n);
+    let original = shifted(n, |k| (20..45).contains(&k));
+    for views in [
+        views(n, |k| (26..32).contains(&k), |k| (20..26).contains(&k).then_some(View::Hazy)),
+        views(n, |k| (20..30).contains(&k), |k| (30..45).contains(&k).then_some(View::Hazy)),
+        views(n, |_| false, |k| (k >= 40).then_some(View::Hazy)),
+    ] {
+        let mut poses = original.clone();
+        bridge_hazes(&t_s, &mut poses, &views);
+        assert_eq!(poses, original);
+    }
+}
+
 #[test]
 fn a_veil_without_a_clear_frame_on_both_sides_is_left_as_it_was() {
     let n = 20;
