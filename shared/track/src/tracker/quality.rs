@@ -99,10 +99,10 @@ pub enum Doubt {
     /// already shifts what it leaves, and the frames are doubted for it. They are tracked as clear ones and
     /// make keyframes (published, unlike a veil's); in the written trajectory a haze that clears without
     /// becoming a veil is bridged from the clear frames on both sides (`bridge::bridge_hazes`), and one that
-    /// becomes a veil is part of the veil's bridge, as before. On the way up the
-    /// same contrast keeps the veil down (`LowContrast`), so a frame is `Ok` only when it is as clear as clear
-    /// footage gets, whichever way the haze goes. Clear footage meets it rarely: a fast colon flight onto
-    /// plainer tissue, 8 of 200 frames (BENCHMARKS.md).
+    /// becomes a veil is part of the veil's bridge, as before. On the way up the same contrast keeps the veil
+    /// down (`LowContrast`), so a frame is `Ok` only when it is as clear as clear footage gets, whichever way
+    /// the haze goes. Clear footage meets it rarely: a fast colon flight onto plainer tissue, 8 of 200 frames
+    /// (BENCHMARKS.md).
     Hazy,
 }
 
