@@ -11,6 +11,7 @@ mod local_map;
 mod measurements;
 mod motion;
 mod quality;
+mod record;
 mod relocalise;
 mod segment;
 
@@ -18,6 +19,7 @@ use crate::geometry::draw_three;
 pub use crate::geometry::rigid_fit;
 pub use appearance::AppearanceFix;
 pub use quality::{Doubt, PoseMethod, TrackingQuality};
+use record::FrameRecord;
 pub use segment::RESTART_AFTER_S;
 
 use crate::frame::{Frame, FrameBuilder, Scales};
@@ -81,17 +83,6 @@ pub struct FrameResult {
     /// The frame began a new map segment ([`Tracker::restart`]).
     pub new_segment: bool,
     pub quality: TrackingQuality,
-}
-
-/// Per frame, for the trajectory: the pose relative to the reference keyframe (rebuilt with the keyframe's
-/// final pose, §5.1 step 7).
-#[derive(Debug, Clone, Copy)]
-struct FrameRecord {
-    t_ns: u64,
-    reference: KfId,
-    camera_from_reference: Isometry3<f64>,
-    /// How the frame was seen, for the veil's bridge ([`bridge::View`]).
-    view: bridge::View,
 }
 
 #[derive(Debug)]
@@ -477,19 +468,16 @@ impl Tracker {
                 Some(Doubt::MapMoving | Doubt::Detached | Doubt::Hazy) | None => bridge::View::Hazy,
                 Some(_) => bridge::View::Doubted,
             };
-            self.records.push(FrameRecord { t_ns: result.t_ns, reference: r, camera_from_reference: rel, view });
+            let anchors = self.anchors(r, pose);
+            self.records.push(FrameRecord { t_ns: result.t_ns, anchors, view });
             self.last_from_reference = Some((r, rel));
-        } else if let Some((r, rel)) = self.last_from_reference {
+        } else if let (Some((r, rel)), Some(last)) = (self.last_from_reference, self.records.last()) {
             // While lost, the best guess is the last motion continued (ORB-SLAM2 repeats the last pose); it also
             // puts the relocalisation's search near where the camera went.
-            let rel = self.lost_velocity.map_or(rel, |v| v * rel);
-            self.records.push(FrameRecord {
-                t_ns: result.t_ns,
-                reference: r,
-                camera_from_reference: rel,
-                view: bridge::View::Lost,
-            });
-            self.last_from_reference = Some((r, rel));
+            let motion = self.lost_velocity.unwrap_or_else(Isometry3::identity);
+            let record = last.moved(result.t_ns, motion);
+            self.records.push(record);
+            self.last_from_reference = Some((r, motion * rel));
         }
         self.last.copy_from(&self.current);
         self.external_prior = false;
@@ -569,11 +557,7 @@ impl Tracker {
     /// it is now (so bundle adjustment's corrections reach every frame), with every veil and every run of lost
     /// frames that clear frames enclose bridged from them ([`bridge`]).
     pub fn trajectory(&self) -> Vec<(u64, Isometry3<f64>, bool)> {
-        let mut poses: Vec<Isometry3<f64>> = self
-            .records
-            .iter()
-            .map(|r| (r.camera_from_reference * self.map.keyframe_pose(r.reference)).inverse())
-            .collect();
+        let mut poses: Vec<Isometry3<f64>> = self.records.iter().map(|r| r.world_from_camera(&self.map)).collect();
         let t_s: Vec<f64> = self.records.iter().map(|r| r.t_ns as f64 * 1e-9).collect();
         let views: Vec<bridge::View> = self.records.iter().map(|r| r.view).collect();
         bridge::bridge_veils(&t_s, &mut poses, &views);

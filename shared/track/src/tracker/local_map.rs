@@ -78,8 +78,12 @@ impl Tracker {
         inliers >= needed
     }
 
-    /// The local keyframes (§5.6 step 1), with buffers indexed by keyframe id that only grow with the map.
-    pub(super) fn update_local_keyframes(&mut self) {
+    /// Per keyframe, how many of the current frame's points it observes (`kf_votes`, the voters listed in
+    /// `voters`; the caller zeroes them after use). Before the local map is searched, points culled since they
+    /// were matched are dropped from the frame too; with `inliers_only` (the pose is final) the count is over the
+    /// pose's inliers and the frame is only read. The buffers are indexed by keyframe id and only grow with the
+    /// map.
+    pub(super) fn vote_keyframes(&mut self, inliers_only: bool) {
         let n = self.map.keyframes.len();
         if self.kf_votes.len() < n {
             self.kf_votes.resize(n, 0);
@@ -89,7 +93,12 @@ impl Tracker {
         for i in 0..self.current.len() {
             let Some(p) = self.current.points[i] else { continue };
             if self.map.points[p].bad {
-                self.current.points[i] = None;
+                if !inliers_only {
+                    self.current.points[i] = None;
+                }
+                continue;
+            }
+            if inliers_only && self.current.outlier[i] {
                 continue;
             }
             for &k in self.map.points[p].observations.keys() {
@@ -99,6 +108,11 @@ impl Tracker {
                 self.kf_votes[k] += 1;
             }
         }
+    }
+
+    /// The local keyframes (§5.6 step 1).
+    pub(super) fn update_local_keyframes(&mut self) {
+        self.vote_keyframes(false);
         if self.voters.is_empty() {
             return;
         }

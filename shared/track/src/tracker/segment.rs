@@ -99,7 +99,7 @@ impl Tracker {
         s.views.clear();
         for r in &self.records[first..=last] {
             s.t_s.push(r.t_ns as f64 * 1e-9);
-            s.poses.push((r.camera_from_reference * self.map.keyframe_pose(r.reference)).inverse());
+            s.poses.push(r.world_from_camera(&self.map));
             s.views.push(r.view);
         }
         bridge::carried_on(&s.t_s, &s.poses, &s.views, t_ns as f64 * 1e-9).map_or(last_tracked, |pose| pose.inverse())
