@@ -553,9 +553,9 @@ impl Tracker {
         self.mapper.loops_closed()
     }
 
-    /// The trajectory so far: (t_ns, world_from_camera, lost) per frame, from each frame's reference keyframe as
-    /// it is now (so bundle adjustment's corrections reach every frame), with every veil and every run of lost
-    /// frames that clear frames enclose bridged from them ([`bridge`]).
+    /// The trajectory so far: (t_ns, world_from_camera, lost) per frame, from the keyframes it was tracked on as
+    /// they are now ([`FrameRecord::world_from_camera`]: bundle adjustment's corrections reach every frame), with
+    /// every veil and every run of lost frames that clear frames enclose bridged from them ([`bridge`]).
     pub fn trajectory(&self) -> Vec<(u64, Isometry3<f64>, bool)> {
         let mut poses: Vec<Isometry3<f64>> = self.records.iter().map(|r| r.world_from_camera(&self.map)).collect();
         let t_s: Vec<f64> = self.records.iter().map(|r| r.t_ns as f64 * 1e-9).collect();
