@@ -32,7 +32,7 @@ fn lap() -> &'static [Frame] {
     })
 }
 
-/// Tracks the lap; every frame must keep a pose. `whole_pixel`: ORB-SLAM2's measurements, which drift more.
+/// Tracks the lap; every frame must keep a pose. `whole_pixel`: ORB-SLAM2's measurements, which jitter more.
 fn track(loop_closing: bool, whole_pixel: bool) -> Tracker {
     let mut tracker = common::colon_tracker();
     tracker.set_loop_closing(loop_closing);
@@ -98,17 +98,20 @@ fn coming_back_round_a_circle_closes_one_loop_at_the_return() {
     assert!(found_again * 5 >= early, "{found_again} of {early} first points found again");
 }
 
-/// Where the trajectory has drifted (whole-pixel measurements), closing the loop removes part of it; where it
-/// has not (aligned measurements: the error is noise, not drift), it costs little. The figures are in
-/// BENCHMARKS.md ("Loop closing").
+/// Closing the loop runs a global bundle adjustment over the lap, which straightens the slow bend the
+/// trajectory takes between the start and the return: with the default (sub-pixel) measurements the ATE falls by
+/// a quarter (0.349 → 0.259 mm, 2026-12-03). With ORB-SLAM2's whole-pixel measurements the error on this lap is
+/// per-frame jitter that no loop removes (0.636 with, 0.632 without; over 8 starts of the 1.5-lap circle the
+/// median is 0.495 with, 0.535 without, BENCHMARKS.md "Loop closing"), and there closing the loop must cost
+/// little. In both modes map reuse alone already ties the return to the start.
 #[test]
-fn closing_the_loop_removes_drift_and_costs_little_without_it() {
+fn closing_the_loop_straightens_the_lap_and_costs_little_where_the_error_is_jitter() {
     let ate = |loop_closing, whole_pixel| ate_rmse(&track(loop_closing, whole_pixel));
-    let (drift_with, drift_without) = (ate(true, true), ate(false, true));
-    let (noise_with, noise_without) = (ate(true, false), ate(false, false));
+    let (drift_with, drift_without) = (ate(true, false), ate(false, false));
+    let (jitter_with, jitter_without) = (ate(true, true), ate(false, true));
     eprintln!(
-        "ATE whole-pixel {drift_with:.3} mm with loop closing, {drift_without:.3} without; aligned {noise_with:.3} with, {noise_without:.3} without"
+        "ATE sub-pixel {drift_with:.3} mm with loop closing, {drift_without:.3} without; whole-pixel {jitter_with:.3} with, {jitter_without:.3} without"
     );
-    assert!(drift_with < drift_without, "whole-pixel: {drift_with:.3} with, {drift_without:.3} without");
-    assert!(noise_with < 1.15 * noise_without, "aligned: {noise_with:.3} with, {noise_without:.3} without");
+    assert!(drift_with < 0.9 * drift_without, "sub-pixel: {drift_with:.3} with, {drift_without:.3} without");
+    assert!(jitter_with < 1.15 * jitter_without, "whole-pixel: {jitter_with:.3} with, {jitter_without:.3} without");
 }
