@@ -10,8 +10,10 @@ use std::path::Path;
 #[path = "common/sequence.rs"]
 mod sequence;
 
+const USAGE: &str = "usage: stereo_truth <dir> [--frames N] [--every K] [--gross F]";
+
 fn main() {
-    let a: Vec<String> = std::env::args().collect();
+    let a = sequence::args(USAGE, 1);
     let dir = Path::new(&a[1]);
     let seq = sequence::Sequence::open(dir, None);
     let frames: usize = sequence::value(&a, "--frames").map_or(seq.times.len(), |n| n.parse().unwrap());

@@ -15,8 +15,10 @@ use std::io::Write;
 #[path = "common/sequence.rs"]
 mod sequence;
 
+const USAGE: &str = "usage: track_sequence <dir> <out.tum> [max frames] [--whole-pixel] [--settings F] [--verbose]\n    [--dump-map F] [--online F] [--no-loop-closing] [--instrument-masks off]";
+
 fn main() {
-    let a: Vec<String> = std::env::args().collect();
+    let a = sequence::args(USAGE, 2);
     let dir = std::path::Path::new(&a[1]);
     let max: usize = a.get(3).and_then(|s| s.parse().ok()).unwrap_or(usize::MAX);
     let settings_path = a.iter().position(|x| x == "--settings").map(|i| std::path::PathBuf::from(&a[i + 1]));

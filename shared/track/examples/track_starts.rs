@@ -18,8 +18,10 @@ use std::path::{Path, PathBuf};
 #[path = "common/sequence.rs"]
 mod sequence;
 
+const USAGE: &str = "usage: track_starts <dir> --starts 0,3,7,11 [--frames N] [--gt F] [--settings F] [--whole-pixel]\n    [--no-loop-closing] [--out PREFIX] [--loops] [--instrument-masks off]";
+
 fn main() {
-    let a: Vec<String> = std::env::args().collect();
+    let a = sequence::args(USAGE, 1);
     let dir = Path::new(&a[1]);
     let starts: Vec<usize> = sequence::value(&a, "--starts")
         .unwrap_or("0")

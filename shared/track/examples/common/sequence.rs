@@ -6,6 +6,21 @@
 use bdis_track::{Tracker, TrackerSettings};
 use std::path::{Path, PathBuf};
 
+/// The arguments, after `--help` (the usage on standard output, exit 0) and a missing `<dir>` (the usage on
+/// standard error, exit 2) were answered: these tools are run by hand.
+pub fn args(usage: &str, positional: usize) -> Vec<String> {
+    let a: Vec<String> = std::env::args().collect();
+    if a.iter().any(|x| x == "--help" || x == "-h") {
+        println!("{usage}");
+        std::process::exit(0);
+    }
+    if a.len() <= positional || a[1..=positional].iter().any(|x| x.starts_with("--")) {
+        eprintln!("{usage}");
+        std::process::exit(2);
+    }
+    a
+}
+
 pub struct Sequence {
     pub lefts: Vec<PathBuf>,
     pub rights: Vec<PathBuf>,
