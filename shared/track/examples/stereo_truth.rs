@@ -3,7 +3,7 @@
 //! that are gross (depth off by more than `--gross` of the true depth, 10 % by default: a wrong right keypoint,
 //! not a sub-pixel miss), and the nearest gross matches, which are the ones that weigh most in a pose.
 //!
-//! cargo run --release -p bdis-track --example stereo_truth -- <dir> [--frames N] [--every K] [--gross F]
+//! cargo run --release -p bdis-track --example stereo_truth -- --help   (the usage: `USAGE` below)
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 use std::path::Path;
 

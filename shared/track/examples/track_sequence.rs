@@ -2,9 +2,7 @@
 //! `--settings F` is given) offline and writes the trajectory as TUM, with a per-frame line on standard error:
 //! a development tool (the product runs the `bdis-tracking` service).
 //!
-//! cargo run --release -p bdis-track --example track_sequence -- <dir> <out.tum> [max frames] [--whole-pixel]
-//!     [--settings F] [--verbose] [--dump-map F] [--online F]
-//!     [--no-loop-closing]
+//! cargo run --release -p bdis-track --example track_sequence -- --help   (the usage: `USAGE` below)
 //!
 //! `--online F` writes each frame's pose as the tracker gave it at the time (TUM, world_from_camera, then the
 //! pose method's name): before the trajectory's re-expression through keyframes and the veils' bridges.

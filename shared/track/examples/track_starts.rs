@@ -3,9 +3,7 @@
 //! ±20 % apart (the start frame alone moves the ATE by up to 2×), so figures here are medians over starts.
 //! A development tool; for one run with diagnostics use `track_sequence`.
 //!
-//! cargo run --release -p bdis-track --example track_starts -- <dir> --starts 0,3,7,11 [--frames N]
-//!     [--gt F] [--settings F] [--whole-pixel] [--no-loop-closing] [--out PREFIX] [--loops]
-//!     [--instrument-masks off]
+//! cargo run --release -p bdis-track --example track_starts -- --help   (the usage: `USAGE` below)
 //!
 //! Frames are tracked with the instrument estimate, as the tracking service tracks them by default.
 //! Per start it also counts the frames `Lost` and `Uncertain`; `--loops` lists the loops closed (on stderr).
