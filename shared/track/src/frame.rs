@@ -71,40 +71,62 @@ pub struct Frame {
     /// FAST found it, at its octave's σ.
     pub aligned: Vec<Option<f32>>,
     pub camera_from_world: Option<CameraFromWorld>,
-    /// The left image's texture contrast ([`texture_contrast`]): how much of the scene's texture reaches the
+    /// The left image's texture contrast ([`view_texture`]): how much of the scene's texture reaches the
     /// camera (smoke, a fogged lens and blood lower it).
     pub contrast: f32,
+    /// The left image's brightness range ([`view_texture`]): the standard deviation of its brightness over
+    /// the mean. Added light (a haze) narrows it with the contrast; a view of plainer tissue need not.
+    pub brightness_cv: f32,
 }
 
-/// Mean absolute difference between neighbouring pixels over the mean brightness, on every fourth row, away from
-/// `keep_out`: the share of the image's light that is texture. A gain (exposure) leaves it unchanged; a veil
-/// (smoke: an added haze and the texture behind it dimmed) lowers it. NaN for an image without light (black:
-/// a covered lens, the light off): there is no share to tell, and darkness is no veil to track through.
-pub fn texture_contrast(image: &[u8], width: usize, height: usize, keep_out: Option<&[u8]>) -> f32 {
-    let (mut difference, mut brightness) = (0u64, 0u64);
+/// What a view shows of its texture ([`view_texture`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ViewTexture {
+    /// Mean absolute difference between neighbouring pixels over the mean brightness: the share of the image's
+    /// light that is texture. A gain (exposure) leaves it unchanged; a veil (smoke: an added haze and the
+    /// texture behind it dimmed) lowers it.
+    pub contrast: f32,
+    /// The brightness's standard deviation over its mean (coefficient of variation): how wide the image's range
+    /// is. A gain leaves it too; a haze narrows it by the same factor as the contrast (an added light A over
+    /// an image I: both are a spread over the mean, and the spread scales by (1 − α) while the mean moves
+    /// towards A). Tissue with less fine texture lowers the contrast alone, and a view down a dark lumen
+    /// widens the range.
+    pub brightness_cv: f32,
+}
+
+/// [`ViewTexture`] on every fourth row, away from `keep_out`. NaN for an image without light (black: a covered
+/// lens, the light off): there is no share to tell, and darkness is no veil to track through.
+pub fn view_texture(image: &[u8], width: usize, height: usize, keep_out: Option<&[u8]>) -> ViewTexture {
+    let (mut difference, mut brightness, mut squares, mut pixels_used) = (0u64, 0u64, 0u64, 0u64);
     for y in (0..height.saturating_sub(1)).step_by(4) {
         let (row, below) = (&image[y * width..(y + 1) * width], &image[(y + 1) * width..(y + 2) * width]);
         let (pixels, right, under) = (&row[..width - 1], &row[1..], &below[..width - 1]);
-        // A row's sums fit 32 bits (2 · 255 per pixel); without a mask the loop is plain vector code.
-        let (row_difference, row_brightness) = match keep_out.map(|m| &m[y * width..(y + 1) * width]) {
-            None => pixels.iter().zip(right).zip(under).fold((0u32, 0u32), |(d, b), ((&p, &r), &u)| {
-                (d + u32::from(p.abs_diff(r)) + u32::from(p.abs_diff(u)), b + u32::from(p))
-            }),
-            Some(mask) => pixels.iter().zip(right).zip(under).zip(mask.windows(2)).fold(
-                (0u32, 0u32),
-                |(d, b), (((&p, &r), &u), m)| {
-                    if m[0] != 0 || m[1] != 0 {
-                        (d, b)
-                    } else {
-                        (d + u32::from(p.abs_diff(r)) + u32::from(p.abs_diff(u)), b + u32::from(p))
-                    }
-                },
-            ),
+        // A row's sums fit 32 bits for rows up to 16 000 pixels (255² per pixel); without a mask the loop is
+        // plain vector code.
+        let add = |(d, b, q, n): (u32, u32, u32, u32), p: u8, r: u8, u: u8| {
+            let pw = u32::from(p);
+            (d + u32::from(p.abs_diff(r)) + u32::from(p.abs_diff(u)), b + pw, q + pw * pw, n + 1)
         };
+        let (row_difference, row_brightness, row_squares, row_pixels) =
+            match keep_out.map(|m| &m[y * width..(y + 1) * width]) {
+                None => pixels.iter().zip(right).zip(under).fold((0, 0, 0, 0), |acc, ((&p, &r), &u)| add(acc, p, r, u)),
+                Some(mask) => pixels.iter().zip(right).zip(under).zip(mask.windows(2)).fold(
+                    (0, 0, 0, 0),
+                    |acc, (((&p, &r), &u), m)| if m[0] != 0 || m[1] != 0 { acc } else { add(acc, p, r, u) },
+                ),
+            };
         difference += u64::from(row_difference);
         brightness += u64::from(row_brightness);
+        squares += u64::from(row_squares);
+        pixels_used += u64::from(row_pixels);
     }
-    if brightness == 0 { f32::NAN } else { difference as f32 / brightness as f32 }
+    if brightness == 0 {
+        return ViewTexture { contrast: f32::NAN, brightness_cv: f32::NAN };
+    }
+    let n = pixels_used as f64;
+    let mean = brightness as f64 / n;
+    let variance = (squares as f64 / n - mean * mean).max(0.0);
+    ViewTexture { contrast: difference as f32 / brightness as f32, brightness_cv: (variance.sqrt() / mean) as f32 }
 }
 
 impl Frame {
@@ -122,6 +144,7 @@ impl Frame {
             aligned: Vec::new(),
             camera_from_world: None,
             contrast: f32::NAN,
+            brightness_cv: f32::NAN,
         }
     }
 
@@ -172,6 +195,7 @@ impl Frame {
         self.aligned.clone_from(&other.aligned);
         self.camera_from_world = other.camera_from_world;
         self.contrast = other.contrast;
+        self.brightness_cv = other.brightness_cv;
     }
 }
 
@@ -262,30 +286,64 @@ impl FrameBuilder {
         frame.aligned.resize(n, None);
         frame.camera_from_world = None;
         let (w, h) = (self.cam.width as usize, self.cam.height as usize);
-        frame.contrast = texture_contrast(&left[..w * h], w, h, keep_out);
+        let texture = view_texture(&left[..w * h], w, h, keep_out);
+        (frame.contrast, frame.brightness_cv) = (texture.contrast, texture.brightness_cv);
         Ok(())
     }
 }
 
 #[cfg(test)]
 mod contrast_tests {
-    use super::texture_contrast;
+    use super::view_texture;
+
+    fn contrast(image: &[u8], w: usize, h: usize, keep_out: Option<&[u8]>) -> f32 {
+        view_texture(image, w, h, keep_out).contrast
+    }
 
     #[test]
     fn a_gain_keeps_the_texture_contrast_and_a_veil_lowers_it() {
         let (w, h) = (64, 48);
         let texture: Vec<u8> = (0..w * h).map(|i| (60 + (i * 37 % 51) + (i / w * 13 % 29)) as u8).collect();
-        let clear = texture_contrast(&texture, w, h, None);
+        let clear = contrast(&texture, w, h, None);
         let brighter: Vec<u8> = texture.iter().map(|&p| (u16::from(p) * 3 / 2) as u8).collect();
-        assert!((texture_contrast(&brighter, w, h, None) / clear - 1.0).abs() < 0.03, "an exposure change");
+        assert!((contrast(&brighter, w, h, None) / clear - 1.0).abs() < 0.03, "an exposure change");
         // Smoke: half the light replaced by a bright haze.
         let veiled: Vec<u8> = texture.iter().map(|&p| (u16::from(p) / 2 + 100) as u8).collect();
-        assert!(texture_contrast(&veiled, w, h, None) < 0.5 * clear);
+        assert!(contrast(&veiled, w, h, None) < 0.5 * clear);
         // A masked half is left out.
         let mut half = texture.clone();
         half[..w * h / 2].fill(255);
         let mask: Vec<u8> = (0..w * h).map(|i| if i < w * h / 2 + w { 255 } else { 0 }).collect();
-        let kept = texture_contrast(&half, w, h, Some(&mask));
-        assert!((kept / texture_contrast(&texture[w * h / 2..], w, h / 2, None) - 1.0).abs() < 0.2, "{kept}");
+        let kept = contrast(&half, w, h, Some(&mask));
+        assert!((kept / contrast(&texture[w * h / 2..], w, h / 2, None) - 1.0).abs() < 0.2, "{kept}");
+    }
+
+    /// The haze's mark: it narrows the brightness range by as much as it takes of the texture, where a view of
+    /// plainer tissue with a dark lumen in it loses texture and widens the range.
+    #[test]
+    fn a_haze_narrows_the_brightness_range_with_the_texture_and_a_dark_lumen_widens_it() {
+        let (w, h) = (96, 64);
+        let texture = |amplitude: f64, background: &dyn Fn(usize) -> f64| -> Vec<u8> {
+            (0..w * h)
+                .map(|i| {
+                    let fine = ((i * 37 % 51) as f64 + (i / w * 13 % 29) as f64) / 80.0 - 0.5;
+                    (background(i) * (1.0 + amplitude * fine)).clamp(0.0, 255.0) as u8
+                })
+                .collect()
+        };
+        let clear = view_texture(&texture(0.8, &|_| 120.0), w, h, None);
+        let brighter = view_texture(&texture(0.8, &|_| 180.0), w, h, None);
+        assert!((brighter.brightness_cv / clear.brightness_cv - 1.0).abs() < 0.03, "an exposure change");
+        // A haze: 40 % of the light replaced by a bright airlight.
+        let hazy: Vec<u8> =
+            texture(0.8, &|_| 120.0).iter().map(|&p| (0.6 * f64::from(p) + 0.4 * 200.0) as u8).collect();
+        let hazy = view_texture(&hazy, w, h, None);
+        let (contrast_ratio, range_ratio) = (hazy.contrast / clear.contrast, hazy.brightness_cv / clear.brightness_cv);
+        assert!(contrast_ratio < 0.75 && range_ratio < 0.75, "{contrast_ratio} {range_ratio}");
+        assert!((range_ratio / contrast_ratio - 1.0).abs() < 0.1, "the same factor: {contrast_ratio} {range_ratio}");
+        // Plainer tissue, a third of the view down a dark lumen: less texture, a wider range.
+        let lumen = view_texture(&texture(0.5, &|i| if i % w < w / 3 { 30.0 } else { 130.0 }), w, h, None);
+        assert!(lumen.contrast < 0.75 * clear.contrast, "{} {}", lumen.contrast, clear.contrast);
+        assert!(lumen.brightness_cv > clear.brightness_cv, "{} {}", lumen.brightness_cv, clear.brightness_cv);
     }
 }

@@ -141,9 +141,13 @@ pub struct Tracker {
     veil: quality::Veil,
     /// The current frame's texture contrast over the clearest of its place's (NaN without a reference).
     contrast_ratio: f32,
-    /// That clearest contrast of the place: what a keyframe made under a veil records as its own, so that the
-    /// place stays judged against its clear view however many veiled keyframes follow.
+    /// The current frame's brightness range over that clearest view's ([`crate::frame::ViewTexture`]).
+    brightness_cv_ratio: f32,
+    /// That clearest view of the place, its contrast and brightness range: what a keyframe made under a veil
+    /// records as its own, so that the place stays judged against its clear view however many veiled
+    /// keyframes follow.
     place_contrast: f32,
+    place_brightness_cv: f32,
     /// The last keyframe made in a clear view: what a keyframe made under a veil takes its new points from
     /// ([`Self::seen_in_clear_view`]).
     clear_view: keyframe::ClearView,
@@ -234,7 +238,9 @@ impl Tracker {
             map_moved_rel: 0.0,
             veil: quality::Veil::Clear,
             contrast_ratio: f32::NAN,
+            brightness_cv_ratio: f32::NAN,
             place_contrast: f32::NAN,
+            place_brightness_cv: f32::NAN,
             clear_view: keyframe::ClearView::default(),
             last_coasted: false,
             external_prior: false,
@@ -460,11 +466,7 @@ impl Tracker {
                 // A map still settling doubts the live pose, not the written one (the keyframes' final poses
                 // re-express it); a detached segment's frames are right relative to each other, which is what a
                 // bridge takes from its ends.
-                Some(Doubt::MapMoving | Doubt::Detached) | None
-                    if self.contrast_ratio >= quality::CONTRAST_RESTORED =>
-                {
-                    bridge::View::Clear
-                }
+                Some(Doubt::MapMoving | Doubt::Detached) | None if !self.haze_seen() => bridge::View::Clear,
                 Some(Doubt::MapMoving | Doubt::Detached | Doubt::Hazy) | None => bridge::View::Hazy,
                 Some(_) => bridge::View::Doubted,
             };

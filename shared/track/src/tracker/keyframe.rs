@@ -67,7 +67,9 @@ impl Tracker {
         let veiled = self.veil.is_down();
         if veiled {
             let made = &mut self.map.keyframes[kf];
-            made.contrast = self.place_contrast.max(made.contrast);
+            if self.place_contrast > made.contrast {
+                (made.contrast, made.brightness_cv) = (self.place_contrast, self.place_brightness_cv);
+            }
             made.veiled = true;
         } else {
             self.clear_view.kf = Some(kf);

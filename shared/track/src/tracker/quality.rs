@@ -256,16 +256,21 @@ impl Tracker {
     /// clear again: smoke clears, so what stays is the tissue (less texture, another light), and doubting it
     /// would stop the keyframes that let the reference move on.
     pub(super) fn judge_veil(&mut self) {
-        let reference_contrast = self.reference_kf.and_then(|r| self.map.keyframes.get(r)).map_or(f32::NAN, |kf| {
-            kf.ordered
-                .iter()
-                .filter_map(|&(k, _)| self.map.keyframes.get(k).map(|n| n.contrast))
-                .fold(kf.contrast, f32::max)
-        });
+        let (reference_contrast, reference_cv) =
+            self.reference_kf.and_then(|r| self.map.keyframes.get(r)).map_or((f32::NAN, f32::NAN), |kf| {
+                kf.ordered
+                    .iter()
+                    .filter_map(|&(k, _)| self.map.keyframes.get(k))
+                    .fold((kf.contrast, kf.brightness_cv), |clearest, n| {
+                        if n.contrast > clearest.0 { (n.contrast, n.brightness_cv) } else { clearest }
+                    })
+            });
         // No reference (NaN): nothing to judge by, a clear view.
         let ratio = self.current.contrast / reference_contrast;
         self.contrast_ratio = ratio;
+        self.brightness_cv_ratio = self.current.brightness_cv / reference_cv;
         self.place_contrast = reference_contrast;
+        self.place_brightness_cv = reference_cv;
         let longest = (MAX_VEIL_S * self.settings.fps).round() as u32;
         self.veil = match self.veil {
             _ if ratio.is_nan() || ratio >= CONTRAST_RESTORED => Veil::Clear,
@@ -276,11 +281,20 @@ impl Tracker {
         };
     }
 
-    /// Whether the view is hazy ([`Doubt::Hazy`]): no veil down nor one taken as the view, yet less contrast
-    /// than [`CONTRAST_RESTORED`] of the clearest view of its place. On the way down the haze shifts what it
-    /// leaves before the veil comes down (hover seed 9: 0.05 mm a frame, BENCHMARKS.md).
+    /// Whether the view is hazy ([`Doubt::Hazy`]): no veil down nor one taken as the view, yet a haze seen
+    /// ([`Self::haze_seen`]). On the way down the haze shifts what it leaves before the veil comes down (hover
+    /// seed 9: 0.05 mm a frame, BENCHMARKS.md).
     pub(super) fn hazy(&self) -> bool {
-        self.veil == Veil::Clear && self.contrast_ratio < CONTRAST_RESTORED
+        self.veil == Veil::Clear && self.haze_seen()
+    }
+
+    /// Whether the view has lost contrast as a haze takes it: less than [`CONTRAST_RESTORED`] of the clearest
+    /// view of its place, and a narrower brightness range than that view's. Added light narrows the range by
+    /// the factor it takes off the texture ([`crate::frame::ViewTexture`]); a view that turned to plainer tissue
+    /// or down a dark lumen loses texture with its range kept or widened, and is no haze (a clear colon revisit
+    /// at 640×480 had 17–43 of 400 frames doubted `hazy` by the contrast alone, BENCHMARKS.md).
+    pub(super) fn haze_seen(&self) -> bool {
+        self.contrast_ratio < CONTRAST_RESTORED && self.brightness_cv_ratio < 1.0
     }
 
     /// Fills the measures of `quality` from the last pose optimisation (the local map's) and the appearance

@@ -67,6 +67,7 @@ impl Tracker {
         self.mapper.segment_begun(kf);
         // The segment's first keyframe is the clearest view of its place so far.
         self.contrast_ratio = 1.0;
+        self.brightness_cv_ratio = 1.0;
         self.velocity = None;
         self.last_coasted = false;
         self.unplaced_frames = 0;
