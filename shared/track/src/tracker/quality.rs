@@ -261,8 +261,13 @@ impl Tracker {
                 kf.ordered
                     .iter()
                     .filter_map(|&(k, _)| self.map.keyframes.get(k))
+                    // As `f32::max` would: a NaN (a keyframe without light) never wins over a number.
                     .fold((kf.contrast, kf.brightness_cv), |clearest, n| {
-                        if n.contrast > clearest.0 { (n.contrast, n.brightness_cv) } else { clearest }
+                        if n.contrast > clearest.0 || clearest.0.is_nan() {
+                            (n.contrast, n.brightness_cv)
+                        } else {
+                            clearest
+                        }
                     })
             });
         // No reference (NaN): nothing to judge by, a clear view.
