@@ -71,12 +71,9 @@ pub struct Frame {
     /// FAST found it, at its octave's σ.
     pub aligned: Vec<Option<f32>>,
     pub camera_from_world: Option<CameraFromWorld>,
-    /// The left image's texture contrast ([`view_texture`]): how much of the scene's texture reaches the
-    /// camera (smoke, a fogged lens and blood lower it).
-    pub contrast: f32,
-    /// The left image's brightness range ([`view_texture`]): the standard deviation of its brightness over
-    /// the mean. Added light (a haze) narrows it with the contrast; a view of plainer tissue need not.
-    pub brightness_cv: f32,
+    /// What the left image shows of the scene's texture ([`view_texture`]): smoke, a fogged lens and blood
+    /// lower its contrast; added light (a haze) narrows its brightness range with it.
+    pub texture: ViewTexture,
 }
 
 /// What a view shows of its texture ([`view_texture`]).
@@ -92,6 +89,19 @@ pub struct ViewTexture {
     /// towards A). Tissue with less fine texture lowers the contrast alone, and a view down a dark lumen
     /// widens the range.
     pub brightness_cv: f32,
+}
+
+impl ViewTexture {
+    /// Nothing to tell (no image yet, or one without light).
+    pub const UNKNOWN: Self = Self { contrast: f32::NAN, brightness_cv: f32::NAN };
+
+    /// Each measure of this view over the same of `reference`.
+    pub fn over(self, reference: Self) -> Self {
+        Self {
+            contrast: self.contrast / reference.contrast,
+            brightness_cv: self.brightness_cv / reference.brightness_cv,
+        }
+    }
 }
 
 /// [`ViewTexture`] on every fourth row, away from `keep_out`. NaN for an image without light (black: a covered
@@ -121,7 +131,7 @@ pub fn view_texture(image: &[u8], width: usize, height: usize, keep_out: Option<
         pixels_used += u64::from(row_pixels);
     }
     if brightness == 0 {
-        return ViewTexture { contrast: f32::NAN, brightness_cv: f32::NAN };
+        return ViewTexture::UNKNOWN;
     }
     let n = pixels_used as f64;
     let mean = brightness as f64 / n;
@@ -143,8 +153,7 @@ impl Frame {
             outlier: Vec::new(),
             aligned: Vec::new(),
             camera_from_world: None,
-            contrast: f32::NAN,
-            brightness_cv: f32::NAN,
+            texture: ViewTexture::UNKNOWN,
         }
     }
 
@@ -194,8 +203,7 @@ impl Frame {
         self.outlier.clone_from(&other.outlier);
         self.aligned.clone_from(&other.aligned);
         self.camera_from_world = other.camera_from_world;
-        self.contrast = other.contrast;
-        self.brightness_cv = other.brightness_cv;
+        self.texture = other.texture;
     }
 }
 
@@ -286,8 +294,7 @@ impl FrameBuilder {
         frame.aligned.resize(n, None);
         frame.camera_from_world = None;
         let (w, h) = (self.cam.width as usize, self.cam.height as usize);
-        let texture = view_texture(&left[..w * h], w, h, keep_out);
-        (frame.contrast, frame.brightness_cv) = (texture.contrast, texture.brightness_cv);
+        frame.texture = view_texture(&left[..w * h], w, h, keep_out);
         Ok(())
     }
 }

@@ -39,10 +39,9 @@ pub struct KeyFrame {
     /// Median stereo depth of its keypoints (NaN without any): how far it looks, for finding the keyframes a
     /// later frame looks at again (map reuse).
     pub median_depth: f64,
-    /// Its left image's texture contrast and brightness range ([`crate::frame::view_texture`]); for a veiled
-    /// keyframe, its place's in clear view.
-    pub contrast: f32,
-    pub brightness_cv: f32,
+    /// What its left image shows of the texture ([`crate::frame::view_texture`]); for a veiled keyframe, its
+    /// place's in clear view.
+    pub texture: crate::frame::ViewTexture,
     /// Made under a veil (smoke): it serves tracking, and its images are no view to take depth from.
     pub veiled: bool,
 }
@@ -68,8 +67,7 @@ impl KeyFrame {
             bad: false,
             camera_from_parent: None,
             median_depth: median_depth(&frame.depth),
-            contrast: frame.contrast,
-            brightness_cv: frame.brightness_cv,
+            texture: frame.texture,
             veiled: false,
         }
     }

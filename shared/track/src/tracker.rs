@@ -139,15 +139,12 @@ pub struct Tracker {
     map_moved_rel: f64,
     /// Whether the current frame is seen through a veil ([`Self::judge_veil`]).
     veil: quality::Veil,
-    /// The current frame's texture contrast over the clearest of its place's (NaN without a reference).
-    contrast_ratio: f32,
-    /// The current frame's brightness range over that clearest view's ([`crate::frame::ViewTexture`]).
-    brightness_cv_ratio: f32,
-    /// That clearest view of the place, its contrast and brightness range: what a keyframe made under a veil
-    /// records as its own, so that the place stays judged against its clear view however many veiled
-    /// keyframes follow.
-    place_contrast: f32,
-    place_brightness_cv: f32,
+    /// The current frame's texture over the clearest view of its place's, measure by measure (NaN without a
+    /// reference).
+    texture_ratio: crate::frame::ViewTexture,
+    /// That clearest view of the place: what a keyframe made under a veil records as its own, so that the place
+    /// stays judged against its clear view however many veiled keyframes follow.
+    place_texture: crate::frame::ViewTexture,
     /// The last keyframe made in a clear view: what a keyframe made under a veil takes its new points from
     /// ([`Self::seen_in_clear_view`]).
     clear_view: keyframe::ClearView,
@@ -237,10 +234,8 @@ impl Tracker {
             reloc: relocalise::RelocScratch::with_capacity(settings.orb.n_features as usize),
             map_moved_rel: 0.0,
             veil: quality::Veil::Clear,
-            contrast_ratio: f32::NAN,
-            brightness_cv_ratio: f32::NAN,
-            place_contrast: f32::NAN,
-            place_brightness_cv: f32::NAN,
+            texture_ratio: crate::frame::ViewTexture::UNKNOWN,
+            place_texture: crate::frame::ViewTexture::UNKNOWN,
             clear_view: keyframe::ClearView::default(),
             last_coasted: false,
             external_prior: false,

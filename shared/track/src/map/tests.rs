@@ -21,8 +21,7 @@ pub(crate) fn keyframe(id: KfId, parent: Option<KfId>, bad: bool) -> KeyFrame {
         bad,
         camera_from_parent: bad.then(Isometry3::identity),
         median_depth: f64::NAN,
-        contrast: f32::NAN,
-        brightness_cv: f32::NAN,
+        texture: crate::frame::ViewTexture::UNKNOWN,
         veiled: false,
     }
 }

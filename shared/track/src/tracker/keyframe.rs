@@ -67,8 +67,8 @@ impl Tracker {
         let veiled = self.veil.is_down();
         if veiled {
             let made = &mut self.map.keyframes[kf];
-            if self.place_contrast > made.contrast {
-                (made.contrast, made.brightness_cv) = (self.place_contrast, self.place_brightness_cv);
+            if self.place_texture.contrast > made.texture.contrast {
+                made.texture = self.place_texture;
             }
             made.veiled = true;
         } else {

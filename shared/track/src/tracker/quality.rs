@@ -256,26 +256,26 @@ impl Tracker {
     /// clear again: smoke clears, so what stays is the tissue (less texture, another light), and doubting it
     /// would stop the keyframes that let the reference move on.
     pub(super) fn judge_veil(&mut self) {
-        let (reference_contrast, reference_cv) =
-            self.reference_kf.and_then(|r| self.map.keyframes.get(r)).map_or((f32::NAN, f32::NAN), |kf| {
+        let place = self.reference_kf.and_then(|r| self.map.keyframes.get(r)).map_or(
+            crate::frame::ViewTexture::UNKNOWN,
+            |kf| {
                 kf.ordered
                     .iter()
                     .filter_map(|&(k, _)| self.map.keyframes.get(k))
                     // As `f32::max` would: a NaN (a keyframe without light) never wins over a number.
-                    .fold((kf.contrast, kf.brightness_cv), |clearest, n| {
-                        if n.contrast > clearest.0 || clearest.0.is_nan() {
-                            (n.contrast, n.brightness_cv)
+                    .fold(kf.texture, |clearest, n| {
+                        if n.texture.contrast > clearest.contrast || clearest.contrast.is_nan() {
+                            n.texture
                         } else {
                             clearest
                         }
                     })
-            });
+            },
+        );
         // No reference (NaN): nothing to judge by, a clear view.
-        let ratio = self.current.contrast / reference_contrast;
-        self.contrast_ratio = ratio;
-        self.brightness_cv_ratio = self.current.brightness_cv / reference_cv;
-        self.place_contrast = reference_contrast;
-        self.place_brightness_cv = reference_cv;
+        self.texture_ratio = self.current.texture.over(place);
+        self.place_texture = place;
+        let ratio = self.texture_ratio.contrast;
         let longest = (MAX_VEIL_S * self.settings.fps).round() as u32;
         self.veil = match self.veil {
             _ if ratio.is_nan() || ratio >= CONTRAST_RESTORED => Veil::Clear,
@@ -299,7 +299,7 @@ impl Tracker {
     /// or down a dark lumen loses texture with its range kept or widened, and is no haze (a clear colon revisit
     /// at 640×480 had 17–43 of 400 frames doubted `hazy` by the contrast alone, BENCHMARKS.md).
     pub(super) fn haze_seen(&self) -> bool {
-        self.contrast_ratio < CONTRAST_RESTORED && self.brightness_cv_ratio < 1.0
+        self.texture_ratio.contrast < CONTRAST_RESTORED && self.texture_ratio.brightness_cv < 1.0
     }
 
     /// Fills the measures of `quality` from the last pose optimisation (the local map's) and the appearance

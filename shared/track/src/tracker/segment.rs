@@ -66,8 +66,7 @@ impl Tracker {
         self.detached = Some(Detachment { first_keyframe: kf, older_than_point, older_than_keyframe });
         self.mapper.segment_begun(kf);
         // The segment's first keyframe is the clearest view of its place so far.
-        self.contrast_ratio = 1.0;
-        self.brightness_cv_ratio = 1.0;
+        self.texture_ratio = crate::frame::ViewTexture { contrast: 1.0, brightness_cv: 1.0 };
         self.velocity = None;
         self.last_coasted = false;
         self.unplaced_frames = 0;
