@@ -101,6 +101,9 @@ pub struct Tracker {
     lost_velocity: Option<Isometry3<f64>>,
     reference_kf: Option<KfId>,
     last_kf_frame: u64,
+    /// The position σ (relative to the depth) of the first frame after the last keyframe: how well the map
+    /// held a frame when it was fresh ([`keyframe::KeyframeEvidence::sigma_after_keyframe`]).
+    sigma_after_keyframe: f64,
     last_reloc_frame: Option<u64>,
     /// Where relocalisation's scan of the whole map goes on from on the next lost frame (at least
     /// [`relocalise::SCAN_PER_FRAME`] keyframes a frame).
@@ -205,6 +208,7 @@ impl Tracker {
             lost_velocity: None,
             reference_kf: None,
             last_kf_frame: 0,
+            sigma_after_keyframe: f64::NAN,
             last_reloc_frame: None,
             reloc_scan_next: 0,
             // Capacities of a large local map, so that a warmed-up frame does not grow them (they still grow,
@@ -388,7 +392,12 @@ impl Tracker {
             let supported = self.state == TrackingState::Ok
                 || doubt.is_some_and(Doubt::keeps_keyframes)
                 || (doubt == Some(Doubt::LowContrast) && !coasting);
-            if supported && self.need_keyframe(result.inliers) {
+            if self.current.id == self.last_kf_frame + 1 {
+                self.sigma_after_keyframe = result.quality.position_sigma_rel;
+            }
+            // Only a pose the images support says how well the map holds the frame.
+            let sigma_now = if self.state == TrackingState::Ok { result.quality.position_sigma_rel } else { f64::NAN };
+            if supported && self.need_keyframe(result.inliers, sigma_now) {
                 self.create_keyframe(&mut result);
             }
             self.unplaced_frames = 0;

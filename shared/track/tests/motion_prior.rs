@@ -184,13 +184,19 @@ fn a_view_that_changes_wholesale_is_never_claimed_ok_where_it_is_not() {
 }
 
 /// The frames after a relocalisation. An oblique view over the abdominal wall (seed 2026, as `bdis-slam synth
-/// --scene abdomen --trajectory oblique --seed 2026` renders it) is cut by 15 frames (10 mm): the frame after
-/// the cut is lost, and relocalisation places the third one right. The frame after it has no velocity to
-/// predict with; the reference keyframe's projection poses it 4.9 mm off, `Uncertain` (few of its matches
-/// hold). Before this change the frame after that one was `Ok` 1.2 mm off: the motion model carried the
-/// doubted pose on, by a velocity that ended on it, and nothing by appearance could check it. Now a
-/// motion-model pose predicted from a doubted one and unconfirmed by appearance is doubted in turn
-/// (`unconfirmed-prior`).
+/// --scene abdomen --trajectory oblique --seed 2026` renders it) is cut by 15 frames (10 mm), and the frame
+/// where the cut falls carries nothing of the scene (sensor noise: a signal drop-out), so the tracker is lost
+/// there and relocalises after it. The frame after a relocalisation has no velocity to predict with and is
+/// posed by appearance on few matches, `Uncertain`; the frame after that one is predicted by the motion
+/// model from that doubted pose. Before `unconfirmed-prior` such a frame was `Ok` 1.2 mm off where appearance
+/// found nothing to check it against: the motion model carried the doubted pose on, by a velocity that ended
+/// on it. Now a motion-model pose predicted from a doubted one is `Ok` only if appearance confirms it.
+///
+/// The loss used to come from the cut alone; once keyframes followed the map's information
+/// (`keyframe_needed`'s halved-information rule) the tracker held a 15-frame cut, so the drop-out makes the
+/// loss whatever the keyframe density. Cuts of 12–19 frames, with and without the drop-out, are in
+/// BENCHMARKS.md ("The frames after a cut"): most put some `Ok` frame over 0.5 mm off, with or without that
+/// rule — this test pins the relocalisation case, not every cut.
 #[test]
 fn a_pose_predicted_from_a_doubted_one_is_not_claimed_ok_unconfirmed() {
     const SEEN: usize = 30;
@@ -204,23 +210,51 @@ fn a_pose_predicted_from_a_doubted_one_is_not_claimed_ok_unconfirmed() {
     let truth = |i: usize| abdomen.oblique_pose(i as f64 / 30.0, SPEED_MM_S);
     let world_from_truth = truth(0).inverse();
     let mut tracker = common::colon_tracker();
+    // (flight frame, state, doubt, position error, method, appearance consensus) after the cut.
     let mut after = Vec::new();
     for (k, i) in (0..SEEN).chain(SEEN + CUT..SEEN + CUT + 20).enumerate() {
-        let (left, right) = common::abdomen_pair(&abdomen, &truth(i), i as u64);
+        let (mut left, mut right) = common::abdomen_pair(&abdomen, &truth(i), i as u64);
+        if k == SEEN {
+            // The drop-out: uniform noise from a fixed xorshift, different in each eye.
+            let mut x = 0x9e37_79b9_7f4a_7c15_u64;
+            for (l, r) in left.iter_mut().zip(right.iter_mut()) {
+                x ^= x << 13;
+                x ^= x >> 7;
+                x ^= x << 17;
+                (*l, *r) = (x as u8, (x >> 8) as u8);
+            }
+        }
         let result = tracker.track(k as u64 * STEP_NS, &left, &right).unwrap();
         let error = result
             .camera_from_world
             .map(|p| (p.inverse().translation.vector - (world_from_truth * truth(i)).translation.vector).norm());
         if k >= SEEN {
-            after.push((i, result.state, result.quality.doubt, error));
+            let q = result.quality;
+            after.push((i, result.state, q.doubt, error, q.method, q.appearance_consensus));
         }
     }
     tracker.finish();
     eprintln!("{after:?}");
-    assert!(after.iter().any(|a| a.1 == TrackingState::Lost), "the cut is not lost: {after:?}");
-    let doubted = after.iter().filter(|a| a.2 == Some(bdis_track::Doubt::UnconfirmedPrior)).count();
-    assert!(doubted > 0, "no pose was predicted from a doubted one here: the case is gone ({after:?})");
-    for &(i, state, doubt, error) in &after {
+    assert_eq!(after[0].1, TrackingState::Lost, "the drop-out is not lost: {:?}", after[0]);
+    assert!(
+        after.iter().any(|a| a.4 == PoseMethod::Relocalisation && a.1 == TrackingState::Ok),
+        "no frame relocalised after the drop-out: {after:?}"
+    );
+    // The case: a motion-model pose predicted from a pose doubted for its own estimate.
+    let mut predicted_from_doubted = 0;
+    for pair in after.windows(2) {
+        let (before, now) = (pair[0], pair[1]);
+        if now.4 == PoseMethod::MotionModel && before.2.is_some_and(bdis_track::Doubt::carries_over) {
+            predicted_from_doubted += 1;
+            assert!(
+                now.1 != TrackingState::Ok || now.5 > 0,
+                "frame {}: Ok, predicted from a doubted pose and unconfirmed by appearance: {now:?}",
+                now.0
+            );
+        }
+    }
+    assert!(predicted_from_doubted > 0, "no pose was predicted from a doubted one here: the case is gone ({after:?})");
+    for &(i, state, doubt, error, ..) in &after {
         if state == TrackingState::Ok {
             let error = error.unwrap_or(f64::INFINITY);
             assert!(error < 0.5, "frame {i}: Ok {error:.2} mm off ({doubt:?})");

@@ -4,7 +4,8 @@ use super::*;
 
 impl Tracker {
     /// §5.8 with a mapper that runs inline (always idle, never stopped): gathers what the rule looks at.
-    pub(super) fn need_keyframe(&mut self, inliers: usize) -> bool {
+    /// `position_sigma_rel`: this frame's position σ over its depth (NaN when its pose is not `Ok`).
+    pub(super) fn need_keyframe(&mut self, inliers: usize, position_sigma_rel: f64) -> bool {
         // Under a veil the haze takes matches away wherever the scope is: the ratio counts the reference's points
         // still in view where it counts matched ones in a clear view (only moving on takes the map out of view).
         // The close-points rule is kept (in a flight it is what calls for keyframes under the veil), but only
@@ -54,6 +55,8 @@ impl Tracker {
             inliers,
             tracked_close,
             untracked_close,
+            position_sigma_rel,
+            sigma_after_keyframe: self.sigma_after_keyframe,
         })
     }
 
@@ -186,7 +189,20 @@ pub(super) struct KeyframeEvidence {
     /// Close stereo keypoints (depth below `th_depth` baselines) with and without a tracked map point.
     pub tracked_close: usize,
     pub untracked_close: usize,
+    /// This frame's position σ over the depth of its points (NaN when its pose is not `Ok`), and the same of
+    /// the first frame after the last keyframe.
+    pub position_sigma_rel: f64,
+    pub sigma_after_keyframe: f64,
 }
+
+/// A keyframe is due once the frame's position is held by half the information (σ larger by √2) the frame
+/// right after the last keyframe had: the map under the view has thinned out however many points it still
+/// tracks. Why: ORB-SLAM2's rules count points (0.75 of the reference keyframe's; under 100 tracked close
+/// ones), and where corners repeat well (a blurred lens) a frame keeps those counts for ten frames while it
+/// maps a fifth of what it sees; the keyframes came so far apart that local bundle adjustment moved right
+/// poses 0.7 mm (BENCHMARKS.md, "A battery of renders none of this was tuned on"). The pose's own covariance
+/// measures what the counts stand for, in no unit and at any image size or frame rate.
+pub const INFORMATION_HALVED_SIGMA: f64 = std::f64::consts::SQRT_2;
 
 /// §5.8: a keyframe is made when the frame still has content (> 15 inliers) but tracks clearly fewer points
 /// than its reference keyframe (< 75 %, 40 % while the map has one keyframe), or when it sees many close
@@ -206,8 +222,10 @@ pub(super) fn keyframe_needed(e: &KeyframeEvidence) -> bool {
     let inliers = e.inliers as f64;
     let overdue = e.frame_id >= e.last_keyframe_frame + e.max_frames;
     let mapper_free = true; // the mapper runs inline, so it is always idle (minFrames = 0)
-    let weak = inliers < 0.25 * n_ref || need_close;
-    let content = inliers > 15.0 && (inliers < th_ref_ratio * n_ref || need_close);
+    // NaN (a pose not `Ok`, or no frame measured since the keyframe) compares false: no keyframe from it.
+    let thinned = e.keyframes_in_map >= 2 && e.position_sigma_rel > INFORMATION_HALVED_SIGMA * e.sigma_after_keyframe;
+    let weak = inliers < 0.25 * n_ref || need_close || thinned;
+    let content = inliers > 15.0 && (inliers < th_ref_ratio * n_ref || need_close || thinned);
     (overdue || mapper_free || weak) && content
 }
 
@@ -226,6 +244,8 @@ mod tests {
             inliers: 350,
             tracked_close: 300,
             untracked_close: 20,
+            position_sigma_rel: 1e-3,
+            sigma_after_keyframe: 1e-3,
         }
     }
 
@@ -249,6 +269,18 @@ mod tests {
         let e = KeyframeEvidence { tracked_close: 99, untracked_close: 71, ..evidence() };
         assert!(keyframe_needed(&e));
         assert!(!keyframe_needed(&KeyframeEvidence { untracked_close: 70, ..e }));
+    }
+
+    #[test]
+    fn a_frame_held_by_half_the_information_of_the_one_after_the_keyframe_makes_one() {
+        // Tracking most of its reference, but its position is determined √2 times less well.
+        let thinned = KeyframeEvidence { position_sigma_rel: 1.5e-3, sigma_after_keyframe: 1e-3, ..evidence() };
+        assert!(keyframe_needed(&thinned));
+        assert!(!keyframe_needed(&KeyframeEvidence { position_sigma_rel: 1.4e-3, ..thinned }));
+        // A pose that is not `Ok` (NaN) says nothing about the map; nor does a map of one keyframe.
+        assert!(!keyframe_needed(&KeyframeEvidence { position_sigma_rel: f64::NAN, ..thinned }));
+        assert!(!keyframe_needed(&KeyframeEvidence { sigma_after_keyframe: f64::NAN, ..thinned }));
+        assert!(!keyframe_needed(&KeyframeEvidence { keyframes_in_map: 1, inliers: 300, ..thinned }));
     }
 
     #[test]
